@@ -1,0 +1,60 @@
+"""Turn a device's bus URL into a register device, real or simulated.
+
+Real: ``i2c:N`` opens ``/dev/i2c-N`` through smbus2 (one adapter object per URL,
+shared by the devices on it). Simulated: each distinct URL becomes one
+:class:`~imustation.drivers.sim.i2c.SimSMBus` carrying the simulators of the
+devices configured on it; the same :class:`~imustation.drivers.bus.i2c.I2CBus`
+code runs on top of either.
+"""
+
+from __future__ import annotations
+
+from imustation.acquisition.config import DeviceConfig
+from imustation.clock import Clock
+from imustation.drivers import DRIVERS
+from imustation.drivers.bus.base import RegisterDevice
+from imustation.drivers.bus.i2c import I2CBus, open_i2c
+from imustation.drivers.bus.url import parse_bus_url
+from imustation.drivers.sim import make_simulator, station_device_seed
+from imustation.drivers.sim.i2c import SimSMBus
+from imustation.errors import ConfigError
+
+
+class BusFactory:
+    """Opens (and later closes) every bus a station needs."""
+
+    def __init__(self, *, simulate: bool, clock: Clock, seed: int):
+        self.simulate = simulate
+        self.clock = clock
+        self.seed = seed
+        self._i2c: dict[str, I2CBus] = {}
+
+    def device_seed(self, name: str) -> int:
+        return station_device_seed(self.seed, name)
+
+    def register_device(self, dev: DeviceConfig) -> RegisterDevice:
+        kind = DRIVERS[dev.driver].bus_kind
+        if kind != "i2c":
+            raise ConfigError("<config>", f"device {dev.name}", f"bus kind {kind!r} not supported yet")
+        url = dev.bus
+        if self.simulate:
+            bus = self._i2c.get(url)
+            if bus is None:
+                bus = self._i2c[url] = I2CBus(SimSMBus(), url)
+            assert dev.address is not None
+            bus._smbus.attach(
+                dev.address,
+                make_simulator(dev.driver, self.clock, dev.settings, dev.sim, self.device_seed(dev.name)),
+            )
+        else:
+            parsed = parse_bus_url(url)
+            if parsed.scheme == "sim":
+                raise ConfigError("<config>", f"device {dev.name}.bus", "sim: buses need --simulate")
+            bus = self._i2c.get(url) or self._i2c.setdefault(url, open_i2c(url))
+        assert dev.address is not None
+        return bus.device(dev.address)
+
+    def close(self) -> None:
+        for bus in self._i2c.values():
+            bus.close()
+        self._i2c.clear()

@@ -1,0 +1,78 @@
+"""Per-channel analysis and the ``imustation-analysis`` JSON document (v1)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from imustation.analysis.allan import AllanResult, oadev
+from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
+from imustation.analysis.loaders import Channel
+from imustation.analysis.mli import MLiResult, fit_mli
+
+DOC_FORMAT = "imustation-analysis"
+DOC_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ChannelAnalysis:
+    channel: Channel
+    allan: AllanResult
+    ieee: IEEECoefficients
+    mli: MLiResult
+
+
+def analyze_channel(ch: Channel, *, pattern: str = "log", m: int = 1000) -> ChannelAnalysis:
+    """Allan deviation, IEEE-952 coefficients and the ML_i fit of one channel."""
+    allan = oadev(ch.data, ch.fs_hz, scale=ch.scale)
+    ieee = ieee_coefficients(allan)
+    mli = fit_mli(ch.data, ch.fs_hz, pattern=pattern, m=m, scale=ch.scale)
+    return ChannelAnalysis(ch, allan, ieee, mli)
+
+
+def _num(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def _clean(obj):
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_num(v) for v in obj.tolist()]
+    if isinstance(obj, (float, np.floating)):
+        return _num(float(obj))
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def channel_document(res: ChannelAnalysis) -> dict:
+    ch = res.channel
+    return _clean(
+        {
+            "id": ch.id,
+            "fs_hz": ch.fs_hz,
+            "n": ch.n,
+            "units": ch.units,
+            "duration_s": ch.n / ch.fs_hz,
+            "source": ch.source,
+            "gaps": ch.gaps,
+            "mli": res.mli.as_dict(),
+            "allan": {
+                "tau": res.allan.tau,
+                "adev": res.allan.adev,
+                "adev_lo": res.allan.adev_lo,
+                "adev_hi": res.allan.adev_hi,
+            },
+            "ieee": {"N": res.ieee.N, "B": res.ieee.B, "K": res.ieee.K, "tau_B": res.ieee.tau_B},
+        }
+    )
+
+
+def analysis_document(results: list[ChannelAnalysis]) -> dict:
+    """The JSON document of design.md ("Analysis contract")."""
+    return {"format": DOC_FORMAT, "version": DOC_VERSION, "channels": [channel_document(r) for r in results]}

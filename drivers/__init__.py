@@ -1,0 +1,22 @@
+"""Chip drivers and the buses they talk through (``imustation.drivers``).
+
+A chip driver knows registers, not transports: it receives a register device
+(:class:`imustation.drivers.bus.base.RegisterDevice`) and never opens a bus.
+Buses are opened from URL strings (``i2c:1``, ``sim:``); simulated buses carry
+byte-level chip simulators from :mod:`imustation.drivers.sim`, so a test runs
+the same driver code a real capture runs.
+
+``DRIVERS`` maps the ``driver =`` name of a config to the driver class.
+"""
+
+from imustation.drivers.base import Block, Driver, DriverInfo
+from imustation.drivers.bmx055 import BMX055Gyro
+
+DRIVERS: dict[str, type[Driver]] = {
+    "bmx055": BMX055Gyro,
+}
+
+#: ``[[thermometer]]`` drivers (slow, polled; see the thermometer drivers)
+THERMOMETER_DRIVERS: dict[str, type] = {}
+
+__all__ = ["DRIVERS", "THERMOMETER_DRIVERS", "Block", "Driver", "DriverInfo", "BMX055Gyro"]

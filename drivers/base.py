@@ -1,0 +1,103 @@
+"""What every device driver offers the station, whatever its chip or bus."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+
+from imustation.runfile import ChannelSpec
+
+
+@dataclass
+class Block:
+    """Samples that became available since the previous read.
+
+    ``channels`` maps channel name to raw counts, shape ``(k, ...)``;
+    ``lost`` is the number of samples the device dropped before this block
+    (FIFO overrun, counter jump), ``note`` says why.
+    """
+
+    channels: dict[str, np.ndarray]
+    counter: np.ndarray | None = None
+    lost: int = 0
+    note: str = ""
+
+    @property
+    def n(self) -> int:
+        return len(next(iter(self.channels.values()))) if self.channels else 0
+
+
+@dataclass(frozen=True)
+class DriverInfo:
+    """Static description a driver gives before streaming starts."""
+
+    model: str
+    identity: str
+    rate_hz: float
+    settings: Mapping[str, Any]
+    channels: tuple[ChannelSpec, ...]
+    has_counter: bool = False
+    #: how often the station should poll, s (FIFO depth / rate with margin)
+    poll_interval_s: float = 0.1
+
+
+class Driver(Protocol):
+    """Protocol of a streaming device driver (one instance per configured device)."""
+
+    #: config ``driver =`` name
+    name: ClassVar[str]
+    #: bus kind this driver needs: "i2c", "spi" or "serial"
+    bus_kind: ClassVar[str]
+
+    @classmethod
+    def check_settings(cls, settings: Mapping[str, Any]) -> dict[str, Any]:
+        """Validate config settings; return them completed with defaults.
+
+        Raises :class:`imustation.errors.SettingError` naming the key and the
+        allowed values.
+        """
+        ...
+
+    def open(self) -> DriverInfo:
+        """Identify the chip, configure it and start streaming."""
+        ...
+
+    def read_block(self) -> Block:
+        """Return every sample produced since the last call (may be empty)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+Sleep = Callable[[float], None]
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One config key of a driver: allowed values (None = any) and default."""
+
+    key: str
+    default: Any
+    allowed: tuple[Any, ...] | None = None
+    doc: str = ""
+
+
+def check_settings(driver: str, table: tuple[Setting, ...], given: Mapping[str, Any]) -> dict[str, Any]:
+    """Common settings validation: unknown keys and values outside ``allowed`` fail."""
+    from imustation.errors import SettingError
+
+    known = {s.key: s for s in table}
+    for key in given:
+        if key not in known:
+            raise SettingError(f"{key}: not a setting of driver {driver!r} (known: {', '.join(sorted(known))})")
+    out: dict[str, Any] = {}
+    for s in table:
+        value = given.get(s.key, s.default)
+        if s.allowed is not None and value not in s.allowed:
+            allowed = ", ".join(str(a) for a in s.allowed)
+            raise SettingError(f"{s.key} = {value!r}: driver {driver!r} allows {allowed}")
+        out[s.key] = value
+    return out

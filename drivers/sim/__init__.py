@@ -1,0 +1,54 @@
+"""Simulated hardware: byte-level chip simulators behind simulated buses.
+
+These fakes ship beside the real drivers and answer exactly as the chips do
+(register files, FIFOs), driven by signal sources (the standard noise model
+with the paper's Table IV parameters, or a replayed recording). Test-only back
+doors carry a ``sim_`` prefix.
+"""
+
+from imustation.drivers.sim.i2c import SimSMBus
+from imustation.drivers.sim.sources import NoiseSource, SignalSource
+
+__all__ = ["SimSMBus", "NoiseSource", "SignalSource", "make_simulator", "simulated_truth", "station_device_seed"]
+
+
+def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
+    """The byte-level simulator of ``driver``'s chip, fed by its default source.
+
+    ``settings`` are the device's validated settings, ``sim`` its ``[device.sim]``
+    table, ``seed`` the per-device seed (``sim.seed`` overrides it).
+    """
+    from imustation.errors import SettingError
+
+    if driver == "bmx055":
+        from imustation.drivers.sim.bmx055 import BMG160Sim
+
+        return BMG160Sim(
+            clock,
+            lambda fs: NoiseSource.for_device("bmx055", ("x", "y", "z"), fs, sim, seed),
+        )
+    raise SettingError(f"driver {driver!r} has no simulator")
+
+
+def simulated_truth(config) -> dict:
+    """Channel id -> the :class:`StandardModel` its simulator draws from (for demos/tests).
+
+    ``config`` is a station config; seeds match those the station uses.
+    """
+    from imustation.drivers.sim.sources import NoiseSource
+
+    out = {}
+    for dev in config.devices:
+        if dev.driver == "bmx055":
+            seed = station_device_seed(config.seed, dev.name)
+            src = NoiseSource.for_device("bmx055", ("x", "y", "z"), dev.settings["rate_hz"], dev.sim, seed)
+            for axis, model in zip(("x", "y", "z"), src.models, strict=True):
+                out[f"{dev.name}/gyro/{axis}"] = model
+    return out
+
+
+def station_device_seed(station_seed: int, name: str) -> int:
+    """The per-device simulation seed: stable for a device name and station seed."""
+    import zlib
+
+    return (station_seed * 1_000_003 + zlib.crc32(name.encode())) % (2**31)

@@ -1,0 +1,133 @@
+"""Byte-level simulator of the BMX055 gyroscope die (BMG160 register set).
+
+Behaviour follows ``shared/reference/sensors.md`` §1: CHIP_ID 0x0F, BW reads
+back with the reserved bit 7 set, soft reset by 0xB6 to 0x14, 100-frame FIFO
+with overrun flag in stream mode, FIFO_DATA (0x3F) as a non-incrementing data
+port, little-endian s16 rates, s8 temperature (23 degC + 0.5 K/LSB).
+
+Samples are produced on the station's clock at the configured ODR: each read
+first draws every sample that became due since the last one from the signal
+source, so a virtual clock gives hours of data in seconds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from imustation.clock import Clock
+from imustation.drivers import bmx055 as chip
+from imustation.drivers.sim.regfile import RegisterFileChip
+from imustation.drivers.sim.sources import SignalSource
+
+#: power-on BW code (datasheet reset value not in sensors.md; 0x00 = 2000 Hz/523 Hz assumed)
+POR_BW_CODE = 0x00
+BW_RESERVED_BIT = 0x80  # §1.3: "A mock reading back BW should return 0x80 | code"
+
+
+class BMG160Sim(RegisterFileChip):
+    """BMX055 gyro die on a simulated I2C bus.
+
+    Parameters
+    ----------
+    clock : the station clock (virtual in simulation).
+    source_factory : ``fs_hz -> SignalSource`` giving X/Y/Z rate in rad/s;
+        called when the chip starts producing at a (new) ODR.
+    """
+
+    NO_INCREMENT = frozenset({chip.REG_FIFO_DATA})
+
+    def __init__(self, clock: Clock, source_factory: Callable[[float], SignalSource]):
+        super().__init__()
+        self.clock = clock
+        self.source_factory = source_factory
+        self.source: SignalSource | None = None
+        self.sim_resets = 0
+        self._power_on()
+
+    # -- state ------------------------------------------------------------------------
+    def _power_on(self) -> None:
+        self.regs[:] = bytes(256)
+        self.regs[chip.REG_CHIP_ID] = chip.CHIP_ID_VALUE
+        self.regs[chip.BW.reg] = BW_RESERVED_BIT | POR_BW_CODE
+        self.fifo = bytearray()
+        self.overrun = False
+        self._restart_timing()
+
+    def _restart_timing(self) -> None:
+        self.t_start_ns = self.clock.now_ns()
+        self.produced = 0
+        self.latest = np.zeros(3, dtype="<i2")
+        odr = self.odr_hz
+        if self.source is None or self.source.fs_hz != odr:
+            self.source = self.source_factory(odr)
+
+    @property
+    def odr_hz(self) -> float:
+        code = chip.BW.decode(self.regs[chip.BW.reg])
+        return float(next(r.odr_hz for r in chip.ODR_TABLE if r.code == code))
+
+    @property
+    def scale(self) -> float:
+        code = chip.RANGE.decode(self.regs[chip.RANGE.reg])
+        return next(r.scale for r in chip.RANGE_TABLE if r.code == code)
+
+    @property
+    def fifo_mode(self) -> int:
+        return chip.FIFO_MODE.decode(self.regs[chip.FIFO_MODE.reg])
+
+    def _advance(self) -> None:
+        """Draw every sample due by now; push them into the FIFO (stream mode)."""
+        due = (self.clock.now_ns() - self.t_start_ns) * self.odr_hz / 1e9
+        n = int(due) - self.produced
+        if n <= 0:
+            return
+        assert self.source is not None
+        rates = self.source.next(n)
+        counts = np.clip(np.rint(rates / self.scale), -32768, 32767).astype("<i2")
+        self.produced += n
+        self.latest = counts[-1]
+        if self.fifo_mode == chip.FIFO_MODE_STREAM:
+            depth = chip.FIFO_DEPTH_FRAMES * chip.FIFO_FRAME_BYTES
+            keep = counts[-chip.FIFO_DEPTH_FRAMES :].tobytes()
+            if len(self.fifo) + n * chip.FIFO_FRAME_BYTES > depth:
+                self.overrun = True
+            self.fifo += keep
+            del self.fifo[: max(0, len(self.fifo) - depth)]
+
+    # -- register hooks ----------------------------------------------------------------
+    def before_read(self, reg: int, n: int) -> None:
+        self._advance()
+        self.regs[chip.REG_RATE_X_LSB : chip.REG_RATE_X_LSB + 6] = self.latest.tobytes()
+        t_s = (self.clock.now_ns() - self.t_start_ns) / 1e9
+        assert self.source is not None
+        temp = self.source.temperature(t_s)
+        raw = int(np.clip(round((temp - chip.TEMP_OFFSET_C) / chip.TEMP_SCALE_C), -128, 127))
+        self.regs[chip.REG_TEMP] = raw & 0xFF
+        frames = len(self.fifo) // chip.FIFO_FRAME_BYTES
+        self.regs[chip.REG_FIFO_STATUS] = (0x80 if self.overrun else 0) | min(frames, 0x7F)
+
+    def read_stream(self, reg: int, n: int) -> bytes:
+        out = bytes(self.fifo[:n])
+        del self.fifo[:n]
+        return out + bytes(n - len(out))  # an empty FIFO reads as zeros (UNCONFIRMED)
+
+    def on_write(self, reg: int, value: int) -> None:
+        if reg == chip.REG_SOFTRESET:
+            if value == chip.SOFTRESET_CMD:
+                self.sim_resets += 1
+                self._power_on()
+            return
+        if reg == chip.REG_CHIP_ID:
+            return  # read-only
+        self._advance()
+        if reg == chip.BW.reg:
+            self.regs[reg] = BW_RESERVED_BIT | (value & 0x07)
+            self._restart_timing()
+            return
+        self.regs[reg] = value
+        if reg == chip.FIFO_MODE.reg:
+            # writing FIFO_CONFIG_1 clears the FIFO and its overrun flag
+            self.fifo.clear()
+            self.overrun = False

@@ -1,0 +1,156 @@
+"""Signal sources that feed chip simulators with physical values (SI units).
+
+:class:`NoiseSource` draws each axis from the standard noise model (by default
+the paper's Table IV parameters for the device) plus a turn-on bias, and gives
+a die temperature that drifts slowly. Only simulators may import the analysis
+noise models (layer rule).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Protocol
+
+import numpy as np
+
+from imustation.analysis.models import StandardModel, StandardNoiseStream
+from imustation.analysis.reference import TABLE_IV
+from imustation.errors import SettingError
+from imustation.units import DEG2RAD
+
+
+class SignalSource(Protocol):
+    fs_hz: float
+
+    def next(self, n: int) -> np.ndarray:
+        """The next ``n`` samples, shape ``(n, n_axes)``, SI units."""
+        ...
+
+    def temperature(self, t_s: float) -> float:
+        """Die temperature at time ``t_s`` (s since start), degC."""
+        ...
+
+
+#: keys a [device.sim] table may hold
+SIM_KEYS = (
+    "seed",
+    "sigma_w",
+    "sigma_b",
+    "tau_b",
+    "b_on_dps",
+    "turn_on_bias_std_dps",
+    "temp_c",
+    "temp_drift_c",
+    "temp_period_s",
+)
+
+
+class NoiseSource:
+    """Independent standard-model noise on every axis, plus temperature.
+
+    Parameters
+    ----------
+    models : one :class:`StandardModel` per axis (SI units, with ``b_on``).
+    fs_hz : sample rate, Hz.
+    seed : integer seed; the same seed gives the same stream.
+    temp_c, temp_drift_c, temp_period_s : die temperature ``temp_c +
+        temp_drift_c * sin(2 pi t / temp_period_s)`` (a slow room drift).
+    """
+
+    def __init__(
+        self,
+        models: Sequence[StandardModel],
+        fs_hz: float,
+        seed: int,
+        *,
+        temp_c: float = 30.0,
+        temp_drift_c: float = 0.5,
+        temp_period_s: float = 6 * 3600.0,
+    ):
+        self.models = tuple(models)
+        self.fs_hz = float(fs_hz)
+        self.seed = int(seed)
+        rng = np.random.default_rng(seed)
+        self._streams = [StandardNoiseStream(m, fs_hz, np.random.default_rng(rng.integers(2**63))) for m in self.models]
+        self.temp_c, self.temp_drift_c, self.temp_period_s = temp_c, temp_drift_c, temp_period_s
+        self._buf = np.zeros((0, len(self._streams)))
+        self._pos = 0
+
+    #: samples drawn per refill: chip simulators ask for a few dozen at a time,
+    #: and one vectorised draw of a large block costs far less per sample
+    BLOCK = 1 << 16
+
+    def next(self, n: int) -> np.ndarray:
+        if n <= 0:
+            return np.zeros((0, len(self._streams)))
+        if self._pos + n > len(self._buf):
+            rest = self._buf[self._pos :]
+            fresh = np.column_stack([s.next(max(n, self.BLOCK)) for s in self._streams])
+            self._buf = np.concatenate([rest, fresh]) if len(rest) else fresh
+            self._pos = 0
+        out = self._buf[self._pos : self._pos + n]
+        self._pos += n
+        return out
+
+    def temperature(self, t_s: float) -> float:
+        return self.temp_c + self.temp_drift_c * math.sin(2.0 * math.pi * t_s / self.temp_period_s)
+
+    @classmethod
+    def for_device(
+        cls,
+        table_key: str,
+        axes: Sequence[str],
+        fs_hz: float,
+        sim: Mapping[str, object],
+        default_seed: int,
+    ) -> NoiseSource:
+        """Build a source from a ``[device.sim]`` table over the Table IV defaults.
+
+        ``sigma_w``/``sigma_b``/``tau_b`` override every axis (a number) or
+        each axis (a list, one per axis). ``b_on_dps`` fixes the turn-on biases
+        (deg/s, number or list); otherwise they are drawn from
+        N(0, turn_on_bias_std_dps^2) with the seed.
+        """
+        for key in sim:
+            if key not in SIM_KEYS:
+                raise SettingError(f"sim.{key}: unknown (known: {', '.join(SIM_KEYS)})")
+        seed = int(sim.get("seed", default_seed))
+        rng = np.random.default_rng([seed, 0x5EED])
+        base = TABLE_IV.get(table_key, {})
+
+        def per_axis(key: str, i: int, default: float) -> float:
+            value = sim.get(key, default)
+            if isinstance(value, (list, tuple)):
+                if len(value) != len(axes):
+                    raise SettingError(f"sim.{key}: {len(value)} values for {len(axes)} axes")
+                value = value[i]
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise SettingError(f"sim.{key} = {value!r}: expected a number") from None
+            if not value > 0 and key != "b_on_dps":
+                raise SettingError(f"sim.{key} = {value!r}: must be > 0")
+            return value
+
+        b_on_std = float(sim.get("turn_on_bias_std_dps", 0.5))
+        drawn_b_on = rng.normal(0.0, b_on_std, len(axes))
+        models = []
+        for i, axis in enumerate(axes):
+            ref = base.get(axis) or next(iter(base.values()), StandardModel(1e-4, 1e-6, 600.0))
+            model = StandardModel(
+                per_axis("sigma_w", i, ref.sigma_w),
+                per_axis("sigma_b", i, ref.sigma_b),
+                per_axis("tau_b", i, ref.tau_b),
+            )
+            b_on = per_axis("b_on_dps", i, drawn_b_on[i]) if "b_on_dps" in sim else drawn_b_on[i]
+            models.append(replace(model, b_on=b_on * DEG2RAD))
+        return cls(
+            models,
+            fs_hz,
+            seed,
+            temp_c=float(sim.get("temp_c", 30.0)),
+            temp_drift_c=float(sim.get("temp_drift_c", 0.5)),
+            temp_period_s=float(sim.get("temp_period_s", 6 * 3600.0)),
+        )

@@ -1,0 +1,61 @@
+"""The ``imustation`` command line: one click group, one module per subcommand.
+
+Every subcommand only parses options, calls the library and prints. Expected
+errors (:class:`~imustation.errors.ImustationError`) print one line on stderr
+and exit with status 2; ``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from imustation import __version__
+from imustation.errors import ImustationError
+
+
+class _Group(click.Group):
+    """Lists commands in the order they were added and turns user errors into one line."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(self.commands)
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except ImustationError as exc:
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.echo(f"imustation: error: {exc}", err=True)
+            ctx.exit(2)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, "-V", "--version", prog_name="imustation")
+@click.option("--debug", is_flag=True, help="Show tracebacks instead of one-line errors.")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """Record inertial sensors for hours and characterise their noise.
+
+    \b
+    Typical use:
+      imustation capture configs/lab-example.toml --duration 12h -o run.h5
+      imustation inspect run.h5
+      imustation analyze run.h5 --channel 'bmx055/gyro/*'
+      imustation demo            # simulated capture + analysis, about a minute
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+def main() -> None:
+    try:
+        cli.main(prog_name="imustation")
+    except BrokenPipeError:  # output piped into head & co.
+        sys.stderr.close()
+        sys.exit(1)
+
+
+# subcommand modules register themselves on the group
+from imustation.cli import analyze, capture, demo, inspect  # noqa: E402,F401

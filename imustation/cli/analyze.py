@@ -1,0 +1,99 @@
+"""``imustation analyze``: Allan deviation and ML_i fit per channel."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+
+from imustation.analysis.loaders import load_inputs
+from imustation.analysis.pipeline import analysis_document, analyze_channel
+from imustation.cli import cli
+from imustation.errors import InputError
+from imustation.units import DEG2RAD
+
+
+def _g(x: float, fmt: str = ".3e") -> str:
+    return format(x, fmt) if math.isfinite(x) else "-"
+
+
+def results_table(results) -> str:
+    head = (
+        f"{'channel':<22} {'n':>9} {'fs Hz':>7} {'sigma_w':>10} {'deg/h/rtHz':>10} {'sigma_b':>10} "
+        f"{'tau_b s':>9} {'b_on':>10} {'ADEV(1s)':>10}  fit"
+    )
+    lines = [head, "-" * len(head)]
+    for r in results:
+        m = r.mli
+        adev1 = _interp_adev(r.allan, 1.0)
+        flag = "ok" if m.converged else f"! {m.message}"
+        lines.append(
+            f"{r.channel.id:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
+            f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
+            f"{_g(m.b_on):>10} {_g(adev1):>10}  {flag}"
+        )
+    lines.append(
+        "units: sigma_w (unit)/s*sqrt(s) = (unit)/sqrt(Hz); sigma_b (unit)/s/sqrt(Hz); "
+        "b_on, ADEV in the channel unit (rad/s or m/s^2)"
+    )
+    return "\n".join(lines)
+
+
+def _interp_adev(allan, tau: float) -> float:
+    import numpy as np
+
+    if tau < allan.tau[0] or tau > allan.tau[-1]:
+        return float("nan")
+    return float(np.exp(np.interp(np.log(tau), np.log(allan.tau), np.log(allan.adev))))
+
+
+@cli.command()
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option(
+    "--channel",
+    "globs",
+    multiple=True,
+    metavar="GLOB",
+    help="Channels to analyse, e.g. 'bmx055/gyro/*' (repeatable; default: every gyro/accel axis).",
+)
+@click.option(
+    "--rate",
+    "rate_hz",
+    type=float,
+    default=None,
+    metavar="HZ",
+    help="Sampling rate of .npy/.csv inputs (run files carry their own).",
+)
+@click.option(
+    "--pattern",
+    type=click.Choice(["log", "uniform"]),
+    default="log",
+    show_default=True,
+    help="ML_i sampling pattern of the integrated signal.",
+)
+@click.option(
+    "-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Number of ML_i pattern intervals."
+)
+@click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
+def analyze(
+    inputs: tuple[str, ...], globs: tuple[str, ...], rate_hz: float | None, pattern: str, m: int, as_json: bool
+) -> None:
+    """Allan deviation and ML_i noise-model fit of every channel of INPUTS.
+
+    INPUTS are run files (.h5) or plain rate samples (.npy, .csv; one column
+    per channel, SI units, with --rate). Prints a table, or with --json the
+    document described in docs/analysis-json.md.
+    """
+    if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
+    channels = load_inputs(inputs, globs, rate_hz)
+    results = []
+    for ch in channels:
+        if not as_json:
+            click.echo(f"analysing {ch.id} ({ch.n} samples) ...", err=True)
+        results.append(analyze_channel(ch, pattern=pattern, m=m))
+    if as_json:
+        click.echo(json.dumps(analysis_document(results)))
+    else:
+        click.echo(results_table(results))

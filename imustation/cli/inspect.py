@@ -1,0 +1,61 @@
+"""``imustation inspect``: summarise a run file."""
+
+from __future__ import annotations
+
+import click
+import numpy as np
+
+from imustation.cli import cli
+from imustation.runfile import open_run
+from imustation.units import format_duration
+
+
+@cli.command()
+@click.argument("run", type=click.Path(dir_okay=False))
+def inspect(run: str) -> None:
+    """Print the devices, settings, sample counts, duration and gaps of a RUN file."""
+    with open_run(run) as rf:
+        a = rf.attrs
+        state = "complete" if rf.complete else "INCOMPLETE (still recording, or cut off by a crash)"
+        click.echo(f"{run}: {a.get('format')} v{a.get('format_version')}, station {a.get('station')!r}, {state}")
+        click.echo(
+            f"  started {a.get('started_utc')}  ended {a.get('ended_utc', '-')}"
+            f"  simulated {bool(a.get('simulated'))}  software {a.get('software_version')}"
+        )
+        events = rf.events()
+        for dev in rf.devices.values():
+            t = rf.dataset(dev.name, "t")
+            duration = (t[-1] - t[0]) / 1e9 + 1.0 / dev.rate_hz if dev.n else 0.0
+            achieved = dev.n / duration if duration > 0 else float("nan")
+            dev_events = [e for e in events if e.source == dev.name]
+            gaps = [e for e in dev_events if e.kind in ("gap", "overrun")]
+            lost = sum(e.lost for e in gaps)
+            click.echo(f"  device {dev.name}: {dev.model} ({dev.driver}) on {dev.bus}, {dev.identity}")
+            settings = ", ".join(f"{k}={v}" for k, v in sorted(dev.settings.items()))
+            click.echo(f"    settings: {settings}")
+            click.echo(
+                f"    samples {dev.n}, duration {format_duration(duration)}, "
+                f"rate {achieved:.3f} Hz (configured {dev.rate_hz:g}), gaps {len(gaps)} ({lost} samples lost)"
+            )
+            for ch in dev.channels.values():
+                axes = f" axes {','.join(ch.axes)}" if ch.axes else ""
+                click.echo(
+                    f"    {ch.name}: {ch.dtype} x{ch.n}{axes}, scale {ch.scale:.6g} {ch.units}/count"
+                    + (f", offset {ch.offset:g}" if ch.offset else "")
+                )
+            if "temp" in dev.channels and dev.n:
+                tc = dev.channels["temp"]
+                raw = rf.read(dev.name, "temp")
+                c = raw.astype(float) * tc.scale + tc.offset
+                click.echo(f"    temperature {np.min(c):.2f} .. {np.max(c):.2f} degC")
+        for name in rf.thermometers:
+            t, c = rf.temperatures(name)
+            span = f"{c.min():.3f} .. {c.max():.3f} degC" if len(c) else "no readings"
+            click.echo(f"  thermometer {name}: {len(c)} readings, {span}")
+        other = [e for e in events if e.kind not in ("gap", "overrun")]
+        click.echo(f"  events: {len(events)} ({len(events) - len(other)} gaps/overruns)")
+        for e in events[:20]:
+            lost = f" lost={e.lost}" if e.lost else ""
+            click.echo(f"    t={e.t_ns / 1e9:12.3f}s {e.source:>12} {e.kind:<9}{lost} {e.detail}")
+        if len(events) > 20:
+            click.echo(f"    ... {len(events) - 20} more")

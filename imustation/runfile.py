@@ -1,0 +1,471 @@
+"""Run-file format, version 1: names, schema, writer and reader in one place.
+
+One HDF5 file per capture (see ``docs/runfile.md`` for the full description).
+Raw integer counts are stored, never only converted floats: the conversion is
+kept as attributes (``value = raw * scale + offset``, SI units), so nothing is
+lost and files stay small.
+
+The recorder (``imustation.acquisition``) writes through :class:`RunWriter`;
+the analysis and ``imustation inspect`` read through :func:`open_run`. Nothing
+else touches the HDF5 layout.
+
+Crash safety: the file is written in HDF5 SWMR mode (``libver="latest"``):
+every dataset exists before recording starts, data are appended in blocks and
+flushed at least every ``flush_interval_s`` seconds of host time, so a file cut
+off by a crash opens and reads up to the last flush, and readers may open it
+while it is being written. ``ended_utc`` is set only by a clean close.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import socket
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import h5py
+import numpy as np
+
+from imustation import __version__
+from imustation.errors import RunFileError
+
+FORMAT = "imustation-run"
+FORMAT_VERSION = 1
+
+DEVICES = "devices"
+THERMOMETERS = "thermometers"
+EVENTS = "events"
+TIME = "t"  # int64 ns since started_utc, host monotonic clock
+COUNTER = "counter"  # int64 device sample counter, where the device has one
+CELSIUS = "celsius"
+
+#: kinds of event a run file may hold (design.md, run-file format)
+EVENT_KINDS = ("gap", "resync", "reconnect", "overrun", "checksum", "config", "note", "fault")
+EVENT_DTYPE = np.dtype(
+    [
+        ("t", "<i8"),  # ns since started_utc
+        ("source", "S64"),  # device or thermometer name, or "station"
+        ("kind", "S16"),  # one of EVENT_KINDS
+        ("lost", "<i8"),  # samples lost (gaps, overruns); 0 when not applicable
+        ("detail", "S256"),  # free text, truncated to 256 bytes
+    ]
+)
+
+#: HDF5 storage options for every appendable dataset; gzip-1 + shuffle packs
+#: int16 sensor counts about 2-3x at a small CPU cost.
+H5_OPTS: dict[str, Any] = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+CHUNK_ROWS = 8192
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One recorded quantity of a device: ``gyro``, ``accel`` or ``temp``.
+
+    ``value [units] = raw * scale + offset``; ``axes`` is ``("x", "y", "z")``
+    for vector channels and ``()`` for scalars.
+    """
+
+    name: str
+    dtype: str
+    units: str
+    scale: float
+    offset: float = 0.0
+    axes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    """What the recorder knows about a device before the first sample."""
+
+    name: str
+    driver: str
+    model: str
+    bus: str
+    identity: str
+    rate_hz: float
+    settings: Mapping[str, Any]
+    channels: tuple[ChannelSpec, ...]
+    has_counter: bool = False
+
+
+def utc_now_iso() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+def _attr_value(value: Any) -> Any:
+    """Map a setting value to something HDF5 stores as an attribute."""
+    if value is None:
+        return "none"
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, float, str, np.integer, np.floating)):
+        return value
+    return str(value)
+
+
+class RunWriter:
+    """Append-only writer of one run file.
+
+    Parameters
+    ----------
+    path : file to create; an existing file is refused unless ``overwrite``.
+    devices, thermometers : everything that will be recorded (SWMR forbids
+        creating datasets once recording has started).
+    flush_interval_s : host seconds between flushes (data older than this is on disk).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        station: str,
+        config_text: str,
+        simulated: bool,
+        devices: Sequence[DeviceSpec],
+        thermometers: Sequence[str] = (),
+        flush_interval_s: float = 1.0,
+        overwrite: bool = False,
+        started_utc: str | None = None,
+        max_buffer_rows: int = 1 << 20,
+    ):
+        self.path = os.fspath(path)
+        self.flush_interval_s = float(flush_interval_s)
+        self.max_buffer_rows = int(max_buffer_rows)
+        mode = "w" if overwrite else "w-"
+        try:
+            self._f = h5py.File(self.path, mode, libver="latest")
+        except FileExistsError as exc:
+            raise RunFileError(f"{self.path}: file exists; choose another name or --overwrite") from exc
+        except OSError as exc:
+            raise RunFileError(f"{self.path}: cannot create run file: {exc}") from exc
+        f = self._f
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["station"] = station
+        f.attrs["started_utc"] = started_utc or utc_now_iso()
+        f.attrs["config"] = config_text
+        f.attrs["software_version"] = __version__
+        f.attrs["host"] = socket.gethostname()
+        f.attrs["simulated"] = bool(simulated)
+
+        self.devices = {d.name: d for d in devices}
+        self._buffers: dict[tuple[str, str], list[np.ndarray]] = {}
+        self._rows: dict[tuple[str, str], int] = {}
+        self.samples_written: dict[str, int] = {d.name: 0 for d in devices}
+        dgrp = f.create_group(DEVICES)
+        for dev in devices:
+            g = dgrp.create_group(dev.name)
+            g.attrs["driver"] = dev.driver
+            g.attrs["model"] = dev.model
+            g.attrs["bus"] = dev.bus
+            g.attrs["identity"] = dev.identity
+            g.attrs["rate_hz"] = float(dev.rate_hz)
+            for key, value in dev.settings.items():
+                if key != "rate_hz":
+                    g.attrs[key] = _attr_value(value)
+            self._create(g, dev.name, TIME, "<i8", ())
+            if dev.has_counter:
+                self._create(g, dev.name, COUNTER, "<i8", ())
+            for ch in dev.channels:
+                ds = self._create(g, dev.name, ch.name, ch.dtype, (len(ch.axes),) if ch.axes else ())
+                ds.attrs["scale"] = float(ch.scale)
+                ds.attrs["offset"] = float(ch.offset)
+                ds.attrs["units"] = ch.units
+                ds.attrs["axes"] = ",".join(ch.axes)
+        tgrp = f.create_group(THERMOMETERS)
+        self.thermometers = tuple(thermometers)
+        for name in self.thermometers:
+            g = tgrp.create_group(name)
+            self._create(g, THERMOMETERS + "/" + name, TIME, "<i8", ())
+            ds = self._create(g, THERMOMETERS + "/" + name, CELSIUS, "<f8", ())
+            ds.attrs["units"] = "degC"
+        self._events = f.create_dataset(EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
+        self._event_buffer: list[tuple] = []
+        f.swmr_mode = True
+        self._last_flush = time.monotonic()
+        self.closed = False
+
+    # -- creation -----------------------------------------------------------
+    def _create(self, group: h5py.Group, owner: str, name: str, dtype: str, tail: tuple[int, ...]):
+        ds = group.create_dataset(
+            name,
+            shape=(0, *tail),
+            maxshape=(None, *tail),
+            dtype=dtype,
+            chunks=(CHUNK_ROWS, *tail),
+            **H5_OPTS,
+        )
+        key = (owner, name)
+        self._buffers[key] = []
+        self._rows[key] = 0
+        return ds
+
+    # -- appending ----------------------------------------------------------
+    def append(
+        self,
+        device: str,
+        t_ns: np.ndarray,
+        channels: Mapping[str, np.ndarray],
+        counter: np.ndarray | None = None,
+    ) -> None:
+        """Queue one block of samples of ``device``: ``t_ns`` (k,), each channel (k, ...)."""
+        dev = self.devices[device]
+        k = len(t_ns)
+        if k == 0:
+            return
+        self._buffers[(device, TIME)].append(np.asarray(t_ns, dtype="<i8"))
+        for ch in dev.channels:
+            data = channels[ch.name]
+            if len(data) != k:
+                raise ValueError(f"{device}/{ch.name}: {len(data)} rows for {k} timestamps")
+            self._buffers[(device, ch.name)].append(np.asarray(data, dtype=ch.dtype))
+        if dev.has_counter:
+            if counter is None or len(counter) != k:
+                raise ValueError(f"{device}: counter missing or of wrong length")
+            self._buffers[(device, COUNTER)].append(np.asarray(counter, dtype="<i8"))
+        self._rows[(device, TIME)] += k
+        self.samples_written[device] += k
+        self._maybe_flush()
+
+    def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None:
+        owner = THERMOMETERS + "/" + name
+        self._buffers[(owner, TIME)].append(np.asarray(t_ns, dtype="<i8"))
+        self._buffers[(owner, CELSIUS)].append(np.asarray(celsius, dtype="<f8"))
+        self._rows[(owner, TIME)] += len(t_ns)
+        self._maybe_flush()
+
+    def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None:
+        if kind not in EVENT_KINDS:
+            raise ValueError(f"event kind {kind!r} not in {EVENT_KINDS}")
+        self._event_buffer.append((int(t_ns), source.encode()[:64], kind.encode(), int(lost), detail.encode()[:256]))
+
+    def _maybe_flush(self) -> None:
+        pending = max(self._rows.values(), default=0)
+        if pending >= self.max_buffer_rows or time.monotonic() - self._last_flush >= self.flush_interval_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write every queued block and flush the file to disk."""
+        f = self._f
+        for (owner, name), parts in self._buffers.items():
+            if not parts:
+                continue
+            data = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            parts.clear()
+            path = f"{owner}/{name}" if owner.startswith(THERMOMETERS) else f"{DEVICES}/{owner}/{name}"
+            ds = f[path]
+            n0 = ds.shape[0]
+            ds.resize(n0 + len(data), axis=0)
+            ds[n0:] = data
+        for key in self._rows:
+            self._rows[key] = 0
+        if self._event_buffer:
+            rows = np.array(self._event_buffer, dtype=EVENT_DTYPE)
+            self._event_buffer.clear()
+            n0 = self._events.shape[0]
+            self._events.resize(n0 + len(rows), axis=0)
+            self._events[n0:] = rows
+        f.flush()
+        self._last_flush = time.monotonic()
+
+    def close(self, ended_utc: str | None = None) -> None:
+        """Flush, close, and mark the file complete with ``ended_utc``."""
+        if self.closed:
+            return
+        try:
+            self.flush()
+        finally:
+            self._f.close()
+            self.closed = True
+        # SWMR writers may not add attributes; reopen once to mark the run complete.
+        with h5py.File(self.path, "r+", libver="latest") as f:
+            f.attrs["ended_utc"] = ended_utc or utc_now_iso()
+
+    def abort(self) -> None:
+        """Close without marking the run complete (used when the capture failed)."""
+        if not self.closed:
+            try:
+                self.flush()
+            finally:
+                self._f.close()
+                self.closed = True
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+# ---------------------------------------------------------------------------
+# reading
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    name: str
+    dtype: np.dtype
+    units: str
+    scale: float
+    offset: float
+    axes: tuple[str, ...]
+    n: int
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    name: str
+    driver: str
+    model: str
+    bus: str
+    identity: str
+    rate_hz: float
+    settings: dict[str, Any]
+    channels: dict[str, ChannelInfo]
+    n: int
+    has_counter: bool
+
+
+@dataclass(frozen=True)
+class Event:
+    t_ns: int
+    source: str
+    kind: str
+    lost: int
+    detail: str
+
+
+_DEVICE_CORE_ATTRS = {"driver", "model", "bus", "identity"}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+@dataclass
+class RunFile:
+    """An open run file (read-only). Use :func:`open_run`; close or use ``with``."""
+
+    path: str
+    h5: h5py.File
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        """True when the capture closed cleanly (``ended_utc`` present)."""
+        return "ended_utc" in self.attrs
+
+    @property
+    def devices(self) -> dict[str, DeviceInfo]:
+        out = {}
+        for name, g in self.h5.get(DEVICES, {}).items():
+            attrs = {k: _plain(v) for k, v in g.attrs.items()}
+            channels = {}
+            for cname, ds in g.items():
+                if cname in (TIME, COUNTER):
+                    continue
+                axes = _plain(ds.attrs.get("axes", ""))
+                channels[cname] = ChannelInfo(
+                    name=cname,
+                    dtype=ds.dtype,
+                    units=_plain(ds.attrs.get("units", "")),
+                    scale=float(ds.attrs.get("scale", 1.0)),
+                    offset=float(ds.attrs.get("offset", 0.0)),
+                    axes=tuple(axes.split(",")) if axes else (),
+                    n=ds.shape[0],
+                )
+            settings = {k: v for k, v in attrs.items() if k not in _DEVICE_CORE_ATTRS}
+            out[name] = DeviceInfo(
+                name=name,
+                driver=attrs.get("driver", ""),
+                model=attrs.get("model", ""),
+                bus=attrs.get("bus", ""),
+                identity=str(attrs.get("identity", "")),
+                rate_hz=float(attrs.get("rate_hz", float("nan"))),
+                settings=settings,
+                channels=channels,
+                n=g[TIME].shape[0] if TIME in g else 0,
+                has_counter=COUNTER in g,
+            )
+        return out
+
+    @property
+    def thermometers(self) -> list[str]:
+        return list(self.h5.get(THERMOMETERS, {}).keys())
+
+    def events(self) -> list[Event]:
+        if EVENTS not in self.h5:
+            return []
+        rows = self.h5[EVENTS][()]
+        return [
+            Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
+            for r in rows
+        ]
+
+    def dataset(self, device: str, name: str) -> h5py.Dataset:
+        try:
+            return self.h5[f"{DEVICES}/{device}/{name}"]
+        except KeyError:
+            raise RunFileError(f"{self.path}: no dataset {device}/{name}") from None
+
+    def read(self, device: str, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Raw rows ``start:stop`` of ``devices/<device>/<name>``."""
+        return self.dataset(device, name)[start:stop]
+
+    def iter_chunks(self, device: str, name: str, rows: int = 1 << 22, stop: int | None = None) -> Iterator[np.ndarray]:
+        """Read a dataset in blocks of ``rows`` so memory stays bounded."""
+        ds = self.dataset(device, name)
+        n = ds.shape[0] if stop is None else min(stop, ds.shape[0])
+        for i in range(0, n, rows):
+            yield ds[i : min(i + rows, n)]
+
+    def temperatures(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        g = self.h5[f"{THERMOMETERS}/{name}"]
+        return g[TIME][()], g[CELSIUS][()]
+
+    def close(self) -> None:
+        self.h5.close()
+
+    def __enter__(self) -> RunFile:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_run(path: str | os.PathLike) -> RunFile:
+    """Open a run file read-only (also while it is being written).
+
+    Raises :class:`RunFileError` with a one-line reason for a missing file,
+    a file that is not HDF5, not an imustation run, or of an unknown version.
+    """
+    p = os.fspath(path)
+    if not os.path.exists(p):
+        raise RunFileError(f"{p}: no such file")
+    try:
+        h5 = h5py.File(p, "r", libver="latest", swmr=True)
+    except OSError:
+        try:  # a file written without SWMR (e.g. by another tool) still opens
+            h5 = h5py.File(p, "r")
+        except OSError as exc:
+            raise RunFileError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__})") from None
+    attrs = {k: _plain(v) for k, v in h5.attrs.items()}
+    fmt = attrs.get("format")
+    if fmt != FORMAT:
+        h5.close()
+        raise RunFileError(f"{p}: not an imustation run file (format attribute is {fmt!r})")
+    version = attrs.get("format_version")
+    if version != FORMAT_VERSION:
+        h5.close()
+        raise RunFileError(f"{p}: run-file format version {version} is not supported (this is v1)")
+    return RunFile(path=p, h5=h5, attrs=attrs)

@@ -1,0 +1,102 @@
+"""Bad input: one clear line naming the file and the problem, exit code 2, no traceback."""
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from imustation.cli import cli
+
+
+def run(*args):
+    res = CliRunner().invoke(cli, list(args))
+    return res
+
+
+def assert_one_line_error(res, *needles):
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.output
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+def test_missing_config(tmp_path):
+    assert_one_line_error(run("capture", str(tmp_path / "nope.toml"), "--simulate"), "nope.toml", "no such file")
+
+
+def test_malformed_config(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[station\nname = 1")
+    assert_one_line_error(run("capture", str(p), "--simulate"), "bad.toml", "invalid TOML")
+
+
+@pytest.mark.parametrize(
+    "body,needles",
+    [
+        ('[[device]]\nname="g"\ndriver="nosuch"\nbus="i2c:1"\n', ["device[0].driver", "'nosuch'", "known: bmx055"]),
+        ('[[device]]\nname="g"\ndriver="bmx055"\nbus="i2c:1"\nrate_hz=123\n', ["rate_hz = 123", "allows"]),
+        ('[[device]]\nname="g"\ndriver="bmx055"\nbus="usb3:1"\n', ["device[0].bus", "unknown scheme"]),
+        (
+            '[station]\nflush_interval_s=0\n[[device]]\nname="g"\ndriver="bmx055"\nbus="i2c:1"\n',
+            ["station.flush_interval_s"],
+        ),
+        ('[station]\nname="x"\n', ["at least one [[device]]"]),
+        (
+            '[[device]]\nname="g"\ndriver="bmx055"\nbus="i2c:1"\n[[device]]\nname="g"\ndriver="bmx055"\nbus="i2c:1"\n',
+            ["used twice"],
+        ),
+    ],
+)
+def test_config_errors(tmp_path, body, needles):
+    p = tmp_path / "c.toml"
+    p.write_text(body)
+    assert_one_line_error(run("capture", str(p), "--simulate"), "c.toml", *needles)
+
+
+def test_bad_duration(demo_config):
+    assert_one_line_error(run("capture", demo_config.path, "--simulate", "--duration", "soon"), "duration 'soon'")
+
+
+def test_not_hdf5(tmp_path):
+    p = tmp_path / "x.h5"
+    p.write_text("hello")
+    assert_one_line_error(run("inspect", str(p)), "x.h5", "not a readable HDF5 file")
+    assert_one_line_error(run("analyze", str(p)), "x.h5", "not a readable HDF5 file")
+
+
+def test_not_an_imustation_file(tmp_path):
+    p = tmp_path / "other.h5"
+    with h5py.File(p, "w") as f:
+        f["x"] = [1, 2, 3]
+    assert_one_line_error(run("inspect", str(p)), "other.h5", "not an imustation run file")
+
+
+def test_missing_run_file(tmp_path):
+    assert_one_line_error(run("analyze", str(tmp_path / "none.h5")), "none.h5", "no such file")
+
+
+def test_npy_without_rate(tmp_path):
+    p = tmp_path / "gyro.npy"
+    np.save(p, np.zeros(100))
+    assert_one_line_error(run("analyze", str(p)), "gyro.npy", "--rate")
+
+
+def test_empty_and_nan_arrays(tmp_path):
+    empty, nan = tmp_path / "empty.npy", tmp_path / "nan.npy"
+    np.save(empty, np.zeros(0))
+    np.save(nan, np.array([1.0, np.nan, 2.0]))
+    assert_one_line_error(run("analyze", str(empty), "--rate", "100"), "empty.npy", "empty")
+    assert_one_line_error(run("analyze", str(nan), "--rate", "100"), "nan.npy", "1 NaN")
+
+
+def test_bad_rate_value(tmp_path):
+    p = tmp_path / "g.npy"
+    np.save(p, np.zeros(100))
+    assert_one_line_error(run("analyze", str(p), "--rate", "-5"), "--rate")
+
+
+def test_no_matching_channel(tmp_path, sim_run):
+    path, _ = sim_run
+    assert_one_line_error(run("analyze", str(path), "--channel", "nope/*"), "no channels matching nope/*")
