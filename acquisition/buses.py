@@ -42,10 +42,8 @@ class BusFactory:
             if bus is None:
                 bus = self._i2c[url] = I2CBus(SimSMBus(), url)
             assert dev.address is not None
-            bus._smbus.attach(
-                dev.address,
-                make_simulator(dev.driver, self.clock, dev.settings, dev.sim, self.device_seed(dev.name)),
-            )
+            chip, plan = make_simulator(dev.driver, self.clock, dev.settings, dev.sim, self.device_seed(dev.name))
+            bus._smbus.attach(dev.address, chip, plan)
         else:
             parsed = parse_bus_url(url)
             if parsed.scheme == "sim":

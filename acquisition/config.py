@@ -19,6 +19,7 @@ from typing import Any
 
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.bus.url import KNOWN_SCHEMES, parse_bus_url
+from imustation.drivers.sim.faults import parse_faults
 from imustation.drivers.sim.sources import SIM_KEYS
 from imustation.errors import ConfigError, ImustationError
 
@@ -151,6 +152,10 @@ def _parse_device(path: str, i: int, entry: Any, names: set[str]) -> DeviceConfi
     for key in sim:
         if key not in SIM_KEYS:
             raise ConfigError(path, f"{where}.sim.{key}", f"unknown key (allowed: {', '.join(SIM_KEYS)})")
+    try:
+        parse_faults(sim.get("faults", []), "sim.faults")
+    except ImustationError as exc:
+        raise ConfigError(path, f"{where} ({name})", str(exc)) from None
     settings = {k: v for k, v in entry.items() if k not in DEVICE_CORE_KEYS}
     try:
         settings = DRIVERS[driver].check_settings(settings)

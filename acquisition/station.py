@@ -41,6 +41,9 @@ class DeviceState:
     last_t_ns: int | None = None
     temp_c: float = float("nan")
     failed: bool = False
+    #: after a fault: the next block's loss is measured from time
+    resync: bool = False
+    failed_attempts: int = 0
 
 
 @dataclass
@@ -155,31 +158,35 @@ class Station:
         if st.failed:
             try:
                 st.info = st.driver.open()
-            except (BusError, DeviceError) as exc:
-                return self._fault(writer, st, t0, f"re-open failed: {exc}")
-            st.failed = False
-            writer.event(self.clock.now_ns() - t0, name, "reconnect", "device re-initialised, same settings")
+            except (BusError, DeviceError):
+                st.failed_attempts += 1
+                return
+            writer.event(
+                self.clock.now_ns() - t0,
+                name,
+                "reconnect",
+                f"device re-initialised with the same settings after {st.failed_attempts} failed attempt(s)",
+            )
+            st.failed, st.failed_attempts, st.resync = False, 0, True
         try:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:
             return self._fault(writer, st, t0, str(exc))
         k = block.n
         t_read = self.clock.now_ns() - t0
+        if st.resync and not block.lost:
+            block.lost, block.note = -1, "samples lost while the device was failing"
+        st.resync = False
         if block.lost:
             lost = block.lost
-            if lost < 0 and st.last_t_ns is not None:
-                # chip cannot count: samples expected since the last one, minus those read
-                lost = max(0, int(round((t_read - st.last_t_ns) / st.period_ns)) - k)
-            lost = max(lost, 0)
+            if lost < 0:
+                # the chip cannot count them: samples expected since the last one, minus those read
+                last = st.last_t_ns if st.last_t_ns is not None else 0
+                lost = max(0, int(round((t_read - last) / st.period_ns)) - k)
             st.lost += lost
             st.gaps += 1
-            writer.event(
-                t_read,
-                name,
-                "overrun" if "overrun" in block.note.lower() else "gap",
-                block.note or "samples lost",
-                lost=lost,
-            )
+            kind = "overrun" if "overrun" in block.note.lower() else "gap"
+            writer.event(t_read, name, kind, block.note or "samples lost", lost=lost)
         if k == 0:
             return
         # sample times: the last sample is the newest at read time, spaced by the ODR
@@ -192,8 +199,10 @@ class Station:
             st.temp_c = float(block.channels["temp"][-1]) * spec.scale + spec.offset
 
     def _fault(self, writer: RunWriter, st: DeviceState, t0: int, why: str) -> None:
+        """Log a device fault once; the device is re-opened at its next polls until it answers."""
         st.faults += 1
         st.failed = True
+        st.failed_attempts = 0
         writer.event(self.clock.now_ns() - t0, st.config.name, "fault", why)
 
     def status(self, t0: int, duration_s: float, wall0: float) -> dict[str, Any]:

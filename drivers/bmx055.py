@@ -225,10 +225,19 @@ class BMX055Gyro:
         return decode_rates(self.regs.read(REG_RATE_X_LSB, 6))[0]
 
     def read_block(self) -> Block:
-        # One burst 0x08..0x0E gives TEMP and FIFO_STATUS together.
-        status = self.regs.read(REG_TEMP, REG_FIFO_STATUS - REG_TEMP + 1)
+        # One burst 0x08..0x10 gives TEMP, FIFO_STATUS and the RANGE/BW settings:
+        # a chip that lost its configuration (power glitch, reset) is caught here
+        # instead of silently delivering nothing or data at another scale.
+        status = self.regs.read(REG_TEMP, BW.reg - REG_TEMP + 1)
         temp_raw = status[0] - 256 if status[0] >= 128 else status[0]
-        fifo = status[-1]
+        fifo = status[REG_FIFO_STATUS - REG_TEMP]
+        range_code = RANGE.decode(status[RANGE.reg - REG_TEMP])
+        bw_code = BW.decode(status[BW.reg - REG_TEMP])
+        if (range_code, bw_code) != (self._range.code, self._odr.code):
+            raise DeviceError(
+                f"{self.regs.where}: configuration lost (RANGE/BW read 0x{range_code:02X}/0x{bw_code:02X}, "
+                f"set 0x{self._range.code:02X}/0x{self._odr.code:02X}); chip reset?"
+            )
         count = FIFO_STATUS_COUNT.decode(fifo)
         overrun = bool(FIFO_STATUS_OVERRUN.decode(fifo))
         if count == 0:

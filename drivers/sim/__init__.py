@@ -13,20 +13,21 @@ __all__ = ["SimSMBus", "NoiseSource", "SignalSource", "make_simulator", "simulat
 
 
 def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
-    """The byte-level simulator of ``driver``'s chip, fed by its default source.
+    """The byte-level simulator of ``driver``'s chip and its fault plan.
 
     ``settings`` are the device's validated settings, ``sim`` its ``[device.sim]``
-    table, ``seed`` the per-device seed (``sim.seed`` overrides it).
+    table, ``seed`` the per-device seed (``sim.seed`` overrides it). Returns
+    ``(simulator, plan)``; the bus applies the plan's bus-level faults.
     """
+    from imustation.drivers.sim.faults import FaultPlan, parse_faults
     from imustation.errors import SettingError
 
+    plan = FaultPlan(parse_faults(sim.get("faults", [])), clock, seed) if sim.get("faults") else None
     if driver == "bmx055":
         from imustation.drivers.sim.bmx055 import BMG160Sim
 
-        return BMG160Sim(
-            clock,
-            lambda fs: NoiseSource.for_device("bmx055", ("x", "y", "z"), fs, sim, seed),
-        )
+        source = lambda fs: NoiseSource.for_device("bmx055", ("x", "y", "z"), fs, sim, seed)  # noqa: E731
+        return BMG160Sim(clock, source, plan), plan
     raise SettingError(f"driver {driver!r} has no simulator")
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import bmx055 as chip
+from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.regfile import RegisterFileChip
 from imustation.drivers.sim.sources import SignalSource
 
@@ -38,9 +39,10 @@ class BMG160Sim(RegisterFileChip):
 
     NO_INCREMENT = frozenset({chip.REG_FIFO_DATA})
 
-    def __init__(self, clock: Clock, source_factory: Callable[[float], SignalSource]):
+    def __init__(self, clock: Clock, source_factory: Callable[[float], SignalSource], plan: FaultPlan | None = None):
         super().__init__()
         self.clock = clock
+        self.plan = plan
         self.source_factory = source_factory
         self.source: SignalSource | None = None
         self.sim_resets = 0
@@ -78,7 +80,15 @@ class BMG160Sim(RegisterFileChip):
         return chip.FIFO_MODE.decode(self.regs[chip.FIFO_MODE.reg])
 
     def _advance(self) -> None:
-        """Draw every sample due by now; push them into the FIFO (stream mode)."""
+        """Draw every sample due by now; push them into the FIFO (stream mode).
+
+        Faults: ``reset`` is a power-on reset; during ``stuck_fifo`` samples are
+        drawn (the noise goes on) but the FIFO receives none of them.
+        """
+        if self.plan is not None and self.plan.fire("reset"):
+            self.sim_resets += 1
+            self._power_on()
+            return
         due = (self.clock.now_ns() - self.t_start_ns) * self.odr_hz / 1e9
         n = int(due) - self.produced
         if n <= 0:
@@ -88,6 +98,8 @@ class BMG160Sim(RegisterFileChip):
         counts = np.clip(np.rint(rates / self.scale), -32768, 32767).astype("<i2")
         self.produced += n
         self.latest = counts[-1]
+        if self.plan is not None and self.plan.active("stuck_fifo"):
+            return
         if self.fifo_mode == chip.FIFO_MODE_STREAM:
             depth = chip.FIFO_DEPTH_FRAMES * chip.FIFO_FRAME_BYTES
             keep = counts[-chip.FIFO_DEPTH_FRAMES :].tobytes()

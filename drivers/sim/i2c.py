@@ -15,6 +15,8 @@ from typing import Protocol
 
 from smbus2 import i2c_msg
 
+from imustation.drivers.sim.faults import FaultPlan
+
 I2C_M_RD = 0x0001
 
 
@@ -31,18 +33,25 @@ class I2CTarget(Protocol):
 class SimSMBus:
     """smbus2-compatible adapter whose targets are chip simulators.
 
+    Faults: a :class:`~imustation.drivers.sim.faults.FaultPlan` attached with a
+    target applies to transactions addressed to it: ``disconnect`` (every
+    transfer NACKed while active), ``nack`` (one transfer NACKed), ``short_read``
+    (one read fails with EIO), ``corrupt`` (one bit of one read flipped).
     ``sim_fault`` (if set) is called with ``(address, msgs)`` before each
-    transfer and may raise ``OSError`` to inject bus faults.
+    transfer and may raise ``OSError`` (ad-hoc faults in tests).
     """
 
     def __init__(self, targets: dict[int, I2CTarget] | None = None):
         self.targets: dict[int, I2CTarget] = dict(targets or {})
+        self.plans: dict[int, FaultPlan] = {}
         self.sim_fault = None
         self.sim_transactions = 0
         self.closed = False
 
-    def attach(self, address: int, target: I2CTarget) -> None:
+    def attach(self, address: int, target: I2CTarget, plan: FaultPlan | None = None) -> None:
         self.targets[address] = target
+        if plan is not None:
+            self.plans[address] = plan
 
     def _target(self, address: int) -> I2CTarget:
         if self.closed:
@@ -56,10 +65,20 @@ class SimSMBus:
         self.sim_transactions += 1
         if self.sim_fault is not None:
             self.sim_fault(msgs[0].addr, msgs)
+        plan = self.plans.get(msgs[0].addr)
+        if plan is not None:
+            if plan.active("disconnect") or plan.fire("nack"):
+                raise OSError(errno.ENXIO, "no acknowledge")
         for msg in msgs:
             target = self._target(msg.addr)
             if msg.flags & I2C_M_RD:
                 data = target.i2c_read(msg.len)
+                if plan is not None and plan.fire("short_read"):
+                    raise OSError(errno.EIO, "short read")
+                if plan is not None and msg.len and plan.fire("corrupt"):
+                    data = bytearray(data)
+                    data[len(data) // 2] ^= 0x10
+                    data = bytes(data)
                 if len(data) != msg.len:
                     raise OSError(errno.EIO, "short read")
                 ctypes.memmove(msg.buf, data, msg.len)

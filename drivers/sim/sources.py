@@ -44,6 +44,7 @@ SIM_KEYS = (
     "temp_c",
     "temp_drift_c",
     "temp_period_s",
+    "faults",
 )
 
 
@@ -116,6 +117,7 @@ class NoiseSource:
         for key in sim:
             if key not in SIM_KEYS:
                 raise SettingError(f"sim.{key}: unknown (known: {', '.join(SIM_KEYS)})")
+        sim = {k: v for k, v in sim.items() if k != "faults"}
         seed = int(sim.get("seed", default_seed))
         rng = np.random.default_rng([seed, 0x5EED])
         base = TABLE_IV.get(table_key, {})

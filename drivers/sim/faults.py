@@ -1,0 +1,146 @@
+"""Fault injection for simulated buses and chips, on the station clock.
+
+A :class:`FaultPlan` holds fault specs from a ``[device.sim]`` table::
+
+    faults = [
+      {kind = "nack", every_s = 600},                      # Poisson, mean interval 600 s
+      {kind = "disconnect", at_s = 3600, duration_s = 5},  # cable pulled at 1 h for 5 s
+      {kind = "reset", at_s = 7200},                       # chip power-on reset at 2 h
+    ]
+
+Buses and chip simulators ask ``plan.fire(kind)`` (an event of that kind has become
+due since the last ask: consume it) or ``plan.active(kind)`` (inside an event's
+duration). What a kind does is up to the bus or chip (see ``FAULT_KINDS``). Every
+injected event is appended to ``plan.sim_log`` so tests can match it with the
+run file's event log.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from imustation.clock import Clock
+from imustation.errors import SettingError
+
+#: kind -> what the simulated bus or chip does when it fires
+FAULT_KINDS = {
+    "nack": "one transaction is not acknowledged (I2C NACK / no answer); a retry succeeds",
+    "short_read": "one read returns fewer bytes than asked (bus reports EIO)",
+    "corrupt": "one byte of one read has a bit flipped (checksummed protocols detect it)",
+    "checksum": "one frame/burst carries a wrong checksum or CRC",
+    "stuck_fifo": "the FIFO stops filling for duration_s (data-ready never comes)",
+    "reset": "the chip performs a power-on reset (settings lost, must be re-initialised)",
+    "disconnect": "the device is gone for duration_s (every transaction fails), then returns",
+}
+_SPEC_KEYS = ("kind", "at_s", "every_s", "duration_s")
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """One fault: at a fixed time ``at_s`` and/or as a Poisson process of mean interval ``every_s``."""
+
+    kind: str
+    at_s: float | None = None
+    every_s: float | None = None
+    duration_s: float = 0.0
+
+
+def parse_faults(entries: Sequence[Mapping[str, object]], where: str = "sim.faults") -> tuple[FaultSpec, ...]:
+    """Validate a ``faults = [...]`` list from a config; one-line errors name the entry."""
+    if not isinstance(entries, (list, tuple)):
+        raise SettingError(f'{where}: expected a list of tables like {{kind = "nack", every_s = 600}}')
+    specs = []
+    for i, entry in enumerate(entries):
+        w = f"{where}[{i}]"
+        if not isinstance(entry, Mapping):
+            raise SettingError(f"{w}: expected a table")
+        for key in entry:
+            if key not in _SPEC_KEYS:
+                raise SettingError(f"{w}.{key}: unknown key (allowed: {', '.join(_SPEC_KEYS)})")
+        kind = entry.get("kind")
+        if kind not in FAULT_KINDS:
+            raise SettingError(f"{w}.kind = {kind!r}: allowed {', '.join(FAULT_KINDS)}")
+        nums = {}
+        for key in ("at_s", "every_s", "duration_s"):
+            value = entry.get(key)
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+                raise SettingError(f"{w}.{key} = {value!r}: a non-negative number of seconds")
+            nums[key] = float(value)
+        if "at_s" not in nums and "every_s" not in nums:
+            raise SettingError(f"{w}: give at_s (one event) or every_s (mean interval), or both")
+        if nums.get("every_s") == 0:
+            raise SettingError(f"{w}.every_s: must be > 0")
+        specs.append(FaultSpec(kind, nums.get("at_s"), nums.get("every_s"), nums.get("duration_s", 0.0)))
+    return tuple(specs)
+
+
+class FaultPlan:
+    """Scheduled fault events for one simulated device.
+
+    Parameters
+    ----------
+    specs : the faults (see :func:`parse_faults`).
+    clock : the station clock; times are seconds since ``clock.now_ns()`` at creation.
+    seed : seed of the Poisson processes.
+    """
+
+    def __init__(self, specs: Sequence[FaultSpec], clock: Clock, seed: int = 0):
+        self.specs = tuple(specs)
+        self.clock = clock
+        self.t0_ns = clock.now_ns()
+        self._rng = np.random.default_rng([seed, 0xFA17])
+        # per spec: next pending event time (s) or None; plus active windows per kind
+        self._next: list[float | None] = []
+        for spec in self.specs:
+            first = spec.at_s
+            if first is None and spec.every_s is not None:
+                first = float(self._rng.exponential(spec.every_s))
+            self._next.append(first)
+        self._windows: dict[str, list[tuple[float, float]]] = {}
+        self._pending: dict[str, int] = {}
+        self.sim_log: list[tuple[int, str]] = []
+
+    def _now_s(self) -> float:
+        return (self.clock.now_ns() - self.t0_ns) / 1e9
+
+    def _collect(self) -> dict[str, int]:
+        """Move every event due by now into the log; return counts per kind."""
+        now = self._now_s()
+        fired: dict[str, int] = {}
+        for i, spec in enumerate(self.specs):
+            t = self._next[i]
+            while t is not None and t <= now:
+                fired[spec.kind] = fired.get(spec.kind, 0) + 1
+                self.sim_log.append((self.t0_ns + int(t * 1e9), spec.kind))
+                if spec.duration_s > 0:
+                    self._windows.setdefault(spec.kind, []).append((t, t + spec.duration_s))
+                if spec.every_s is not None:
+                    t = t + float(self._rng.exponential(spec.every_s))
+                else:
+                    t = None
+            self._next[i] = t
+        for kind, n in fired.items():
+            self._pending[kind] = self._pending.get(kind, 0) + n
+        return fired
+
+    def fire(self, kind: str) -> bool:
+        """True once per event of ``kind`` that has become due (the event is consumed)."""
+        self._collect()
+        n = self._pending.get(kind, 0)
+        if n:
+            self._pending[kind] = n - 1
+            return True
+        return False
+
+    def active(self, kind: str) -> bool:
+        """True while the clock is inside a window of an event of ``kind`` (``duration_s``)."""
+        self._collect()
+        now = self._now_s()
+        windows = [w for w in self._windows.get(kind, []) if w[1] > now]
+        self._windows[kind] = windows
+        return any(start <= now < end for start, end in windows)
