@@ -45,3 +45,27 @@ TABLE_IV: dict[str, dict[str, StandardModel]] = {
 #: sigma_w 21.66 deg/h/sqrt(Hz) = 1.050e-4 rad/s/sqrt(Hz).
 TABLE_III_MEAN = StandardModel(1.050e-4, 1.26e-6, 530.51)
 TABLE_III_STD = StandardModel(0.032e-4, 0.15e-6, 73.90)
+
+
+# --- accelerometers: NOT from the paper ---------------------------------------
+# The paper identifies gyroscopes only. Simulated accelerometers need defaults,
+# so these are datasheet-typical noise densities with a small Gauss-Markov bias
+# chosen by us (stationary bias std sigma_b * sqrt(tau_b / 2) of about 0.05 mg
+# for the BMX055 and 0.1 mg for the InvenSense parts). They are simulation
+# defaults only, never test oracles for identification. Units: sigma_w
+# m s^-2/sqrt(Hz), sigma_b m s^-3/sqrt(Hz), tau_b s.
+#   BMX055 accel output noise density 150 ug/sqrt(Hz) (Bosch BMX055 datasheet, typ.)
+#   MPU-6050/9150 accel noise power spectral density 400 ug/sqrt(Hz) (MPU-6050 product spec, typ.)
+#   MPU-6500 accel noise power spectral density 300 ug/sqrt(Hz) (MPU-6500 product spec, typ.)
+_UG = 9.80665e-6  # m/s^2 per micro-g
+_ACCEL_TAU_B = 1000.0
+_BMX055_ACCEL = StandardModel(150 * _UG, 50 * _UG / (_ACCEL_TAU_B / 2) ** 0.5, _ACCEL_TAU_B)
+_MPU6050_ACCEL = StandardModel(400 * _UG, 100 * _UG / (_ACCEL_TAU_B / 2) ** 0.5, _ACCEL_TAU_B)
+_MPU6500_ACCEL = StandardModel(300 * _UG, 100 * _UG / (_ACCEL_TAU_B / 2) ** 0.5, _ACCEL_TAU_B)
+
+#: simulation defaults for accelerometers, per device and axis (see the comment above)
+ACCEL_DEFAULTS: dict[str, dict[str, StandardModel]] = {
+    "bmx055": dict.fromkeys("xyz", _BMX055_ACCEL),
+    "mpu9150": dict.fromkeys("xyz", _MPU6050_ACCEL),
+    "mpu6500": dict.fromkeys("xyz", _MPU6500_ACCEL),
+}

@@ -11,12 +11,31 @@ the same driver code a real capture runs.
 
 from imustation.drivers.base import Block, Driver, DriverInfo
 from imustation.drivers.bmx055 import BMX055Gyro
+from imustation.drivers.bmx055_accel import BMX055Accel
+from imustation.drivers.invensense import MPU6500Driver, MPU9150Driver
+from imustation.drivers.mcp9804 import MCP9804
 
 DRIVERS: dict[str, type[Driver]] = {
     "bmx055": BMX055Gyro,
+    "bmx055_accel": BMX055Accel,
+    "mpu9150": MPU9150Driver,
+    "mpu6500": MPU6500Driver,
 }
 
 #: ``[[thermometer]]`` drivers (slow, polled; see the thermometer drivers)
-THERMOMETER_DRIVERS: dict[str, type] = {}
+THERMOMETER_DRIVERS: dict[str, type] = {
+    "mcp9804": MCP9804,
+}
 
-__all__ = ["DRIVERS", "THERMOMETER_DRIVERS", "Block", "Driver", "DriverInfo", "BMX055Gyro"]
+__all__ = [
+    "DRIVERS",
+    "THERMOMETER_DRIVERS",
+    "Block",
+    "Driver",
+    "DriverInfo",
+    "BMX055Gyro",
+    "BMX055Accel",
+    "MPU9150Driver",
+    "MPU6500Driver",
+    "MCP9804",
+]

@@ -6,10 +6,69 @@ with the paper's Table IV parameters, or a replayed recording). Test-only back
 doors carry a ``sim_`` prefix.
 """
 
-from imustation.drivers.sim.i2c import SimSMBus
-from imustation.drivers.sim.sources import NoiseSource, SignalSource
+from __future__ import annotations
 
-__all__ = ["SimSMBus", "NoiseSource", "SignalSource", "make_simulator", "simulated_truth", "station_device_seed"]
+import math
+from collections.abc import Callable
+
+from imustation.drivers.sim.i2c import SimSMBus
+from imustation.drivers.sim.sources import ACCEL_SIM_KEYS, GYRO_SIM_KEYS, NoiseSource, SignalSource
+
+__all__ = [
+    "SimSMBus",
+    "NoiseSource",
+    "SignalSource",
+    "make_simulator",
+    "make_thermometer_simulator",
+    "simulated_truth",
+    "station_device_seed",
+]
+
+_XYZ = ("x", "y", "z")
+SourceFactory = Callable[[float], NoiseSource]
+
+
+def _reject(driver: str, sim: dict, keys: tuple[str, ...], why: str) -> None:
+    from imustation.errors import SettingError
+
+    for key in sim:
+        if key in keys:
+            raise SettingError(f"sim.{key}: driver {driver!r} {why}")
+
+
+def _bmx055_gyro(sim: dict, seed: int) -> dict[str, SourceFactory]:
+    _reject("bmx055", sim, ACCEL_SIM_KEYS, "is the gyroscope die (the accelerometer is driver 'bmx055_accel')")
+    return {"gyro": lambda fs: NoiseSource.for_device("bmx055", _XYZ, fs, sim, seed)}
+
+
+def _bmx055_accel(sim: dict, seed: int) -> dict[str, SourceFactory]:
+    _reject("bmx055_accel", sim, GYRO_SIM_KEYS, "has no gyroscope (its keys start with accel_)")
+    return {"accel": lambda fs: NoiseSource.for_accel("bmx055", _XYZ, fs, sim, seed)}
+
+
+def _invensense(table_key: str) -> Callable[[dict, int], dict[str, SourceFactory]]:
+    def sources(sim: dict, seed: int) -> dict[str, SourceFactory]:
+        return {
+            "gyro": lambda fs: NoiseSource.for_device(table_key, _XYZ, fs, sim, seed),
+            "accel": lambda fs: NoiseSource.for_accel(table_key, _XYZ, fs, sim, seed),
+        }
+
+    return sources
+
+
+#: driver -> (sim table, seed) -> channel -> signal source factory (fs_hz -> source)
+SOURCES: dict[str, Callable[[dict, int], dict[str, SourceFactory]]] = {
+    "bmx055": _bmx055_gyro,
+    "bmx055_accel": _bmx055_accel,
+    "mpu9150": _invensense("mpu9150"),
+    "mpu6500": _invensense("mpu6500"),
+}
+
+
+def _plan(clock, sim: dict, seed: int):
+    from imustation.drivers.sim.faults import FaultPlan, parse_faults
+
+    return FaultPlan(parse_faults(sim.get("faults", [])), clock, seed) if sim.get("faults") else None
 
 
 def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
@@ -19,32 +78,84 @@ def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
     table, ``seed`` the per-device seed (``sim.seed`` overrides it). Returns
     ``(simulator, plan)``; the bus applies the plan's bus-level faults.
     """
-    from imustation.drivers.sim.faults import FaultPlan, parse_faults
     from imustation.errors import SettingError
 
-    plan = FaultPlan(parse_faults(sim.get("faults", [])), clock, seed) if sim.get("faults") else None
+    if driver not in SOURCES:
+        raise SettingError(f"driver {driver!r} has no simulator")
+    plan = _plan(clock, sim, seed)
+    sources = SOURCES[driver](sim, seed)
     if driver == "bmx055":
         from imustation.drivers.sim.bmx055 import BMG160Sim
 
-        source = lambda fs: NoiseSource.for_device("bmx055", ("x", "y", "z"), fs, sim, seed)  # noqa: E731
-        return BMG160Sim(clock, source, plan), plan
-    raise SettingError(f"driver {driver!r} has no simulator")
+        return BMG160Sim(clock, sources["gyro"], plan), plan
+    if driver == "bmx055_accel":
+        from imustation.drivers.sim.bmx055_accel import BMA2x2Sim
+
+        return BMA2x2Sim(clock, sources["accel"], plan), plan
+    from imustation.drivers.invensense import VARIANTS
+    from imustation.drivers.sim.invensense import InvenSenseSim
+
+    return InvenSenseSim(VARIANTS[driver], clock, sources["gyro"], sources["accel"], plan), plan
+
+
+#: [thermometer.sim] keys: ambient temperature temp_c + temp_drift_c * sin(2 pi t / temp_period_s + phase)
+THERMOMETER_SIM_KEYS = ("seed", "temp_c", "temp_drift_c", "temp_period_s", "faults")
+THERMOMETER_TEMP_C = 22.0
+THERMOMETER_DRIFT_C = 0.5
+THERMOMETER_PERIOD_S = 6 * 3600.0
+
+
+def make_thermometer_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
+    """The simulator of a ``[[thermometer]]`` chip and its fault plan (contract of :func:`make_simulator`).
+
+    The MCP9804 simulator reads an ambient temperature ``temp_c`` (default 22.0
+    degC) with a slow sinusoidal drift (``temp_drift_c``, default 0.5 degC, over
+    ``temp_period_s``, default 6 h; the phase is drawn from the seed, so
+    thermometers in one room differ), quantised by the chip to its resolution.
+    """
+    import numpy as np
+
+    from imustation.errors import SettingError
+
+    for key in sim:
+        if key not in THERMOMETER_SIM_KEYS:
+            raise SettingError(f"sim.{key}: not a thermometer sim key (allowed: {', '.join(THERMOMETER_SIM_KEYS)})")
+    if driver != "mcp9804":
+        raise SettingError(f"thermometer driver {driver!r} has no simulator")
+    from imustation.drivers.sim.mcp9804 import MCP9804Sim
+
+    seed = int(sim.get("seed", seed))
+    plan = _plan(clock, sim, seed)
+    try:
+        temp_c = float(sim.get("temp_c", THERMOMETER_TEMP_C))
+        drift_c = float(sim.get("temp_drift_c", THERMOMETER_DRIFT_C))
+        period_s = float(sim.get("temp_period_s", THERMOMETER_PERIOD_S))
+    except (TypeError, ValueError):
+        raise SettingError("sim.temp_c, temp_drift_c, temp_period_s: expected numbers") from None
+    if not period_s > 0:
+        raise SettingError(f"sim.temp_period_s = {period_s}: must be > 0")
+    phase = float(np.random.default_rng([seed, 0x7E4A]).uniform(0.0, 2.0 * math.pi))
+
+    def ambient(t_s: float) -> float:
+        return temp_c + drift_c * math.sin(2.0 * math.pi * t_s / period_s + phase)
+
+    return MCP9804Sim(clock, ambient, plan), plan
 
 
 def simulated_truth(config) -> dict:
     """Channel id -> the :class:`StandardModel` its simulator draws from (for demos/tests).
 
     ``config`` is a station config; seeds match those the station uses.
+    Accelerometer models are the sensor's noise and turn-on bias; gravity
+    (``sim.gravity_g``, default +1 g on z) comes on top of them.
     """
-    from imustation.drivers.sim.sources import NoiseSource
-
     out = {}
     for dev in config.devices:
-        if dev.driver == "bmx055":
-            seed = station_device_seed(config.seed, dev.name)
-            src = NoiseSource.for_device("bmx055", ("x", "y", "z"), dev.settings["rate_hz"], dev.sim, seed)
-            for axis, model in zip(("x", "y", "z"), src.models, strict=True):
-                out[f"{dev.name}/gyro/{axis}"] = model
+        seed = station_device_seed(config.seed, dev.name)
+        for channel, factory in SOURCES[dev.driver](dev.sim, seed).items():
+            src = factory(dev.settings["rate_hz"])
+            for axis, model in zip(_XYZ, src.models, strict=True):
+                out[f"{dev.name}/{channel}/{axis}"] = model
     return out
 
 

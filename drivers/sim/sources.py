@@ -16,9 +16,9 @@ from typing import Protocol
 import numpy as np
 
 from imustation.analysis.models import StandardModel, StandardNoiseStream
-from imustation.analysis.reference import TABLE_IV
+from imustation.analysis.reference import ACCEL_DEFAULTS, TABLE_IV
 from imustation.errors import SettingError
-from imustation.units import DEG2RAD
+from imustation.units import DEG2RAD, G0
 
 
 class SignalSource(Protocol):
@@ -45,7 +45,36 @@ SIM_KEYS = (
     "temp_drift_c",
     "temp_period_s",
     "faults",
+    # accelerometers (defaults: analysis.reference.ACCEL_DEFAULTS, not the paper)
+    "accel_sigma_w",
+    "accel_sigma_b",
+    "accel_tau_b",
+    "accel_b_on_mg",
+    "accel_turn_on_bias_std_mg",
+    "gravity_g",
 )
+
+#: keys that shape a gyroscope source / an accelerometer source
+GYRO_SIM_KEYS = ("sigma_w", "sigma_b", "tau_b", "b_on_dps", "turn_on_bias_std_dps")
+ACCEL_SIM_KEYS = (
+    "accel_sigma_w",
+    "accel_sigma_b",
+    "accel_tau_b",
+    "accel_b_on_mg",
+    "accel_turn_on_bias_std_mg",
+    "gravity_g",
+)
+
+#: default turn-on bias spread of simulated gyros, deg/s
+GYRO_TURN_ON_BIAS_STD_DPS = 0.5
+#: default turn-on bias spread of simulated accelerometers, mg. Kept small so a
+#: static capture reads 1 g within a few mg; datasheet zero-g offsets are larger
+#: (tens of mg) - raise it, or set accel_b_on_mg, to simulate them.
+ACCEL_TURN_ON_BIAS_STD_MG = 1.0
+#: the station is static and level: gravity reads +1 g on z (specific force)
+DEFAULT_GRAVITY_G = (0.0, 0.0, 1.0)
+#: salt that makes a device's accelerometer stream independent of its gyro stream
+_ACCEL_SEED_SALT = 0x0ACCE1
 
 
 class NoiseSource:
@@ -58,6 +87,8 @@ class NoiseSource:
     seed : integer seed; the same seed gives the same stream.
     temp_c, temp_drift_c, temp_period_s : die temperature ``temp_c +
         temp_drift_c * sin(2 pi t / temp_period_s)`` (a slow room drift).
+    offset : a constant added to every sample, per axis, SI units (gravity
+        for accelerometers; the models' ``b_on`` is the sensor's own bias).
     """
 
     def __init__(
@@ -69,8 +100,12 @@ class NoiseSource:
         temp_c: float = 30.0,
         temp_drift_c: float = 0.5,
         temp_period_s: float = 6 * 3600.0,
+        offset: Sequence[float] | None = None,
     ):
         self.models = tuple(models)
+        self.offset = np.zeros(len(self.models)) if offset is None else np.asarray(offset, dtype=float)
+        if self.offset.shape != (len(self.models),):
+            raise ValueError(f"offset needs one value per axis ({len(self.models)})")
         self.fs_hz = float(fs_hz)
         self.seed = int(seed)
         rng = np.random.default_rng(seed)
@@ -91,7 +126,7 @@ class NoiseSource:
             fresh = np.column_stack([s.next(max(n, self.BLOCK)) for s in self._streams])
             self._buf = np.concatenate([rest, fresh]) if len(rest) else fresh
             self._pos = 0
-        out = self._buf[self._pos : self._pos + n]
+        out = self._buf[self._pos : self._pos + n] + self.offset
         self._pos += n
         return out
 
@@ -107,20 +142,86 @@ class NoiseSource:
         sim: Mapping[str, object],
         default_seed: int,
     ) -> NoiseSource:
-        """Build a source from a ``[device.sim]`` table over the Table IV defaults.
+        """A gyroscope source from a ``[device.sim]`` table over the Table IV defaults.
 
         ``sigma_w``/``sigma_b``/``tau_b`` override every axis (a number) or
         each axis (a list, one per axis). ``b_on_dps`` fixes the turn-on biases
         (deg/s, number or list); otherwise they are drawn from
         N(0, turn_on_bias_std_dps^2) with the seed.
         """
-        for key in sim:
-            if key not in SIM_KEYS:
-                raise SettingError(f"sim.{key}: unknown (known: {', '.join(SIM_KEYS)})")
-        sim = {k: v for k, v in sim.items() if k != "faults"}
+        _check_keys(sim)
         seed = int(sim.get("seed", default_seed))
-        rng = np.random.default_rng([seed, 0x5EED])
-        base = TABLE_IV.get(table_key, {})
+        return cls._build(
+            TABLE_IV.get(table_key, {}),
+            axes,
+            fs_hz,
+            sim,
+            seed,
+            prefix="",
+            b_on_key="b_on_dps",
+            b_on_std=float(sim.get("turn_on_bias_std_dps", GYRO_TURN_ON_BIAS_STD_DPS)),
+            b_on_unit=DEG2RAD,
+            b_on_salt=0x5EED,
+            offset=None,
+        )
+
+    @classmethod
+    def for_accel(
+        cls,
+        table_key: str,
+        axes: Sequence[str],
+        fs_hz: float,
+        sim: Mapping[str, object],
+        default_seed: int,
+    ) -> NoiseSource:
+        """An accelerometer source (m/s^2) over :data:`ACCEL_DEFAULTS`, with gravity.
+
+        Keys as for :meth:`for_device` with an ``accel_`` prefix; turn-on biases in
+        mg (``accel_b_on_mg``, ``accel_turn_on_bias_std_mg``). ``gravity_g`` (three
+        numbers, g; default ``[0, 0, 1]``: static, level station) is added to every
+        sample. The stream is independent of the same device's gyro stream.
+        """
+        _check_keys(sim)
+        seed = (int(sim.get("seed", default_seed)) + _ACCEL_SEED_SALT) % (2**31)
+        gravity = sim.get("gravity_g", DEFAULT_GRAVITY_G)
+        if (
+            not isinstance(gravity, (list, tuple))
+            or len(gravity) != len(axes)
+            or not all(isinstance(g, (int, float)) and not isinstance(g, bool) for g in gravity)
+        ):
+            raise SettingError(f"sim.gravity_g = {gravity!r}: expected {len(axes)} numbers (g), e.g. [0, 0, 1]")
+        return cls._build(
+            ACCEL_DEFAULTS[table_key],
+            axes,
+            fs_hz,
+            sim,
+            seed,
+            prefix="accel_",
+            b_on_key="accel_b_on_mg",
+            b_on_std=float(sim.get("accel_turn_on_bias_std_mg", ACCEL_TURN_ON_BIAS_STD_MG)),
+            b_on_unit=1e-3 * G0,
+            b_on_salt=_ACCEL_SEED_SALT,
+            offset=[float(g) * G0 for g in gravity],
+        )
+
+    @classmethod
+    def _build(
+        cls,
+        base: Mapping[str, StandardModel],
+        axes: Sequence[str],
+        fs_hz: float,
+        sim: Mapping[str, object],
+        seed: int,
+        *,
+        prefix: str,
+        b_on_key: str,
+        b_on_std: float,
+        b_on_unit: float,
+        b_on_salt: int,
+        offset: Sequence[float] | None,
+    ) -> NoiseSource:
+        """Per-axis models from ``base`` overridden by ``sim[prefix + param]``; turn-on biases."""
+        rng = np.random.default_rng([seed, b_on_salt])
 
         def per_axis(key: str, i: int, default: float) -> float:
             value = sim.get(key, default)
@@ -132,22 +233,21 @@ class NoiseSource:
                 value = float(value)
             except (TypeError, ValueError):
                 raise SettingError(f"sim.{key} = {value!r}: expected a number") from None
-            if not value > 0 and key != "b_on_dps":
+            if not value > 0 and key != b_on_key:
                 raise SettingError(f"sim.{key} = {value!r}: must be > 0")
             return value
 
-        b_on_std = float(sim.get("turn_on_bias_std_dps", 0.5))
         drawn_b_on = rng.normal(0.0, b_on_std, len(axes))
         models = []
         for i, axis in enumerate(axes):
             ref = base.get(axis) or next(iter(base.values()), StandardModel(1e-4, 1e-6, 600.0))
             model = StandardModel(
-                per_axis("sigma_w", i, ref.sigma_w),
-                per_axis("sigma_b", i, ref.sigma_b),
-                per_axis("tau_b", i, ref.tau_b),
+                per_axis(prefix + "sigma_w", i, ref.sigma_w),
+                per_axis(prefix + "sigma_b", i, ref.sigma_b),
+                per_axis(prefix + "tau_b", i, ref.tau_b),
             )
-            b_on = per_axis("b_on_dps", i, drawn_b_on[i]) if "b_on_dps" in sim else drawn_b_on[i]
-            models.append(replace(model, b_on=b_on * DEG2RAD))
+            b_on = per_axis(b_on_key, i, drawn_b_on[i]) if b_on_key in sim else drawn_b_on[i]
+            models.append(replace(model, b_on=b_on * b_on_unit))
         return cls(
             models,
             fs_hz,
@@ -155,4 +255,11 @@ class NoiseSource:
             temp_c=float(sim.get("temp_c", 30.0)),
             temp_drift_c=float(sim.get("temp_drift_c", 0.5)),
             temp_period_s=float(sim.get("temp_period_s", 6 * 3600.0)),
+            offset=offset,
         )
+
+
+def _check_keys(sim: Mapping[str, object]) -> None:
+    for key in sim:
+        if key not in SIM_KEYS:
+            raise SettingError(f"sim.{key}: unknown (known: {', '.join(SIM_KEYS)})")
