@@ -34,6 +34,7 @@ FAULT_KINDS = {
     "stuck_fifo": "the FIFO stops filling for duration_s (data-ready never comes)",
     "reset": "the chip performs a power-on reset (settings lost, must be re-initialised)",
     "disconnect": "the device is gone for duration_s (every transaction fails), then returns",
+    "stall": "one transaction hangs for duration_s (clock stretching, a stalled bridge or host); FIFOs fill meanwhile",
 }
 _SPEC_KEYS = ("kind", "at_s", "every_s", "duration_s")
 
@@ -102,7 +103,7 @@ class FaultPlan:
                 first = float(self._rng.exponential(spec.every_s))
             self._next.append(first)
         self._windows: dict[str, list[tuple[float, float]]] = {}
-        self._pending: dict[str, int] = {}
+        self._pending: dict[str, list[float]] = {}
         self.sim_log: list[tuple[int, str]] = []
 
     def _now_s(self) -> float:
@@ -116,6 +117,7 @@ class FaultPlan:
             t = self._next[i]
             while t is not None and t <= now:
                 fired[spec.kind] = fired.get(spec.kind, 0) + 1
+                self._pending.setdefault(spec.kind, []).append(spec.duration_s)
                 self.sim_log.append((self.t0_ns + int(t * 1e9), spec.kind))
                 if spec.duration_s > 0:
                     self._windows.setdefault(spec.kind, []).append((t, t + spec.duration_s))
@@ -124,18 +126,17 @@ class FaultPlan:
                 else:
                     t = None
             self._next[i] = t
-        for kind, n in fired.items():
-            self._pending[kind] = self._pending.get(kind, 0) + n
         return fired
 
     def fire(self, kind: str) -> bool:
         """True once per event of ``kind`` that has become due (the event is consumed)."""
+        return self.fire_duration(kind) is not None
+
+    def fire_duration(self, kind: str) -> float | None:
+        """Like :meth:`fire`, but give the consumed event's ``duration_s`` (None: no event due)."""
         self._collect()
-        n = self._pending.get(kind, 0)
-        if n:
-            self._pending[kind] = n - 1
-            return True
-        return False
+        pending = self._pending.get(kind)
+        return pending.pop(0) if pending else None
 
     def active(self, kind: str) -> bool:
         """True while the clock is inside a window of an event of ``kind`` (``duration_s``)."""

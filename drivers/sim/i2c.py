@@ -36,7 +36,8 @@ class SimSMBus:
     Faults: a :class:`~imustation.drivers.sim.faults.FaultPlan` attached with a
     target applies to transactions addressed to it: ``disconnect`` (every
     transfer NACKed while active), ``nack`` (one transfer NACKed), ``short_read``
-    (one read fails with EIO), ``corrupt`` (one bit of one read flipped).
+    (one read fails with EIO), ``corrupt`` (one bit of one read flipped),
+    ``stall`` (one transaction takes ``duration_s``: the clock advances).
     ``sim_fault`` (if set) is called with ``(address, msgs)`` before each
     transfer and may raise ``OSError`` (ad-hoc faults in tests).
     """
@@ -69,6 +70,9 @@ class SimSMBus:
         if plan is not None:
             if plan.active("disconnect") or plan.fire("nack"):
                 raise OSError(errno.ENXIO, "no acknowledge")
+            stall = plan.fire_duration("stall")
+            if stall:
+                plan.clock.sleep(stall)
         for msg in msgs:
             target = self._target(msg.addr)
             if msg.flags & I2C_M_RD:

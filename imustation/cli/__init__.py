@@ -44,6 +44,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
       imustation inspect run.h5
       imustation analyze run.h5 --channel 'bmx055/gyro/*'
       imustation demo            # simulated capture + analysis, about a minute
+      imustation devices configs/lab-example.toml   # probe every configured chip
     """
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
@@ -58,4 +59,4 @@ def main() -> None:
 
 
 # subcommand modules register themselves on the group
-from imustation.cli import analyze, capture, demo, inspect  # noqa: E402,F401
+from imustation.cli import analyze, capture, demo, devices, inspect  # noqa: E402,F401
