@@ -22,6 +22,7 @@ the next poll and raised as :class:`DeviceError`.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -269,8 +270,9 @@ class BMX055Accel:
                 ChannelSpec("temp", "int8", "degC", TEMP_SCALE_C, TEMP_OFFSET_C),
             ),
             has_counter=False,
-            # FIFO: poll at most 40 % full; data_ready: twice per output period
-            poll_interval_s=(0.4 * FIFO_DEPTH_FRAMES if self._fifo else 0.5) / self._bw.odr_hz,
+            # FIFO: at most 40 % full, a whole number of output periods (so every poll
+            # finds the same number of frames); data_ready: twice per output period
+            poll_interval_s=(math.floor(0.4 * FIFO_DEPTH_FRAMES) if self._fifo else 0.5) / self._bw.odr_hz,
         )
 
     # -- streaming --------------------------------------------------------------

@@ -61,7 +61,7 @@ def test_open_configures_registers_and_reads_back():
     assert sim.sim_resets == 1
     assert info.rate_hz == 500 and info.settings["bandwidth_hz"] == 250
     assert info.channels[0].name == "accel" and info.channels[0].scale == pytest.approx(G0 / 256)
-    assert info.poll_interval_s == pytest.approx(0.4 * 32 / 500)
+    assert info.poll_interval_s == pytest.approx(12 / 500)
 
 
 @pytest.mark.parametrize("mode", ["fifo", "data_ready"])
@@ -78,7 +78,7 @@ def test_stream_decodes_constant_values_exactly(mode):
         got.append(block.channels["accel"])
         assert (block.channels["temp"] == 8).all()  # 27 degC -> raw 8
     got = np.concatenate(got)
-    # 50 polls of 0.4*32 or 0.5 periods at 125 Hz
+    # 50 polls of 12 or 0.5 periods at 125 Hz
     assert len(got) == round(50 * info.poll_interval_s * 125)
     assert (got == counts).all()
 
