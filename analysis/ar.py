@@ -76,9 +76,7 @@ def _moments(v: np.ndarray, p_max: int) -> tuple[np.ndarray, np.ndarray, float, 
     return U, W, float(np.dot(target, target)), n
 
 
-def fit_ar(
-    series: np.ndarray, *, order: int | None = None, max_order: int = 10, scale: float = 1.0
-) -> ARResult:
+def fit_ar(series: np.ndarray, *, order: int | None = None, max_order: int = 10, scale: float = 1.0) -> ARResult:
     """Least-squares AR(p) fit; ``order=None`` selects p in 0..max_order by SBC.
 
     Parameters

@@ -142,8 +142,7 @@ def log_average(res: PSDResult, per_decade: int = 20) -> PSDResult:
         raise InputError("PSD has no positive frequencies to average")
     n_bands = max(1, int(np.ceil(per_decade * np.log10(f[-1] / f[0]))))
     edges = np.logspace(np.log10(f[0]), np.log10(f[-1]), n_bands + 1)
-    edges[-1] = np.nextafter(edges[-1], np.inf)
-    idx = np.searchsorted(edges, f, side="right") - 1
+    idx = np.clip(np.searchsorted(edges, f, side="right") - 1, 0, n_bands - 1)  # end bins into the end bands
     counts = np.bincount(idx, minlength=n_bands)
     keep = counts > 0
     fm = np.bincount(idx, weights=f, minlength=n_bands)[keep] / counts[keep]
