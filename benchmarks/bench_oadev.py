@@ -54,5 +54,6 @@ def main() -> None:
     met = min(t_at / t_ours, t_at / t_ours_f) >= 10 and max(err, err_f) <= 1e-9
     print("budget (ratio >= 10, rel diff <= 1e-9):", "MET" if met else "NOT MET")
 
+
 if __name__ == "__main__":
     main()
