@@ -3,20 +3,34 @@
 Public API::
 
     from imustation.analysis import oadev, fit_mli
-    res = oadev(rate, fs_hz)            # .tau, .adev, .adev_lo, .adev_hi
+    res = oadev(rate, fs_hz)            # .tau, .adev, .adev_lo, .adev_hi (also mdev, ohdev, totdev)
+    psd = welch_psd(rate, fs_hz)        # .f, .psd (one-sided unless sides="two"); log_average(psd)
+    ar = fit_ar(rate)                   # AR(p) by least squares, SBC order; gauss_markov_from_ar1
     fit = fit_mli(rate, fs_hz)          # .sigma_w, .sigma_b, .tau_b, .b_on, .stderr, .nll
 
 This layer imports nothing from ``imustation.drivers`` or ``imustation.acquisition``.
 """
 
-from imustation.analysis.allan import AllanResult, oadev
+from imustation.analysis.allan import AllanResult, mdev, oadev, ohdev, totdev
+from imustation.analysis.ar import ARResult, GaussMarkov, fit_ar, gauss_markov_from_ar1
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.mli import MLiResult, fit_mli
 from imustation.analysis.models import StandardModel, simulate_standard
+from imustation.analysis.psd import PSDResult, log_average, welch_psd
 
 __all__ = [
     "AllanResult",
     "oadev",
+    "mdev",
+    "ohdev",
+    "totdev",
+    "PSDResult",
+    "welch_psd",
+    "log_average",
+    "ARResult",
+    "GaussMarkov",
+    "fit_ar",
+    "gauss_markov_from_ar1",
     "IEEECoefficients",
     "ieee_coefficients",
     "MLiResult",

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import fnmatch
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
+import h5py
 import numpy as np
 
 from imustation.errors import InputError
@@ -20,31 +21,121 @@ from imustation.runfile import open_run
 RATE_CHANNELS = ("gyro", "accel")
 
 
-@dataclass
+@dataclass(eq=False)
 class Channel:
     """One axis of rate samples.
 
     ``data`` holds integer counts (with ``scale`` units per count) or floats in
-    ``units`` (``scale`` = 1). ``gaps`` counts logged gap/overrun events of the
-    device (their samples are missing from ``data``).
+    ``units`` (``scale`` = 1). Run-file channels are lazy: the counts are read
+    (in blocks, into one compact array of the stored integer type) on the first
+    access of ``data`` and can be dropped again with :meth:`release`;
+    :meth:`iter_raw` streams them without keeping them. ``gaps`` counts logged
+    gap/overrun events of the device; ``segments`` are the ``[start, stop)``
+    sample ranges of contiguous data between the breaks those events locate
+    (:func:`locate_breaks`), default ``[(0, n)]``.
     """
 
     id: str
     fs_hz: float
     units: str
-    data: np.ndarray
+    _data: np.ndarray | None = field(default=None, repr=False)
     scale: float = 1.0
     source: str = ""
     gaps: int = 0
     meta: dict = field(default_factory=dict)
+    segments: list[tuple[int, int]] = field(default_factory=list)
+    #: where a lazy run-file channel lives: (path, device, channel name, column, rows)
+    ref: tuple[str, str, str, int, int] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self._data is None and self.ref is None:
+            raise ValueError(f"channel {self.id}: give data or a run-file reference")
+        if not self.segments:
+            self.segments = [(0, self.n)]
 
     @property
     def n(self) -> int:
-        return len(self.data)
+        return len(self._data) if self._data is not None else self.ref[4]
+
+    @property
+    def data(self) -> np.ndarray:
+        if self._data is None:
+            out = None
+            pos = 0
+            for block in self.iter_raw():
+                if out is None:
+                    out = np.empty(self.n, dtype=block.dtype)
+                out[pos : pos + len(block)] = block
+                pos += len(block)
+            self._data = out
+        return self._data
+
+    @data.setter
+    def data(self, value: np.ndarray) -> None:
+        self._data = value
+
+    def release(self) -> None:
+        """Drop the cached samples of a run-file channel (read again on the next access)."""
+        if self.ref is not None:
+            self._data = None
+
+    def iter_raw(self, rows: int = 1 << 22) -> Iterator[np.ndarray]:
+        """The raw samples (counts or floats) in blocks of ``rows``, without loading them all."""
+        if self._data is not None or self.ref is None:
+            for i in range(0, self.n, rows):
+                yield self._data[i : i + rows]
+            return
+        path, device, name, column, n = self.ref
+        with open_run(path) as run:
+            ds = run.dataset(device, name)
+            for i in range(0, n, rows):
+                yield ds[i : min(i + rows, n), column]
 
     def rate(self) -> np.ndarray:
         """Samples in SI units (float64)."""
         return self.data.astype(np.float64) * self.scale
+
+
+def locate_breaks(t_ns: h5py.Dataset | np.ndarray, events, rate_hz: float, window: int = 4096) -> list[int]:
+    """Sample indices where logged gaps/overruns break the record.
+
+    A gap or overrun event is written at the host time ``t`` of the read that
+    found samples missing, before that read's samples are appended; the newest
+    of those samples carries time ``t`` (docs/runfile.md). So the break lies
+    just before the first sample of that block: among the samples up to the
+    first one after ``t`` (``window`` samples back), it is the largest jump of
+    the timestamps. An event whose block shows no jump above 1.5 sample
+    periods leaves the record contiguous (the timestamps show nothing missing,
+    e.g. ``lost`` estimated as 0). Returns sorted unique indices ``j``: samples ``j-1`` and ``j``
+    are not neighbours.
+    """
+    n = len(t_ns)
+    period_ns = 1e9 / rate_hz
+    breaks = set()
+    for ev in events:
+        lo, hi = 0, n  # binary search on the (possibly on-disk) sorted timestamps
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if int(t_ns[mid]) <= ev.t_ns:
+                lo = mid + 1
+            else:
+                hi = mid
+        i = lo  # samples 0..i-1 are at or before the event
+        a, b = max(0, i - max(window, 4 * max(ev.lost, 0))), min(n, i + 1)
+        if b - a < 2:
+            continue
+        t = np.asarray(t_ns[a:b], dtype=np.int64)
+        jumps = np.diff(t)
+        k = int(np.argmax(jumps))
+        if jumps[k] > 1.5 * period_ns:
+            breaks.add(a + k + 1)
+    return sorted(j for j in breaks if 0 < j < n)
+
+
+def segments_from_breaks(breaks: Sequence[int], n: int) -> list[tuple[int, int]]:
+    """Contiguous ``[start, stop)`` ranges of ``n`` samples split at ``breaks``."""
+    edges = [0, *sorted(set(breaks)), n]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
 def _check_values(path: str, label: str, data: np.ndarray) -> None:
@@ -59,13 +150,13 @@ def _check_values(path: str, label: str, data: np.ndarray) -> None:
 
 
 def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
+    """Lazy channels of every selected rate axis of a run file, with segments from its gap events."""
     out = []
     with open_run(path) as run:
-        gaps_by_dev: dict[str, int] = {}
-        for ev in run.events():
-            if ev.kind in ("gap", "overrun"):
-                gaps_by_dev[ev.source] = gaps_by_dev.get(ev.source, 0) + 1
+        events = [ev for ev in run.events() if ev.kind in ("gap", "overrun")]
         for dev in run.devices.values():
+            dev_events = [ev for ev in events if ev.source == dev.name]
+            segments = None
             for cname, ch in dev.channels.items():
                 if cname not in RATE_CHANNELS or not ch.axes:
                     continue
@@ -73,19 +164,24 @@ def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
                     cid = f"{dev.name}/{cname}/{axis}"
                     if globs and not any(fnmatch.fnmatchcase(cid, g) for g in globs):
                         continue
-                    data = run.dataset(dev.name, cname)[:, j]
-                    if data.size == 0:
+                    if ch.n == 0:
                         raise InputError(f"{path}: channel {cid} has no samples")
+                    if segments is None:
+                        t_ds = run.dataset(dev.name, "t")
+                        breaks = locate_breaks(t_ds, dev_events, dev.rate_hz) if dev_events else []
+                        segments = segments_from_breaks(breaks, ch.n)
                     out.append(
                         Channel(
                             cid,
                             dev.rate_hz,
                             ch.units,
-                            data,
+                            None,
                             ch.scale,
                             source=path,
-                            gaps=gaps_by_dev.get(dev.name, 0),
+                            gaps=len(dev_events),
                             meta={"device": dev.name, "driver": dev.driver, "settings": dev.settings},
+                            segments=list(segments),
+                            ref=(path, dev.name, cname, j, ch.n),
                         )
                     )
     return out

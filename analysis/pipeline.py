@@ -26,7 +26,7 @@ class ChannelAnalysis:
 
 def analyze_channel(ch: Channel, *, pattern: str = "log", m: int = 1000) -> ChannelAnalysis:
     """Allan deviation, IEEE-952 coefficients and the ML_i fit of one channel."""
-    allan = oadev(ch.data, ch.fs_hz, scale=ch.scale)
+    allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     ieee = ieee_coefficients(allan)
     mli = fit_mli(ch.data, ch.fs_hz, pattern=pattern, m=m, scale=ch.scale)
     return ChannelAnalysis(ch, allan, ieee, mli)
@@ -67,8 +67,10 @@ def channel_document(res: ChannelAnalysis) -> dict:
                 "adev": res.allan.adev,
                 "adev_lo": res.allan.adev_lo,
                 "adev_hi": res.allan.adev_hi,
+                "edf": res.allan.edf,
+                "alpha": res.allan.alpha,
             },
-            "ieee": {"N": res.ieee.N, "B": res.ieee.B, "K": res.ieee.K, "tau_B": res.ieee.tau_B},
+            "ieee": res.ieee.as_dict(),
         }
     )
 
