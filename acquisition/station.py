@@ -155,6 +155,7 @@ class Station:
         self.devices: dict[str, DeviceState] = {}
         self.thermometers: dict[str, ThermometerState] = {}
         self.t0 = 0
+        self._started = False
         self._wall0 = time.monotonic()
         self._window_wall = self._wall0
 
@@ -222,7 +223,8 @@ class Station:
         ``pace`` (virtual clock only): at most this many virtual seconds per wall
         second (tests that must interrupt a capture mid-write).
         """
-        self.t0 = self.clock.now_ns()
+        if not self._started:
+            self.start(recorder)
         self._wall0 = self._window_wall = time.monotonic()
         self._status_interval = status_interval_s
         self._on_status = on_status
@@ -243,6 +245,22 @@ class Station:
             if on_status is not None:
                 on_status(self.status(final=True, reason=reason))
         return self.summary(reason)
+
+    def start(self, sink: Sink) -> None:
+        """Set the time origin and empty every device's buffer: recording starts now.
+
+        Samples a FIFO gathered between opening the devices and now (while the
+        run file was being created) predate the run and are dropped, as the
+        drivers drop their start-up samples.
+        """
+        self.t0 = self.clock.now_ns()
+        self._started = True
+        for st in self.devices.values():
+            try:
+                st.driver.read_block()
+            except (BusError, DeviceError) as exc:
+                self._fault(sink, st, str(exc))
+        self.t0 = self.clock.now_ns()
 
     def summary(self, reason: str = "") -> CaptureSummary:
         return CaptureSummary(
