@@ -61,6 +61,8 @@ H5_OPTS: dict[str, Any] = {"compression": "gzip", "compression_opts": 1, "shuffl
 CHUNK_ROWS = 8192
 #: free space a flush leaves on the filesystem (room to close the file cleanly)
 DEFAULT_MIN_FREE_BYTES = 16 * 2**20
+#: suffix of a run file while it is being created (renamed when valid)
+CREATING_SUFFIX = ".creating"
 
 
 @dataclass(frozen=True)
@@ -152,11 +154,13 @@ class RunWriter:
         self.fsync = bool(fsync)
         self.min_free_bytes = int(min_free_bytes)
         self.closed = True
-        mode = "w" if overwrite else "w-"
+        if not overwrite and os.path.exists(self.path):
+            raise RunFileError(f"{self.path}: file exists; choose another name or --overwrite")
+        # built under a temporary name and renamed once it is a valid SWMR file, so
+        # a crash while creating it never leaves an unreadable file at ``path``
+        creating = self.path + CREATING_SUFFIX
         try:
-            self._f = h5py.File(self.path, mode, libver="latest")
-        except FileExistsError as exc:
-            raise RunFileError(f"{self.path}: file exists; choose another name or --overwrite") from exc
+            self._f = h5py.File(creating, "w", libver="latest")
         except OSError as exc:
             raise RunFileError(f"{self.path}: cannot create run file: {exc}") from exc
         self.closed = False
@@ -219,6 +223,11 @@ class RunWriter:
         self._events = f.create_dataset(EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
         self._event_buffer: list[tuple] = []
         f.swmr_mode = True
+        f.flush()
+        if self.fsync:
+            os.fsync(f.id.get_vfd_handle())
+        os.replace(creating, self.path)
+        _fsync_dir(self.path)
         self._last_flush = time.monotonic()
 
     # -- creation -----------------------------------------------------------
@@ -301,17 +310,18 @@ class RunWriter:
         st = os.statvfs(os.path.dirname(os.path.abspath(self.path)))
         return st.f_bavail * st.f_frsize
 
-    def flush(self) -> None:
+    def flush(self, *, reserve: bool = True) -> None:
         """Write every queued block and flush the file to disk.
 
         Raises :class:`DiskFullError` when the filesystem is (nearly) full: either
         before writing (free space below ``min_free_bytes``; the file is intact and
         can be closed cleanly) or when a write failed with ENOSPC (the file keeps
         what the previous flush wrote; the writer is then ``broken``).
+        ``reserve=False`` (the final flush of :meth:`close`) may use the reserve.
         """
         if self.broken:
             raise DiskFullError(f"{self.path}: the run file can no longer be written (disk full)")
-        if self._pending_bytes and self.min_free_bytes > 0:
+        if reserve and self._pending_bytes and self.min_free_bytes > 0:
             free = self.free_bytes()
             if free < self.min_free_bytes + 2 * self._pending_bytes:
                 raise DiskFullError(
@@ -376,7 +386,7 @@ class RunWriter:
         if self.closed:
             return
         try:
-            self.flush()
+            self.flush(reserve=False)
         finally:
             self._f.close()
             self.closed = True
@@ -414,6 +424,15 @@ class RunWriter:
             self.close()
         else:
             self.abort()
+
+
+def _fsync_dir(path: str) -> None:
+    """Make a rename durable (the directory entry is on disk after power loss)."""
+    fd = os.open(os.path.dirname(os.path.abspath(path)), os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def _is_enospc(exc: OSError) -> bool:

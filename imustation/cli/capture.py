@@ -133,7 +133,8 @@ def capture(
     lost = sum(summary.lost.values())
     speed = summary.duration_s / summary.wall_s if summary.wall_s > 0 else float("inf")
     note = f" ({summary.stop_reason})" if summary.stop_reason else ""
-    files = summary.paths[0] if len(summary.paths) == 1 else f"{len(summary.paths)} parts {', '.join(summary.paths)}"
+    files = summary.paths[0] if len(summary.paths) == 1 else f"{len(summary.paths)} parts {summary.paths[0]} .. "
+    files += os.path.basename(summary.paths[-1]) if len(summary.paths) > 1 else ""
     msg = (
         f"wrote {files}: {total} samples from {len(summary.samples)} device(s)"
         + (f", {sum(summary.readings.values())} thermometer readings" if summary.readings else "")
