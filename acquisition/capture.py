@@ -20,7 +20,7 @@ from imustation.acquisition.recorder import Recorder
 from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
 from imustation.clock import Clock
 from imustation.errors import DiskFullError
-from imustation.runfile import DEFAULT_MIN_FREE_BYTES
+from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
 
 
 class _StopFlag:
@@ -50,6 +50,7 @@ def capture(
     clock: Clock | None = None,
     fsync: bool = True,
     min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
+    ballast_bytes: int = DEFAULT_BALLAST_BYTES,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -59,7 +60,7 @@ def capture(
         (``run.001.h5``, ``run.002.h5``, ...); None writes one file.
     pace : simulation only: at most this many virtual seconds per wall second.
     clock : override the station clock (tests run simulated chips on a real clock).
-    fsync, min_free_bytes : see :class:`~imustation.runfile.RunWriter`.
+    fsync, min_free_bytes, ballast_bytes : see :class:`~imustation.runfile.RunWriter`.
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
@@ -76,6 +77,7 @@ def capture(
         flush_interval_s=config.flush_interval_s,
         fsync=fsync,
         min_free_bytes=min_free_bytes,
+        ballast_bytes=ballast_bytes,
     )
     recorder.reserve()
     station = Station(config, simulate=simulate, clock=clock)

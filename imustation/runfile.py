@@ -63,6 +63,9 @@ CHUNK_ROWS = 8192
 DEFAULT_MIN_FREE_BYTES = 16 * 2**20
 #: suffix of a run file while it is being created (renamed when valid)
 CREATING_SUFFIX = ".creating"
+#: room kept beside a run file to finish it when the disk fills up anyway
+BALLAST_SUFFIX = ".ballast"
+DEFAULT_BALLAST_BYTES = 4 * 2**20
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,11 @@ class RunWriter:
     min_free_bytes : a flush that would leave less free space than this on the
         file's filesystem is refused with :class:`DiskFullError` *before*
         writing, so the file stays complete and can still be closed cleanly.
+    ballast_bytes : size of ``<path>.ballast``, a file allocated beside the run
+        file and deleted when a write fails with ENOSPC anyway (another program
+        filled the disk): the freed room lets HDF5 finish its flush and close
+        the file cleanly (a file HDF5 cannot flush stays half-open in the
+        process, and the library crashes at exit). 0 disables it.
     """
 
     def __init__(
@@ -147,6 +155,7 @@ class RunWriter:
         part_started_utc: str | None = None,
         fsync: bool = True,
         min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
+        ballast_bytes: int = DEFAULT_BALLAST_BYTES,
     ):
         self.path = os.fspath(path)
         self.flush_interval_s = float(flush_interval_s)
@@ -159,6 +168,9 @@ class RunWriter:
         # built under a temporary name and renamed once it is a valid SWMR file, so
         # a crash while creating it never leaves an unreadable file at ``path``
         creating = self.path + CREATING_SUFFIX
+        self._ballast = self.path + BALLAST_SUFFIX if ballast_bytes > 0 else None
+        if self._ballast is not None:
+            _make_ballast(self._ballast, ballast_bytes)
         try:
             self._f = h5py.File(creating, "w", libver="latest")
         except OSError as exc:
@@ -190,6 +202,7 @@ class RunWriter:
         #: rows of each device on disk (after the last successful flush)
         self.samples_flushed: dict[str, int] = {d.name: 0 for d in devices}
         self._queued: dict[str, int] = {d.name: 0 for d in devices}
+        self._last_t: dict[str, int] = {}
         dgrp = f.create_group(DEVICES)
         for dev in devices:
             g = dgrp.create_group(dev.name)
@@ -273,6 +286,7 @@ class RunWriter:
             buffers[(device, COUNTER)].append(np.asarray(counter, dtype="<i8"))
             nbytes += 8 * k
         buffers[(device, TIME)].append(np.asarray(t_ns, dtype="<i8"))
+        self._last_t[device] = int(t_ns[-1])
         self._queued[device] += k
         self._pending_rows += k
         self._pending_bytes += nbytes
@@ -323,19 +337,27 @@ class RunWriter:
             raise DiskFullError(f"{self.path}: the run file can no longer be written (disk full)")
         if reserve and self._pending_bytes and self.min_free_bytes > 0:
             free = self.free_bytes()
-            if free < self.min_free_bytes + 2 * self._pending_bytes:
+            if free < self.min_free_bytes + self._pending_bytes:
                 raise DiskFullError(
-                    f"{self.path}: disk full ({free / 2**20:.1f} MiB free, keeping {self.min_free_bytes / 2**20:.0f} "
+                    f"{self.path}: disk full ({free / 2**20:.1f} MiB free, keeping {self.min_free_bytes / 2**20:.1f} "
                     "MiB in reserve); capture stopped"
                 )
+        extents = {key: ds.shape[0] for key, ds in self._datasets.items()}
+        extents[(EVENTS, "")] = self._events.shape[0]
+        events = list(self._event_buffer)
         try:
             self._write_pending()
             self._f.flush()
             if self.fsync:
                 os.fsync(self._f.id.get_vfd_handle())
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:  # h5py raises RuntimeError for a failed H5Fflush
             if not _is_enospc(exc):
                 raise
+            if self._drop_ballast() and self._roll_back(extents, events):
+                raise DiskFullError(
+                    f"{self.path}: disk full while writing (no space left on device); capture stopped, "
+                    "the last block is logged as lost"
+                ) from exc
             self.broken = True
             raise DiskFullError(
                 f"{self.path}: disk full while writing (no space left on device); capture stopped, "
@@ -365,15 +387,52 @@ class RunWriter:
             self._events.resize(n0 + len(rows), axis=0)
             self._events[n0:] = rows
 
+    def _roll_back(self, extents: Mapping[tuple[str, str], int], events: list[tuple]) -> bool:
+        """After ENOSPC, with room again: cut every dataset back to its extent before
+        the failed flush (HDF5 may have extended a dataset whose chunks it could not
+        write), log the dropped rows as lost, and flush. False if that fails too."""
+        try:
+            for key, ds in self._datasets.items():
+                if ds.shape[0] > extents[key]:
+                    ds.resize(extents[key], axis=0)
+            if self._events.shape[0] > extents[(EVENTS, "")]:
+                self._events.resize(extents[(EVENTS, "")], axis=0)
+            self._event_buffer[:0] = events
+            self.discard_pending()
+            self._write_pending()
+            self._f.flush()
+            if self.fsync:
+                os.fsync(self._f.id.get_vfd_handle())
+        except (OSError, RuntimeError):
+            return False
+        return True
+
+    def _drop_ballast(self) -> bool:
+        if self._ballast is None:
+            return False
+        try:
+            os.unlink(self._ballast)
+        except OSError:
+            pass
+        self._ballast = None
+        return True
+
     def discard_pending(self) -> None:
-        """Drop queued blocks (after a disk-full refusal, so the file can be closed)."""
+        """Drop the queued blocks (the disk is full), logging them as lost samples.
+
+        Events stay queued; one ``gap`` event per device tells how many samples
+        were dropped, so written + logged losses still add up.
+        """
         for parts in self._buffers.values():
             parts.clear()
-        self._event_buffer.clear()
         for name, k in self._queued.items():
-            self.samples_written[name] -= k
+            if k:
+                self.samples_written[name] -= k
+                detail = b"disk full: samples not written"
+                self._event_buffer.append((self._last_t.get(name, 0), name.encode()[:64], b"gap", k, detail))
             self._queued[name] = 0
-        self._pending_rows = self._pending_bytes = 0
+        self._pending_rows = 0
+        self._pending_bytes = len(self._event_buffer) * EVENT_DTYPE.itemsize
 
     def file_bytes(self) -> int:
         try:
@@ -390,6 +449,7 @@ class RunWriter:
         finally:
             self._f.close()
             self.closed = True
+            self._drop_ballast()
         # SWMR writers may not add attributes; reopen once to mark the run complete.
         with h5py.File(self.path, "r+", libver="latest") as f:
             for key, value in (attrs or {}).items():
@@ -415,6 +475,7 @@ class RunWriter:
             except Exception:  # noqa: BLE001 - HDF5 may refuse to close a file it could not write
                 pass
             self.closed = True
+            self._drop_ballast()
 
     def __enter__(self) -> RunWriter:
         return self
@@ -426,6 +487,23 @@ class RunWriter:
             self.abort()
 
 
+def _make_ballast(path: str, size: int) -> None:
+    try:
+        fd = os.open(path, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
+        try:
+            os.posix_fallocate(fd, 0, size)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        if exc.errno == errno.ENOSPC:
+            raise DiskFullError(f"{path}: disk full before the capture started") from None
+        raise RunFileError(f"{path}: cannot create: {exc.strerror}") from None
+
+
 def _fsync_dir(path: str) -> None:
     """Make a rename durable (the directory entry is on disk after power loss)."""
     fd = os.open(os.path.dirname(os.path.abspath(path)), os.O_RDONLY)
@@ -435,9 +513,9 @@ def _fsync_dir(path: str) -> None:
         os.close(fd)
 
 
-def _is_enospc(exc: OSError) -> bool:
-    """HDF5 reports write failures as OSError with the errno only in the message."""
-    return exc.errno == errno.ENOSPC or "No space left" in str(exc) or "errno = 28" in str(exc)
+def _is_enospc(exc: Exception) -> bool:
+    """HDF5 reports write failures as OSError/RuntimeError with the errno only in the message."""
+    return getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc) or "errno = 28" in str(exc)
 
 
 # ---------------------------------------------------------------------------

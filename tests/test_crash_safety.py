@@ -179,6 +179,16 @@ def test_sigterm_second_capture_and_live_reading(config_file, tmp_path, referenc
     assert not os.path.exists(str(out) + ".lock")
 
 
+def _check_dropped_are_logged(path, n: int) -> None:
+    """Samples dropped at the disk-full stop are logged: written + lost = every
+    sample up to the last one produced, exactly (sample k is at (k + 1) periods)."""
+    with open_run(path) as run:
+        gaps = [e for e in run.events() if e.kind == "gap"]
+    assert all(e.detail == "disk full: samples not written" for e in gaps)
+    if gaps:
+        assert n + sum(e.lost for e in gaps) == max(e.t_ns for e in gaps) // (10**9 // RATE)
+
+
 def test_reserve_refusal_finishes_the_file(config_file, tmp_path, reference, monkeypatch):
     """Free space falls under the reserve: the capture stops with a complete file."""
     calls = {"n": 0}
@@ -194,12 +204,13 @@ def test_reserve_refusal_finishes_the_file(config_file, tmp_path, reference, mon
         capture(load_config(config_file), out, 1000.0, simulate=True)
     n = _check_prefix(out, reference, complete=True)
     assert n > 0
+    _check_dropped_are_logged(out, n)
     with open_run(out) as run:
         assert run.attrs["stopped"] == "disk full"
         assert run.events()[-1].detail == "capture stopped: disk full"
 
 
-def test_enospc_while_writing_keeps_the_previous_flush(config_file, tmp_path, reference, monkeypatch):
+def test_enospc_while_writing_is_rescued_by_the_ballast(config_file, tmp_path, reference, monkeypatch):
     real = RunWriter._write_pending
     calls = {"n": 0}
 
@@ -215,9 +226,11 @@ def test_enospc_while_writing_keeps_the_previous_flush(config_file, tmp_path, re
         cli, ["capture", str(config_file), "--simulate", "-o", str(out), "--duration", "1000s", "--quiet"]
     )
     assert res.exit_code == 2 and "disk full" in res.output and res.output.count("\n") == 1
-    n = _check_prefix(out, reference, complete=False)
+    # the ballast file made room: HDF5 finished the flush, the file was closed cleanly
+    n = _check_prefix(out, reference, complete=True)
     assert n > 0
-    assert not os.path.exists(str(out) + ".lock")
+    _check_dropped_are_logged(out, n)
+    assert not os.path.exists(str(out) + ".lock") and not os.path.exists(str(out) + ".ballast")
 
 
 def test_bad_config_touches_nothing(tmp_path):
@@ -227,3 +240,43 @@ def test_bad_config_touches_nothing(tmp_path):
     res = CliRunner().invoke(cli, ["capture", str(cfg), "--simulate", "-o", str(out)])
     assert res.exit_code == 2 and "rate_hz" in res.output and res.output.count("\n") == 1
     assert list(tmp_path.iterdir()) == [cfg]
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """A 2 MiB tmpfs (needs root and a kernel that lets us mount; skipped otherwise)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode().strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+@pytest.mark.parametrize("reserve", [0, 2**18])
+def test_a_real_full_filesystem(small_filesystem, config_file, reference, reserve):
+    """With a reserve the capture stops before the disk is full; without one HDF5
+    meets ENOSPC, the ballast file makes room and the file is finished all the same.
+    (Run in a subprocess: HDF5 crashes at exit if it could not close a file.)"""
+    out = small_filesystem / "run.h5"
+    script = (
+        "import sys\n"
+        "from imustation.acquisition import capture, load_config\n"
+        "from imustation.errors import DiskFullError\n"
+        "try:\n"
+        f"    cfg = load_config({str(config_file)!r})\n"
+        f"    capture(cfg, {str(out)!r}, 2000.0, simulate=True, min_free_bytes={reserve}, ballast_bytes=2**18)\n"
+        "except DiskFullError as exc:\n"
+        "    print(exc)\n"
+        "    sys.exit(3)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 3, res.stderr
+    assert "disk full" in res.stdout
+    n = _check_prefix(out, reference, complete=True)
+    assert not os.path.exists(str(out) + ".ballast")
+    _check_dropped_are_logged(out, n)
+    assert n > 50_000  # several flushes made it to the disk
