@@ -42,6 +42,8 @@ from imustation.runfile import DeviceSpec
 STATUS_INTERVAL_S = 1.0
 #: how long the writer thread waits for a block before doing its periodic work, s
 WRITER_WAKEUP_S = 0.05
+#: distinct block lengths whose sample-time offsets a device keeps
+_MAX_CACHED_OFFSETS = 512
 #: number of first counter jumps of a block quoted in the event text
 _QUOTED_JUMPS = 3
 
@@ -76,6 +78,8 @@ class DeviceState:
     failed_attempts: int = 0
     #: samples seen in the current status window (for the recent rate)
     window_samples: int = 0
+    #: block length -> time offsets of its samples before the newest, ns (reused every poll)
+    offsets: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass
@@ -439,7 +443,12 @@ class Station:
         if k == 0:
             return
         # sample times: the last sample is the newest at read time, spaced by the ODR
-        t = t_read - (np.arange(k - 1, -1, -1, dtype=np.float64) * st.period_ns).round().astype(np.int64)
+        offsets = st.offsets.get(k)
+        if offsets is None:
+            offsets = (np.arange(k - 1, -1, -1, dtype=np.float64) * st.period_ns).round().astype(np.int64)
+            if len(st.offsets) < _MAX_CACHED_OFFSETS:
+                st.offsets[k] = offsets
+        t = t_read - offsets
         sink.append(name, t, block.channels, counter)
         st.samples += k
         st.window_samples += k
