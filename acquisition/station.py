@@ -303,7 +303,7 @@ class Station:
     def _run_virtual(self, recorder: Any, end: int, should_stop: Callable[[], bool], pace: float | None) -> str:
         clock = self.clock
         heap = self._pollers(self._all_pollers())
-        tick = getattr(recorder, "tick", None)
+        tick = _ticker(recorder)
         heappop, heappush = heapq.heappop, heapq.heappush
         wall0 = time.monotonic()
         while heap:
@@ -344,7 +344,7 @@ class Station:
         ]
         for th in threads:
             th.start()
-        tick = getattr(recorder, "tick", None)
+        tick = _ticker(recorder)
         reason = ""
         try:
             while True:
@@ -586,6 +586,14 @@ class Station:
         if callable(file_status):
             status.update(file_status())
         return status
+
+
+def _ticker(recorder: Any) -> Callable[[int], None] | None:
+    """The recorder's between-polls hook: ``tick(t_ns)``, or a plain writer's ``flush_if_due``."""
+    tick = getattr(recorder, "tick", None)
+    if tick is None and hasattr(recorder, "flush_if_due"):
+        return lambda t_ns: recorder.flush_if_due()
+    return tick
 
 
 def _channel(info: DriverInfo, name: str):
