@@ -1,4 +1,11 @@
-"""One capture: station -> run file, with clean stops on SIGINT/SIGTERM."""
+"""One capture: station -> run file(s), with clean stops on SIGINT/SIGTERM and a full disk.
+
+Order of work, so a bad start never leaves a half-made file: lock the output
+and refuse existing files, open every device (identity, settings), then create
+the run file and record. The file is finished (``ended_utc`` set) at the end of
+the duration, after SIGINT/SIGTERM and when the disk fills up; after any other
+error it is closed as it is, holding every sample up to the last flush.
+"""
 
 from __future__ import annotations
 
@@ -9,12 +16,15 @@ from collections.abc import Callable
 from typing import Any
 
 from imustation.acquisition.config import StationConfig
-from imustation.acquisition.station import CaptureSummary, Station
-from imustation.runfile import RunWriter
+from imustation.acquisition.recorder import Recorder
+from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
+from imustation.clock import Clock
+from imustation.errors import DiskFullError
+from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
 
 
 class _StopFlag:
-    """Set by SIGINT/SIGTERM; the station loop checks it between polls."""
+    """Set by SIGINT/SIGTERM; the station checks it between polls."""
 
     def __init__(self) -> None:
         self.signum: int | None = None
@@ -34,45 +44,93 @@ def capture(
     simulate: bool,
     overwrite: bool = False,
     on_status: Callable[[dict[str, Any]], None] | None = None,
+    status_interval_s: float = STATUS_INTERVAL_S,
+    rotate_s: float | None = None,
+    pace: float | None = None,
+    clock: Clock | None = None,
+    fsync: bool = True,
+    min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
+    ballast_bytes: int = DEFAULT_BALLAST_BYTES,
 ) -> CaptureSummary:
-    """Record every device of ``config`` for ``duration_s`` into ``output``.
+    """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
-    The run file is complete (``ended_utc`` set) when this returns, also after
-    SIGINT/SIGTERM, which end the capture early at the next poll. Any other
-    error leaves a readable file holding every sample up to the last flush.
+    Parameters
+    ----------
+    rotate_s : start a new part file every this many seconds of station time
+        (``run.001.h5``, ``run.002.h5``, ...); None writes one file.
+    pace : simulation only: at most this many virtual seconds per wall second.
+    clock : override the station clock (tests run simulated chips on a real clock).
+    fsync, min_free_bytes, ballast_bytes : see :class:`~imustation.runfile.RunWriter`.
+
+    Returns the summary; ``summary.stop_reason`` says why a capture ended early.
+    Raises :class:`~imustation.errors.DiskFullError` after finishing the file
+    when the disk filled up.
     """
-    station = Station(config, simulate=simulate)
+    recorder = Recorder(
+        output,
+        duration_s=duration_s,
+        rotate_s=rotate_s,
+        overwrite=overwrite,
+        station=config.name,
+        config_text=config.text,
+        simulated=simulate,
+        flush_interval_s=config.flush_interval_s,
+        fsync=fsync,
+        min_free_bytes=min_free_bytes,
+        ballast_bytes=ballast_bytes,
+    )
+    recorder.reserve()
+    station = Station(config, simulate=simulate, clock=clock)
     stop = _StopFlag()
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, stop.handler)
+    started = False
     try:
         specs = station.open()
-        writer = RunWriter(
-            output,
-            station=config.name,
-            config_text=config.text,
-            simulated=simulate,
-            devices=specs,
-            flush_interval_s=config.flush_interval_s,
-            overwrite=overwrite,
-        )
+        recorder.start(specs, list(station.thermometers))
+        started = True
         try:
-            summary = station.run(writer, duration_s, on_status=on_status, should_stop=stop)
-            if stop.signum is not None:
-                writer.event(
-                    station.clock.now_ns() - station.t0,
-                    "station",
-                    "note",
-                    f"stopped by signal {signal.Signals(stop.signum).name}",
-                )
-        except BaseException:
-            writer.abort()
+            summary = station.run(
+                recorder,
+                duration_s,
+                on_status=on_status,
+                should_stop=stop,
+                status_interval_s=status_interval_s,
+                pace=pace,
+            )
+        except DiskFullError:
+            _finish_after_disk_full(recorder, station)
             raise
-        writer.close()
+        if stop.signum is not None:
+            summary.stop_reason = f"stopped by signal {signal.Signals(stop.signum).name}"
+            recorder.event(station.clock.now_ns() - station.t0, "station", "note", summary.stop_reason)
+        recorder.finish()
+        summary.paths = list(recorder.paths)
         return summary
+    except BaseException:
+        if started:
+            recorder.abort()
+        else:
+            recorder.lock.release()
+        raise
     finally:
         station.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _finish_after_disk_full(recorder: Recorder, station: Station) -> None:
+    """Close the file as cleanly as the disk allows: complete if the reserve held, else as it is."""
+    writer = recorder.writer
+    assert writer is not None
+    if writer.broken:
+        recorder.abort()
+        return
+    writer.discard_pending()
+    try:
+        recorder.event(station.clock.now_ns() - station.t0, "station", "note", "capture stopped: disk full")
+        recorder.finish({"stopped": "disk full"})
+    except (OSError, DiskFullError):
+        recorder.abort()

@@ -68,3 +68,7 @@ class ChipIdMismatch(DeviceError):
 
 class SettingError(DeviceError):
     """A requested device setting is not one the chip supports."""
+
+
+class DiskFullError(RunFileError):
+    """The run file's filesystem is full: the capture stops, the file stays readable."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import math
+import os
 import sys
 
 import click
@@ -11,15 +11,49 @@ import click
 from imustation.acquisition import capture as run_capture
 from imustation.acquisition import load_config
 from imustation.cli import cli
+from imustation.errors import InputError
 from imustation.units import format_duration, parse_duration
 
 
+def _bytes(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return str(n)
+
+
 def format_status(status: dict) -> str:
-    parts = [f"{format_duration(status['elapsed_s'])}/{format_duration(status['duration_s'])}"]
+    """One status line: elapsed/planned, file, then per device and thermometer."""
+    head = f"{format_duration(status['elapsed_s'])}/{format_duration(status['duration_s'])}"
+    head += f" (-{format_duration(status['remaining_s'])})" if status["remaining_s"] > 0 else ""
+    if status.get("file_bytes") is not None:
+        part = f" part {status['part']}" if status.get("part") else ""
+        head += f" {_bytes(status['file_bytes'])}{part}"
+    parts = [head]
     for name, d in status["devices"].items():
-        temp = f" {d['temp_c']:.1f}C" if math.isfinite(d["temp_c"]) else ""
-        parts.append(f"{name}: {d['samples']} @ {d['rate_hz']:.1f}/{d['rate_cfg_hz']:g} Hz gaps {d['gaps']}{temp}")
+        rate = d["rate_recent_hz"] if d.get("rate_recent_hz") is not None else d["rate_hz"]
+        temp = f" {d['temp_c']:.1f}C" if d.get("temp_c") is not None else ""
+        state = " FAILED" if d["state"] != "ok" else ""
+        parts.append(
+            f"{name}: {d['samples']} @ {rate:.1f}/{d['rate_cfg_hz']:g} Hz gaps {d['gaps']}"
+            + (f" (-{d['lost']})" if d["lost"] else "")
+            + temp
+            + state
+        )
+    for name, t in status.get("thermometers", {}).items():
+        c = f"{t['celsius']:.2f}C" if t.get("celsius") is not None else "-"
+        parts.append(f"{name}: {c}" + (" FAILED" if t["state"] != "ok" else ""))
     return " | ".join(parts)
+
+
+def _write_status_file(path: str, status: dict) -> None:
+    """Replace ``path`` atomically, so a reader never sees half a document."""
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as fh:
+        json.dump(status, fh)
+        fh.write("\n")
+    os.replace(tmp, path)
 
 
 @cli.command()
@@ -28,33 +62,83 @@ def format_status(status: dict) -> str:
 @click.option("--duration", default="12h", show_default=True, help="How long to record: 12h, 90m, 1h30m, 45s.")
 @click.option("--simulate", is_flag=True, help="Replace every bus and chip by its simulator (virtual clock).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-@click.option("--quiet", is_flag=True, help="No live status line.")
-@click.option("--json-status", is_flag=True, help="Print the status as one JSON line per second (for CI/logs).")
+@click.option(
+    "--rotate",
+    default=None,
+    metavar="DURATION",
+    help="Start a new part file every DURATION (e.g. 6h): run.001.h5, run.002.h5, ...",
+)
+@click.option("--quiet", is_flag=True, help="No live status line (errors and the final summary only).")
+@click.option("--json-status", is_flag=True, help="Print the status as one JSON line per interval on stdout.")
+@click.option("--status-file", default=None, metavar="PATH", help="Keep the latest JSON status in PATH.")
+@click.option(
+    "--status-interval", default=1.0, show_default=True, type=float, metavar="SECONDS", help="Wall s between statuses."
+)
+@click.option("--sim-speed", default=None, type=float, hidden=True, help="Simulation: max virtual s per wall s.")
+@click.option("--no-fsync", is_flag=True, hidden=True, help="Skip fsync after flushes (tests on slow disks).")
 def capture(
-    config: str, output: str, duration: str, simulate: bool, overwrite: bool, quiet: bool, json_status: bool
+    config: str,
+    output: str,
+    duration: str,
+    simulate: bool,
+    overwrite: bool,
+    rotate: str | None,
+    quiet: bool,
+    json_status: bool,
+    status_file: str | None,
+    status_interval: float,
+    sim_speed: float | None,
+    no_fsync: bool,
 ) -> None:
-    """Record every device of CONFIG into a run file (format v1).
+    """Record every device and thermometer of CONFIG into a run file (format v1).
 
-    Data are flushed to disk at least every flush_interval_s of the config;
-    Ctrl-C or SIGTERM stops the capture cleanly and finishes the file.
+    Data are on disk at least every flush_interval_s of the config. Ctrl-C or
+    SIGTERM stops the capture cleanly and finishes the file; after a crash the
+    file holds every sample up to the last flush (see docs/capture.md).
     """
     cfg = load_config(config)
     seconds = parse_duration(duration)
+    rotate_s = parse_duration(rotate) if rotate else None
+    if not status_interval > 0:
+        raise InputError(f"--status-interval {status_interval}: must be > 0 s")
+    if sim_speed is not None and not sim_speed > 0:
+        raise InputError(f"--sim-speed {sim_speed}: must be > 0")
     tty = sys.stderr.isatty()
+    live = not quiet and not json_status
 
     def on_status(status: dict) -> None:
         if json_status:
             click.echo(json.dumps(status))
-        elif not quiet:
-            click.echo(("\r" if tty else "") + format_status(status), err=True, nl=not tty)
+        if status_file:
+            _write_status_file(status_file, status)
+        if live:
+            line = format_status(status)
+            click.echo(("\r\033[K" if tty else "") + line, err=True, nl=not tty)
 
-    summary = run_capture(cfg, output, seconds, simulate=simulate, overwrite=overwrite, on_status=on_status)
-    if tty and not quiet and not json_status:
+    summary = run_capture(
+        cfg,
+        output,
+        seconds,
+        simulate=simulate,
+        overwrite=overwrite,
+        on_status=on_status,
+        status_interval_s=status_interval,
+        rotate_s=rotate_s,
+        pace=sim_speed,
+        fsync=not no_fsync,
+    )
+    if tty and live:
         click.echo("", err=True)
     total = sum(summary.samples.values())
+    lost = sum(summary.lost.values())
     speed = summary.duration_s / summary.wall_s if summary.wall_s > 0 else float("inf")
-    note = " (stopped early)" if summary.stopped_early else ""
-    click.echo(
-        f"wrote {output}: {total} samples from {len(summary.samples)} device(s), "
-        f"{format_duration(summary.duration_s)} in {summary.wall_s:.1f} s wall ({speed:.0f}x real time){note}"
+    note = f" ({summary.stop_reason})" if summary.stop_reason else ""
+    files = summary.paths[0] if len(summary.paths) == 1 else f"{len(summary.paths)} parts {summary.paths[0]} .. "
+    files += os.path.basename(summary.paths[-1]) if len(summary.paths) > 1 else ""
+    msg = (
+        f"wrote {files}: {total} samples from {len(summary.samples)} device(s)"
+        + (f", {sum(summary.readings.values())} thermometer readings" if summary.readings else "")
+        + (f", {lost} samples lost (see inspect)" if lost else "")
+        + f", {format_duration(summary.duration_s)} in {summary.wall_s:.1f} s wall ({speed:.0f}x real time){note}"
     )
+    click.echo(msg, err=json_status)

@@ -22,6 +22,13 @@ def inspect(run: str) -> None:
             f"  started {a.get('started_utc')}  ended {a.get('ended_utc', '-')}"
             f"  simulated {bool(a.get('simulated'))}  software {a.get('software_version')}"
         )
+        if "part" in a:
+            click.echo(
+                f"  part {a['part']} of a rotated run (run_id {a.get('run_id')}), started {a.get('part_started_utc')};"
+                f" previous {a.get('previous_part') or '-'}, next {a.get('next_part') or '-'}"
+            )
+        if a.get("stopped"):
+            click.echo(f"  stopped early: {a['stopped']}")
         events = rf.events()
         for dev in rf.devices.values():
             t = rf.dataset(dev.name, "t")
@@ -33,6 +40,9 @@ def inspect(run: str) -> None:
             click.echo(f"  device {dev.name}: {dev.model} ({dev.driver}) on {dev.bus}, {dev.identity}")
             settings = ", ".join(f"{k}={v}" for k, v in sorted(dev.settings.items()))
             click.echo(f"    settings: {settings}")
+            if dev.torn:
+                rows = ", ".join(f"{k} {v}" for k, v in sorted(dev.rows.items()))
+                click.echo(f"    torn last block (cut off while flushing): rows {rows}; reading the first {dev.n}")
             click.echo(
                 f"    samples {dev.n}, duration {format_duration(duration)}, "
                 f"rate {achieved:.3f} Hz (configured {dev.rate_hz:g}), gaps {len(gaps)} ({lost} samples lost)"
@@ -51,7 +61,8 @@ def inspect(run: str) -> None:
         for name in rf.thermometers:
             t, c = rf.temperatures(name)
             span = f"{c.min():.3f} .. {c.max():.3f} degC" if len(c) else "no readings"
-            click.echo(f"  thermometer {name}: {len(c)} readings, {span}")
+            missed = sum(e.lost for e in events if e.source == name)
+            click.echo(f"  thermometer {name}: {len(c)} readings, {span}, {missed} missed")
         other = [e for e in events if e.kind not in ("gap", "overrun")]
         click.echo(f"  events: {len(events)} ({len(events) - len(other)} gaps/overruns)")
         for e in events[:20]:

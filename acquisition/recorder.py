@@ -1,0 +1,198 @@
+"""The capture's side of the run file: one writer at a time, rotation, output lock.
+
+:class:`Recorder` owns the :class:`~imustation.runfile.RunWriter` of the part
+being written. With ``rotate_s`` the capture is cut into parts of that much
+station time (``run.001.h5``, ``run.002.h5``, ...): each part is a complete
+run file (format v1) sharing ``started_utc`` and ``run_id`` with the others, so
+sample times continue from one part to the next (docs/runfile.md, "Rotation").
+
+:class:`OutputLock` keeps two captures from writing the same output: an
+exclusive ``flock`` on ``<output>.lock``, released by the kernel when the
+process dies, so a crash never leaves a stale lock behind.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import errno
+import fcntl
+import math
+import os
+import uuid
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from imustation.errors import RunFileError
+from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
+
+
+class OutputLock:
+    """Exclusive lock on ``<path>.lock`` for the life of a capture."""
+
+    def __init__(self, path: str):
+        self.path = path + ".lock"
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise RunFileError(f"{self.path}: cannot create the output lock: {exc.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EACCES):
+                raise RunFileError(
+                    f"{self.path[:-5]}: another capture (pid {holder}) is writing this output; choose another name"
+                ) from None
+            raise RunFileError(f"{self.path}: cannot lock: {exc.strerror}") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass
+        os.close(self._fd)
+        self._fd = None
+
+
+def part_path(output: str, part: int) -> str:
+    """``run.h5``, part 3 -> ``run.003.h5``."""
+    stem, ext = os.path.splitext(output)
+    return f"{stem}.{part:03d}{ext or '.h5'}"
+
+
+class Recorder:
+    """Writes a capture into one run file, or into parts of ``rotate_s`` station seconds.
+
+    Parameters
+    ----------
+    output : the run file (without rotation) or the name the parts derive from.
+    duration_s : planned capture duration (to check every part name up front).
+    rotate_s : station seconds per part, or None for one file.
+    writer_options : passed to every :class:`RunWriter` (station, config_text,
+        simulated, flush_interval_s, fsync, min_free_bytes, ...).
+    """
+
+    def __init__(
+        self,
+        output: str | os.PathLike,
+        *,
+        duration_s: float,
+        rotate_s: float | None = None,
+        overwrite: bool = False,
+        **writer_options: Any,
+    ):
+        self.output = os.fspath(output)
+        self.rotate_s = rotate_s
+        self.overwrite = overwrite
+        self.writer_options = writer_options
+        self.writer: RunWriter | None = None
+        self.paths: list[str] = []
+        self.part = 0
+        self._closed_bytes = 0
+        self._next_rotation_ns: int | None = None
+        self.lock = OutputLock(self.output)
+        n_parts = math.ceil(duration_s / rotate_s) if rotate_s else 1
+        self.planned = [part_path(self.output, k) for k in range(1, n_parts + 1)] if rotate_s else [self.output]
+
+    # -- life cycle ---------------------------------------------------------------
+    def reserve(self) -> None:
+        """Lock the output and refuse existing files, before any device is touched."""
+        self.lock.acquire()
+        if not self.overwrite:
+            for p in self.planned:
+                if os.path.exists(p):
+                    self.lock.release()
+                    raise RunFileError(f"{p}: file exists; choose another name or --overwrite")
+
+    def start(self, devices: Sequence[DeviceSpec], thermometers: Sequence[str]) -> None:
+        self.devices = list(devices)
+        self.thermometers = list(thermometers)
+        self.started_utc = utc_now_iso()
+        self.run_id = uuid.uuid4().hex if self.rotate_s else ""
+        self._open_part(0)
+
+    def _open_part(self, t_ns: int) -> None:
+        self.part += 1
+        rotating = self.rotate_s is not None
+        path = part_path(self.output, self.part) if rotating else self.output
+        previous = os.path.basename(self.paths[-1]) if self.paths else ""
+        started = _dt.datetime.fromisoformat(self.started_utc) + _dt.timedelta(microseconds=t_ns / 1e3)
+        self.writer = RunWriter(
+            path,
+            devices=self.devices,
+            thermometers=self.thermometers,
+            overwrite=self.overwrite,
+            started_utc=self.started_utc,
+            part=self.part if rotating else None,
+            previous_part=previous,
+            run_id=self.run_id,
+            part_started_utc=started.isoformat(timespec="milliseconds"),
+            **self.writer_options,
+        )
+        self.paths.append(path)
+        if rotating:
+            assert self.rotate_s is not None
+            self._next_rotation_ns = t_ns + int(round(self.rotate_s * 1e9))
+            if self.part > 1:
+                self.writer.event(t_ns, "station", "note", f"part {self.part} continues {previous}")
+
+    def _close_part(self, attrs: Mapping[str, Any] | None = None) -> None:
+        assert self.writer is not None
+        self.writer.close(attrs=attrs)
+        self._closed_bytes += self.writer.file_bytes()
+
+    def tick(self, t_ns: int) -> None:
+        """Between polls: flush when due, start the next part when its time has come."""
+        assert self.writer is not None
+        if self._next_rotation_ns is not None and t_ns >= self._next_rotation_ns:
+            following = os.path.basename(part_path(self.output, self.part + 1))
+            self.writer.event(t_ns, "station", "note", f"continued in {following}")
+            self._close_part({"next_part": following})
+            self._open_part(t_ns)
+        else:
+            self.writer.flush_if_due()
+
+    def finish(self, attrs: Mapping[str, Any] | None = None) -> None:
+        """Flush and close the current part cleanly (``ended_utc`` set)."""
+        try:
+            if self.writer is not None and not self.writer.closed:
+                self._close_part(attrs)
+        finally:
+            self.lock.release()
+
+    def abort(self) -> None:
+        """Close without marking the file complete (the capture failed)."""
+        try:
+            if self.writer is not None:
+                self.writer.abort()
+        finally:
+            self.lock.release()
+
+    # -- the sink the station writes into ------------------------------------------------
+    def append(self, device: str, t_ns: np.ndarray, channels, counter=None) -> None:
+        self.writer.append(device, t_ns, channels, counter)  # type: ignore[union-attr]
+
+    def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None:
+        self.writer.append_temperature(name, t_ns, celsius)  # type: ignore[union-attr]
+
+    def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None:
+        self.writer.event(t_ns, source, kind, detail, lost)  # type: ignore[union-attr]
+
+    def status(self) -> dict[str, Any]:
+        w = self.writer
+        return {
+            "file": w.path if w else self.output,
+            "part": self.part if self.rotate_s else None,
+            "file_bytes": self._closed_bytes + (w.file_bytes() if w else 0),
+        }

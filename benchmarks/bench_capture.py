@@ -1,0 +1,89 @@
+"""Simulated capture speed: virtual time / wall time for the paper's lab (target >= 200x).
+
+Builds the station from ``configs/lab-example.toml``, keeping the devices and
+thermometers whose driver is registered when this runs (and saying which of the
+paper's lab are missing), then records ``--hours`` of virtual time into a
+temporary run file with the normal capture path (event-queue scheduler,
+byte-level simulators, HDF5 writer with compression and fsync).
+
+    python benchmarks/bench_capture.py            # 12 h, prints the ratio
+    python benchmarks/bench_capture.py --hours 1 --profile
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import pstats
+import tempfile
+import time
+import tomllib
+
+from imustation.acquisition import capture
+from imustation.acquisition.config import parse_config
+from imustation.configs import config_path
+from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
+
+#: the lab of Nikolic et al. 2016 (devices by driver name; three MCP9804 thermometers)
+PAPER_LAB = ("bmx055", "mpu9150", "mpu6500", "adis16448", "mti", "dsp3000")
+PAPER_THERMOMETERS = ("mcp9804",) * 3
+TARGET_RATIO = 200.0
+
+
+def lab_config(path: str):
+    with open(path, "rb") as fh:
+        data = tomllib.load(fh)
+    devices = [d for d in data.get("device", []) if d.get("driver") in DRIVERS]
+    thermos = [t for t in data.get("thermometer", []) if t.get("driver") in THERMOMETER_DRIVERS]
+    for d in data.get("device", []):
+        if d not in devices:
+            print(f"skipping device {d.get('name')}: driver {d.get('driver')!r} is not registered")
+    for t in data.get("thermometer", []):
+        if t not in thermos:
+            print(f"skipping thermometer {t.get('name')}: driver {t.get('driver')!r} is not registered")
+    present = {d["driver"] for d in devices}
+    missing = [d for d in PAPER_LAB if d not in present]
+    if missing:
+        print(f"not in this benchmark (no driver or not in the config yet): {', '.join(missing)}")
+    if len(thermos) < len(PAPER_THERMOMETERS):
+        print(f"thermometers: {len(thermos)} of the paper's {len(PAPER_THERMOMETERS)} MCP9804")
+    data = {**data, "device": devices, "thermometer": thermos}
+    return parse_config(data, path=path, text="")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=12.0, help="virtual hours to record (default 12)")
+    ap.add_argument("--config", default=config_path("lab-example.toml"))
+    ap.add_argument("--profile", action="store_true", help="print the 25 costliest functions")
+    args = ap.parse_args()
+    cfg = lab_config(args.config)
+    rates = ", ".join(f"{d.name} ({d.driver}, {d.settings.get('rate_hz', '?')} Hz)" for d in cfg.devices)
+    print(f"devices: {rates}; thermometers: {len(cfg.thermometers)}")
+    duration = args.hours * 3600.0
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "bench.h5")
+        prof = cProfile.Profile() if args.profile else None
+        t0 = time.perf_counter()
+        if prof:
+            prof.enable()
+        summary = capture(cfg, out, duration, simulate=True)
+        if prof:
+            prof.disable()
+        wall = time.perf_counter() - t0
+        size = os.path.getsize(out)
+    samples = sum(summary.samples.values())
+    ratio = duration / wall
+    print(
+        f"virtual {args.hours:g} h in {wall:.1f} s wall: {samples} samples ({samples / wall / 1e6:.2f} M/s), "
+        f"file {size / 2**20:.0f} MiB"
+    )
+    verdict = "PASS" if ratio >= TARGET_RATIO else "FAIL"
+    print(f"ratio virtual/wall = {ratio:.0f}x (target >= {TARGET_RATIO:.0f}x: {verdict})")
+    if prof:
+        pstats.Stats(prof).sort_stats("tottime").print_stats(25)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,282 @@
+"""Crash safety: SIGKILL at random moments, SIGTERM, a second capture on the same
+output, reading while recording, a full disk.
+
+Oracle for file contents: simulated captures are deterministic, so a file cut
+off at any moment must hold exactly a prefix of the same capture run to the end.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from imustation.acquisition import capture, load_config
+from imustation.cli import cli
+from imustation.errors import DiskFullError
+from imustation.runfile import RunWriter, open_run
+
+CONFIG = """
+[station]
+name = "crash"
+flush_interval_s = 0.1
+seed = 9
+
+[[device]]
+name = "gyro"
+driver = "bmx055"
+bus = "i2c:1"
+rate_hz = 400
+bandwidth_hz = 47
+"""
+#: virtual seconds per wall second of the paced subprocess captures
+PACE = 200.0
+RATE = 400
+
+
+@pytest.fixture(scope="module")
+def config_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("crash") / "crash.toml"
+    p.write_text(CONFIG)
+    return p
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory, config_file):
+    """The same capture, uninterrupted: (t, gyro, temp) of 2000 virtual seconds."""
+    path = tmp_path_factory.mktemp("ref") / "ref.h5"
+    capture(load_config(config_file), path, 2000.0, simulate=True)
+    with open_run(path) as run:
+        return run.read("gyro", "t"), run.read("gyro", "gyro"), run.read("gyro", "temp")
+
+
+def _start(config_file, out, *extra):
+    cmd = [sys.executable, "-m", "imustation", "capture", str(config_file), "--simulate", "-o", str(out)]
+    cmd += ["--duration", "1h", "--sim-speed", str(PACE), "--json-status", "--status-interval", "0.2", *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(path, proc, timeout=30.0):
+    t_end = time.monotonic() + timeout
+    while not os.path.exists(path):
+        if proc.poll() is not None:
+            raise AssertionError(f"capture exited early: {proc.stderr.read()}")
+        if time.monotonic() > t_end:
+            raise AssertionError("capture did not create its file")
+        time.sleep(0.02)
+
+
+def _check_prefix(paths, reference, *, complete: bool) -> int:
+    """The files open, every dataset reads, and together they hold a prefix of the reference run.
+
+    ``paths``: one run file, or the parts of a rotated run in order (all but the
+    last one complete).
+    """
+    t_ref, g_ref, temp_ref = reference
+    paths = paths if isinstance(paths, list) else [paths]
+    got = {"t": [], "gyro": [], "temp": []}
+    for i, path in enumerate(paths):
+        with open_run(path) as run:
+            if i < len(paths) - 1:
+                assert run.complete
+            elif len(paths) == 1:  # (a kill between two parts leaves the last one complete)
+                assert run.complete == complete
+            dev = run.devices["gyro"]
+            n = dev.n
+            # a torn last block (crash inside a flush) leaves some datasets longer: readers use n
+            assert n == min(dev.rows.values())
+            assert max(dev.rows.values()) - n <= PACE * RATE * 0.1 * 4
+            for name in dev.rows:  # every dataset reads in full
+                assert len(run.dataset("gyro", name)[()]) == dev.rows[name]
+            for name, parts in got.items():
+                parts.append(run.read("gyro", name))
+                assert len(parts[-1]) == n
+            run.events()
+    t, g, temp = (np.concatenate(got[k]) for k in ("t", "gyro", "temp"))
+    n = len(t)
+    assert n <= len(t_ref)
+    assert np.array_equal(t, t_ref[:n]) and np.array_equal(g, g_ref[:n]) and np.array_equal(temp, temp_ref[:n])
+    return n
+
+
+def _last_status_samples(stdout: str) -> int:
+    lines = [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]
+    return lines[-1]["devices"]["gyro"]["samples"] if lines else 0
+
+
+def _kill_at_random(config_file, tmp_path, reference, kills: int, seed: int, *extra) -> list[int]:
+    rng = random.Random(seed)
+    sizes = []
+    for i in range(kills):
+        out = tmp_path / f"kill{i}.h5"
+        proc = _start(config_file, out, *extra)
+        _wait_for(tmp_path / f"kill{i}.001.h5" if extra else out, proc)
+        time.sleep(rng.uniform(0.0, 1.5))
+        proc.send_signal(signal.SIGKILL)
+        stdout, _ = proc.communicate(timeout=30)
+        assert proc.returncode == -signal.SIGKILL
+        paths = sorted(tmp_path.glob(f"kill{i}.*.h5")) if extra else [out]
+        n = _check_prefix(paths, reference, complete=False)
+        # flushed at least every flush_interval_s: what the last status counted, less one
+        # flush interval of data (0.1 s wall at PACE) and one block, is on disk
+        assert n >= _last_status_samples(stdout) - 0.1 * PACE * RATE - 100
+        sizes.append(n)
+    return sizes
+
+
+def test_sigkill_at_random_moments_leaves_readable_prefixes(config_file, tmp_path, reference):
+    sizes = _kill_at_random(config_file, tmp_path, reference, kills=3, seed=1)
+    assert len(set(sizes)) == 3  # different moments, different files
+
+
+@pytest.mark.slow
+def test_sigkill_soak(config_file, tmp_path, reference):
+    sizes = _kill_at_random(config_file, tmp_path, reference, kills=25, seed=2)
+    assert len(set(sizes)) > 20
+
+
+@pytest.mark.slow
+def test_sigkill_with_rotation(config_file, tmp_path, reference):
+    _kill_at_random(config_file, tmp_path, reference, 8, 3, "--rotate", "60s")
+
+
+def test_sigterm_second_capture_and_live_reading(config_file, tmp_path, reference):
+    out = tmp_path / "term.h5"
+    proc = _start(config_file, out)
+    try:
+        _wait_for(out, proc)
+        time.sleep(0.5)
+        # a second capture of the same output is refused, even with --overwrite
+        res = CliRunner().invoke(cli, ["capture", str(config_file), "--simulate", "-o", str(out), "--overwrite"])
+        assert res.exit_code == 2 and "another capture" in res.output
+        # the file reads while it is being written (SWMR)
+        res = CliRunner().invoke(cli, ["inspect", str(out)])
+        assert res.exit_code == 0 and "INCOMPLETE" in res.output, res.output
+        n_live = _check_prefix(out, reference, complete=False)
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "stopped by signal SIGTERM" in stderr
+    final = json.loads(stdout.splitlines()[-1])
+    assert final["state"] == "stopped"
+    n = _check_prefix(out, reference, complete=True)
+    assert n >= n_live and n == final["devices"]["gyro"]["samples"]
+    with open_run(out) as run:
+        assert run.events()[-1].detail == "stopped by signal SIGTERM"
+    assert not os.path.exists(str(out) + ".lock")
+
+
+def _check_dropped_are_logged(path, n: int) -> None:
+    """Samples dropped at the disk-full stop are logged: written + lost = every
+    sample up to the last one produced, exactly (sample k is at (k + 1) periods)."""
+    with open_run(path) as run:
+        gaps = [e for e in run.events() if e.kind == "gap"]
+    assert all(e.detail == "disk full: samples not written" for e in gaps)
+    if gaps:
+        assert n + sum(e.lost for e in gaps) == max(e.t_ns for e in gaps) // (10**9 // RATE)
+
+
+def test_reserve_refusal_finishes_the_file(config_file, tmp_path, reference, monkeypatch):
+    """Free space falls under the reserve: the capture stops with a complete file."""
+    calls = {"n": 0}
+
+    def free_bytes(self):
+        calls["n"] += 1
+        return 10**12 if calls["n"] < 4 else 1000
+
+    monkeypatch.setattr(RunWriter, "free_bytes", free_bytes)
+    monkeypatch.setattr("imustation.runfile.RunWriter.flush_interval_s", 0.0, raising=False)
+    out = tmp_path / "full.h5"
+    with pytest.raises(DiskFullError, match="disk full"):
+        capture(load_config(config_file), out, 1000.0, simulate=True)
+    n = _check_prefix(out, reference, complete=True)
+    assert n > 0
+    _check_dropped_are_logged(out, n)
+    with open_run(out) as run:
+        assert run.attrs["stopped"] == "disk full"
+        assert run.events()[-1].detail == "capture stopped: disk full"
+
+
+def test_enospc_while_writing_is_rescued_by_the_ballast(config_file, tmp_path, reference, monkeypatch):
+    real = RunWriter._write_pending
+    calls = {"n": 0}
+
+    def failing(self):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(self)
+
+    monkeypatch.setattr(RunWriter, "_write_pending", failing)
+    out = tmp_path / "enospc.h5"
+    res = CliRunner().invoke(
+        cli, ["capture", str(config_file), "--simulate", "-o", str(out), "--duration", "1000s", "--quiet"]
+    )
+    assert res.exit_code == 2 and "disk full" in res.output and res.output.count("\n") == 1
+    # the ballast file made room: HDF5 finished the flush, the file was closed cleanly
+    n = _check_prefix(out, reference, complete=True)
+    assert n > 0
+    _check_dropped_are_logged(out, n)
+    assert not os.path.exists(str(out) + ".lock") and not os.path.exists(str(out) + ".ballast")
+
+
+def test_bad_config_touches_nothing(tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text('[[device]]\nname = "g"\ndriver = "bmx055"\nbus = "i2c:1"\nrate_hz = 333\n')
+    out = tmp_path / "never.h5"
+    res = CliRunner().invoke(cli, ["capture", str(cfg), "--simulate", "-o", str(out)])
+    assert res.exit_code == 2 and "rate_hz" in res.output and res.output.count("\n") == 1
+    assert list(tmp_path.iterdir()) == [cfg]
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """A 2 MiB tmpfs (needs root and a kernel that lets us mount; skipped otherwise)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode().strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+@pytest.mark.parametrize("reserve", [0, 2**18])
+def test_a_real_full_filesystem(small_filesystem, config_file, reference, reserve):
+    """With a reserve the capture stops before the disk is full; without one HDF5
+    meets ENOSPC, the ballast file makes room and the file is finished all the same.
+    (Run in a subprocess: HDF5 crashes at exit if it could not close a file.)"""
+    out = small_filesystem / "run.h5"
+    script = (
+        "import sys\n"
+        "from imustation.acquisition import capture, load_config\n"
+        "from imustation.errors import DiskFullError\n"
+        "try:\n"
+        f"    cfg = load_config({str(config_file)!r})\n"
+        f"    capture(cfg, {str(out)!r}, 2000.0, simulate=True, min_free_bytes={reserve}, ballast_bytes=2**18)\n"
+        "except DiskFullError as exc:\n"
+        "    print(exc)\n"
+        "    sys.exit(3)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 3, res.stderr
+    assert "disk full" in res.stdout
+    n = _check_prefix(out, reference, complete=True)
+    assert not os.path.exists(str(out) + ".ballast")
+    _check_dropped_are_logged(out, n)
+    assert n > 50_000  # several flushes made it to the disk

@@ -1,0 +1,231 @@
+"""Station scheduling: threaded readers on a real clock, thermometers, counters, rotation."""
+
+from __future__ import annotations
+
+import fake_thermometer
+import numpy as np
+import pytest
+
+from imustation.acquisition import capture
+from imustation.acquisition.config import parse_config
+from imustation.acquisition.recorder import part_path
+from imustation.acquisition.station import DeviceState, Station
+from imustation.clock import MonotonicClock, VirtualClock
+from imustation.drivers.base import Block, DriverInfo
+from imustation.runfile import RunWriter, open_run
+
+GYRO = {"driver": "bmx055", "rate_hz": 400, "bandwidth_hz": 47}
+
+
+def _config(devices, thermometers=(), seed=5, flush=0.2):
+    return parse_config(
+        {
+            "station": {"seed": seed, "flush_interval_s": flush},
+            "device": list(devices),
+            "thermometer": list(thermometers),
+        }
+    )
+
+
+def _chip(station: Station, name: str):
+    dev = station.devices[name].config
+    return station.buses._i2c[dev.bus]._smbus.targets[dev.address]
+
+
+def test_threaded_readers_on_a_real_clock_lose_nothing(tmp_path, monkeypatch):
+    """Two buses, a thermometer sharing one of them, 1.5 s of real time.
+
+    Oracle: the BMX055 simulator counts the samples it produced; every one
+    produced after the driver's start-up flush is written, lost (logged) or
+    still in the FIFO at the end.
+    """
+    fake_thermometer.install(monkeypatch)
+    cfg = _config(
+        [{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}],
+        [{"name": "amb", "driver": "fakethermo", "bus": "i2c:1", "rate_hz": 4}],
+    )
+    station = Station(cfg, simulate=True, clock=MonotonicClock())
+    specs = station.open()
+    with RunWriter(
+        tmp_path / "rt.h5", station="t", config_text="", simulated=True, devices=specs, thermometers=["amb"]
+    ) as writer:
+        station.start(writer)
+        # samples produced before recording started, less those still waiting in the FIFO
+        produced0 = {n: _chip(station, n).produced - len(_chip(station, n).fifo) // 6 for n in station.devices}
+        summary = station.run(writer, 1.5)
+    try:
+        with open_run(tmp_path / "rt.h5") as run:
+            for name in ("a", "b"):
+                chip = _chip(station, name)
+                in_fifo = len(chip.fifo) // 6
+                n = run.devices[name].n
+                lost = sum(e.lost for e in run.events() if e.source == name)
+                assert n == summary.samples[name]
+                assert n + lost + in_fifo == chip.produced - produced0[name]
+                # 1.5 s at 400 Hz, less at most one poll interval (0.1 s) at the end
+                assert 1.5 * 400 - 45 <= n <= 1.5 * 400 + 1
+                t = run.read(name, "t")
+                assert (np.diff(t) > 0).all()
+            t, c = run.temperatures("amb")
+            assert len(t) == summary.readings["amb"] in (5, 6)  # 4 Hz for 1.5 s
+            assert np.all((c > 19) & (c < 31))
+    finally:
+        station.close()
+
+
+def test_a_disconnected_device_does_not_stop_the_other_bus(tmp_path):
+    cfg = _config(
+        [
+            {"name": "ok", "bus": "i2c:1", **GYRO},
+            {
+                "name": "flaky",
+                "bus": "i2c:2",
+                **GYRO,
+                "sim": {"faults": [{"kind": "disconnect", "at_s": 0.4, "duration_s": 0.4}]},
+            },
+        ]
+    )
+    out = tmp_path / "dc.h5"
+    summary = capture(cfg, out, 1.5, simulate=True, clock=MonotonicClock())
+    with open_run(out) as run:
+        kinds = {name: [e.kind for e in run.events() if e.source == name] for name in ("ok", "flaky")}
+        assert kinds["ok"] == []
+        assert kinds["flaky"] == ["fault", "reconnect", "gap"]
+        gap = next(e for e in run.events() if e.kind == "gap")
+        # the outage (0.4 s) plus up to one poll interval and the re-initialisation, at 400 Hz
+        assert 0.4 * 400 <= gap.lost <= 0.65 * 400
+        assert run.devices["ok"].n == summary.samples["ok"] >= 1.5 * 400 - 45
+        assert run.complete
+
+
+def _thermo_config(faults=()):
+    return _config(
+        [{"name": "g", "bus": "i2c:1", **GYRO}],
+        [
+            {"name": "t1", "driver": "fakethermo", "bus": "i2c:1", "address": 0x18, "sim": {"faults": list(faults)}},
+            {"name": "t2", "driver": "fakethermo", "bus": "i2c:1", "address": 0x19, "rate_hz": 2},
+        ],
+    )
+
+
+def test_thermometers_at_their_own_rate_with_a_fault(tmp_path, monkeypatch):
+    """Readings + logged missed readings = duration x rate, exactly (virtual clock)."""
+    fake_thermometer.install(monkeypatch)
+    cfg = _thermo_config([{"kind": "disconnect", "at_s": 100.5, "duration_s": 20}])
+    out = tmp_path / "th.h5"
+    summary = capture(cfg, out, 300.0, simulate=True)
+    with open_run(out) as run:
+        assert run.thermometers == ["t1", "t2"]
+        t1, c1 = run.temperatures("t1")
+        t2, _ = run.temperatures("t2")
+        ev = [e for e in run.events() if e.source == "t1"]
+        assert [e.kind for e in ev] == ["fault", "reconnect"]
+        assert len(t1) + sum(e.lost for e in ev) == 300
+        assert len(t2) == summary.readings["t2"] == 600
+        assert np.all(np.diff(t1) >= 1e9)
+        # the chip's T_A follows 20 + seed%10 + 0.5 sin(...): 0.0625 degC steps inside that band
+        assert np.ptp(c1) <= 1.0 + 0.0625 and np.allclose(c1 / 0.0625, np.round(c1 / 0.0625))
+        assert run.devices["g"].n == 120000
+
+
+def test_same_seed_same_file_contents(tmp_path, monkeypatch):
+    fake_thermometer.install(monkeypatch)
+    cfg = _thermo_config([{"kind": "nack", "every_s": 5}, {"kind": "disconnect", "at_s": 10, "duration_s": 3}])
+    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    capture(cfg, a, 30.0, simulate=True)
+    capture(cfg, b, 30.0, simulate=True)
+    with open_run(a) as ra, open_run(b) as rb:
+        for ds in ("t", "gyro", "temp"):
+            assert np.array_equal(ra.read("g", ds), rb.read("g", ds))
+        for name in ("t1", "t2"):
+            for x, y in zip(ra.temperatures(name), rb.temperatures(name), strict=True):
+                assert np.array_equal(x, y)
+        assert ra.events() == rb.events() and len(ra.events()) >= 2
+
+
+class _CounterDriver:
+    """Hands out scripted blocks (the station's counter logic under test)."""
+
+    def __init__(self, blocks):
+        self.blocks = list(blocks)
+
+    def read_block(self) -> Block:
+        return self.blocks.pop(0)
+
+
+class _ListSink:
+    def __init__(self):
+        self.events, self.rows = [], 0
+
+    def append(self, device, t_ns, channels, counter):
+        self.rows += len(t_ns)
+
+    def append_temperature(self, name, t_ns, celsius):
+        pass
+
+    def event(self, t_ns, source, kind, detail="", lost=0):
+        self.events.append((kind, lost, detail))
+
+
+def _counter_block(values):
+    c = np.asarray(values, dtype=np.int64)
+    return Block({"gyro": np.zeros((len(c), 3), np.int16)}, counter=c)
+
+
+@pytest.mark.parametrize(
+    "blocks,modulus,expected",
+    [
+        ([[0, 1, 2], [3, 4, 5]], None, []),
+        ([[0, 1, 2], [5, 6, 9]], None, [("gap", 4)]),  # 3,4 missing between blocks, 7,8 inside
+        ([[65534, 65535, 0, 1], [2, 4]], 65536, [("gap", 1)]),  # a wrap is no jump
+    ],
+)
+def test_counter_jumps_are_logged_with_their_loss(blocks, modulus, expected):
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    station = Station(cfg, simulate=True, clock=VirtualClock())
+    settings = {"counter_modulus": modulus} if modulus else {}
+    info = DriverInfo("fake", "id", 100.0, settings, (), has_counter=True)
+    st = DeviceState(cfg.devices[0], _CounterDriver(_counter_block(b) for b in blocks), info, 1e7, 10**8)
+    station.devices["g"] = st
+    sink = _ListSink()
+    for _ in blocks:
+        station.clock.sleep(0.03)
+        station._poll_device(sink, st)
+    assert [(k, lost) for k, lost, _ in sink.events] == expected
+    assert st.lost == sum(lost for _, lost in expected)
+    assert sink.rows == sum(len(b) for b in blocks)
+
+
+def test_counter_going_back_is_a_resync_measured_from_time():
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    station = Station(cfg, simulate=True, clock=VirtualClock())
+    info = DriverInfo("fake", "id", 100.0, {}, (), has_counter=True)
+    blocks = [_counter_block(range(100, 110)), _counter_block(range(0, 10))]
+    st = DeviceState(cfg.devices[0], _CounterDriver(blocks), info, 1e7, 10**8)
+    station.devices["g"] = st
+    sink = _ListSink()
+    station.clock.sleep(0.1)
+    station._poll_device(sink, st)
+    station.clock.sleep(0.5)  # 50 periods later, 10 samples delivered: 40 lost
+    station._poll_device(sink, st)
+    assert [(k, lost) for k, lost, _ in sink.events] == [("resync", 40)]
+
+
+def test_rotation_makes_complete_parts_with_continuous_times(tmp_path):
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    out = tmp_path / "rot.h5"
+    summary = capture(cfg, out, 25.0, simulate=True, rotate_s=10.0)
+    paths = [part_path(str(out), k) for k in (1, 2, 3)]
+    assert summary.paths == paths and not out.exists()
+    times, run_ids = [], set()
+    for k, p in enumerate(paths, start=1):
+        with open_run(p) as run:
+            assert run.complete and run.attrs["part"] == k
+            assert run.attrs["previous_part"] == ("" if k == 1 else f"rot.{k - 1:03d}.h5")
+            assert run.attrs.get("next_part", "") == ("" if k == 3 else f"rot.{k + 1:03d}.h5")
+            run_ids.add(run.attrs["run_id"])
+            times.append(run.read("g", "t"))
+    t = np.concatenate(times)
+    assert len(run_ids) == 1 and len(t) == summary.samples["g"] == 25 * 400
+    assert np.all(np.diff(t) == 2_500_000)
+    assert [len(x) for x in times] == [4000, 4000, 2000]
