@@ -72,28 +72,6 @@ class BusFactory:
             bus = self._i2c.get(url) or self._i2c.setdefault(url, open_i2c(url))
         return bus.device(address)
 
-    def thermometer_device(self, th: ThermometerConfig) -> RegisterDevice:
-        """The register device of a ``[[thermometer]]`` (I2C), simulated with ``--simulate``."""
-        kind = getattr(THERMOMETER_DRIVERS[th.driver], "bus_kind", "i2c")
-        if kind != "i2c":
-            raise ConfigError("<config>", f"thermometer {th.name}", f"bus kind {kind!r} not supported")
-        address = th.address if th.address is not None else THERMOMETER_DRIVERS[th.driver].default_address
-        if self.simulate:
-            # imported here: the thermometer simulators ship with their drivers
-            from imustation.drivers.sim import make_thermometer_simulator
-
-            bus = self._i2c.get(th.bus)
-            if bus is None:
-                bus = self._i2c[th.bus] = I2CBus(SimSMBus(), th.bus)
-            seed = self.device_seed(th.name)
-            chip, plan = make_thermometer_simulator(th.driver, self.clock, th.settings, th.sim, seed)
-            bus._smbus.attach(address, chip, plan)
-        else:
-            if parse_bus_url(th.bus).scheme == "sim":
-                raise ConfigError("<config>", f"thermometer {th.name}.bus", "sim: buses need --simulate")
-            bus = self._i2c.get(th.bus) or self._i2c.setdefault(th.bus, open_i2c(th.bus))
-        return bus.device(address)
-
     def close(self) -> None:
         for bus in self._i2c.values():
             bus.close()

@@ -100,6 +100,8 @@ class Recorder:
         self.paths: list[str] = []
         self.part = 0
         self._closed_bytes = 0
+        #: samples per device in parts already closed (on disk)
+        self._closed_flushed: dict[str, int] = {}
         self._next_rotation_ns: int | None = None
         self.lock = OutputLock(self.output)
         n_parts = math.ceil(duration_s / rotate_s) if rotate_s else 1
@@ -151,6 +153,8 @@ class Recorder:
         assert self.writer is not None
         self.writer.close(attrs=attrs)
         self._closed_bytes += self.writer.file_bytes()
+        for name, n in self.writer.samples_flushed.items():
+            self._closed_flushed[name] = self._closed_flushed.get(name, 0) + n
 
     def tick(self, t_ns: int) -> None:
         """Between polls: flush when due, start the next part when its time has come."""
@@ -195,4 +199,9 @@ class Recorder:
             "file": w.path if w else self.output,
             "part": self.part if self.rotate_s else None,
             "file_bytes": self._closed_bytes + (w.file_bytes() if w else 0),
+            # samples per device known to be on disk (after the last completed flush)
+            "on_disk": {
+                name: self._closed_flushed.get(name, 0) + (w.samples_flushed.get(name, 0) if w else 0)
+                for name in (w.samples_flushed if w else self._closed_flushed)
+            },
         }

@@ -192,7 +192,7 @@ class Station:
             )
         for th in self.config.thermometers:
             driver_cls = THERMOMETER_DRIVERS[th.driver]
-            regs = self.buses.thermometer_device(th)
+            regs = self.buses.register_thermometer(th)
             driver = driver_cls(regs, th.settings, sleep=self.clock.sleep)
             identity = driver.open()
             period = int(round(1e9 / float(th.settings.get("rate_hz", 1.0))))

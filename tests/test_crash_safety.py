@@ -108,9 +108,15 @@ def _check_prefix(paths, reference, *, complete: bool) -> int:
     return n
 
 
-def _last_status_samples(stdout: str) -> int:
-    lines = [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]
-    return lines[-1]["devices"]["gyro"]["samples"] if lines else 0
+def _last_status_on_disk(stdout: str) -> int:
+    """Samples the last complete status line reported as flushed to disk."""
+    lines = []
+    for line in stdout.splitlines():
+        try:
+            lines.append(json.loads(line))
+        except ValueError:
+            pass  # the kill may cut the last line
+    return lines[-1]["on_disk"]["gyro"] if lines else 0
 
 
 def _kill_at_random(config_file, tmp_path, reference, kills: int, seed: int, *extra) -> list[int]:
@@ -126,9 +132,10 @@ def _kill_at_random(config_file, tmp_path, reference, kills: int, seed: int, *ex
         assert proc.returncode == -signal.SIGKILL
         paths = sorted(tmp_path.glob(f"kill{i}.*.h5")) if extra else [out]
         n = _check_prefix(paths, reference, complete=False)
-        # flushed at least every flush_interval_s: what the last status counted, less one
-        # flush interval of data (0.1 s wall at PACE) and one block, is on disk
-        assert n >= _last_status_samples(stdout) - 0.1 * PACE * RATE - 100
+        # everything the last status reported as flushed survives the kill (a bound on
+        # "samples" minus one flush interval at nominal pace would not hold under CPU
+        # load, when the paced clock catches up in bursts)
+        assert n >= _last_status_on_disk(stdout)
         sizes.append(n)
     return sizes
 
