@@ -294,6 +294,7 @@ class ADIS16448:
         if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
             self.crc_errors += 1
             self._last = None
+            self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
             return Block(_empty(), lost=1, note="checksum: burst CRC mismatch, sample dropped")
         if data == self._last:
             return Block(_empty())  # the same sample read twice: no new data yet

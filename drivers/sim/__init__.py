@@ -28,7 +28,37 @@ def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
 
         source = lambda fs: NoiseSource.for_device("bmx055", ("x", "y", "z"), fs, sim, seed)  # noqa: E731
         return BMG160Sim(clock, source, plan), plan
+    if driver in _SERIAL_SPI_SIMS:
+        key, axes = _SERIAL_SPI_SIMS[driver]
+        source = lambda fs: NoiseSource.for_device(key, axes, fs, sim, seed)  # noqa: E731
+        if driver == "adis16448":
+            from imustation.drivers.sim.adis16448 import ADIS16448Sim
+
+            return ADIS16448Sim(clock, source, plan, seed), plan
+        if driver == "mti":
+            from imustation.drivers.sim.xsens_mti import MTiSim
+
+            return MTiSim(clock, source, plan, seed), plan
+        from imustation.drivers.sim.kvh_dsp3000 import DSP3000Sim
+
+        return DSP3000Sim(clock, source, plan, rate_hz=settings["rate_hz"]), plan
     raise SettingError(f"driver {driver!r} has no simulator")
+
+
+#: driver -> (Table IV key, simulated gyro axes) of the SPI and serial devices
+_SERIAL_SPI_SIMS = {
+    "adis16448": ("adis16448", ("x", "y", "z")),
+    "mti": ("mti", ("x", "y", "z")),
+    "dsp3000": ("dsp3000", ("z",)),
+}
+
+
+def _output_rate(dev) -> float:
+    if dev.driver == "adis16448":
+        from imustation.drivers.adis16448 import rate_hz
+
+        return rate_hz(dev.settings["decimation"])
+    return float(dev.settings["rate_hz"])
 
 
 def simulated_truth(config) -> dict:
@@ -44,6 +74,12 @@ def simulated_truth(config) -> dict:
             seed = station_device_seed(config.seed, dev.name)
             src = NoiseSource.for_device("bmx055", ("x", "y", "z"), dev.settings["rate_hz"], dev.sim, seed)
             for axis, model in zip(("x", "y", "z"), src.models, strict=True):
+                out[f"{dev.name}/gyro/{axis}"] = model
+        elif dev.driver in _SERIAL_SPI_SIMS:
+            key, axes = _SERIAL_SPI_SIMS[dev.driver]
+            seed = station_device_seed(config.seed, dev.name)
+            src = NoiseSource.for_device(key, axes, _output_rate(dev), dev.sim, seed)
+            for axis, model in zip(axes, src.models, strict=True):
                 out[f"{dev.name}/gyro/{axis}"] = model
     return out
 
