@@ -133,15 +133,22 @@ class KVHDSP3000:
         self._sleep(MODE_SETTLE_S)
         self.port.read_available()
         self.reader.reset()
-        bad = 0
+        bad = received = 0
         for _ in range(int(OPEN_TIMEOUT_S / OPEN_POLL_S)):
             self._sleep(OPEN_POLL_S)
-            scan = self.reader.feed(self.port.read_available())
+            data = self.port.read_available()
+            received += len(data)
+            scan = self.reader.feed(data)
             bad += scan.extra["bad_lines"]
             if (scan.frames[1] == STATUS_VALID).any():
                 break
         else:
-            hint = f"{bad} unreadable line(s): wrong baud rate? (38400 8N1)" if bad else "no valid line"
+            if not received:
+                hint = "nothing received: cable, power?"
+            elif bad or not scan.frames[1].size:
+                hint = f"{received} bytes but no readable line: wrong baud rate? (38400 8N1)"
+            else:
+                hint = "every line flags a fault (BIT = 0)"
             raise DeviceError(
                 f"{self.port.where}: DSP-3000 did not start streaming within {OPEN_TIMEOUT_S:g} s ({hint})"
             )

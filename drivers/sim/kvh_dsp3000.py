@@ -43,7 +43,8 @@ class DSP3000Sim(SerialDeviceSim):
         self.sim_resets = 0
         self.t_start_ns = clock.now_ns()
         self.emitted = 0
-        self.fault_until_ns = self.t_start_ns  # powered long before the station opens it
+        # powered long before the station opens it: no start-up window
+        self.fault_from_ns = self.fault_until_ns = self.t_start_ns
 
     def receive(self, data: bytes) -> None:
         self._lines()  # lines due so far keep the old mode
@@ -62,7 +63,9 @@ class DSP3000Sim(SerialDeviceSim):
         if self.plan is not None and self.plan.fire("reset"):
             self.sim_resets += 1
             self.mode = "rate"
-            self.fault_until_ns = self.clock.now_ns() + int(START_UP_S * 1e9)
+            # the reset happened when the plan scheduled it, maybe before this read
+            self.fault_from_ns = max(t for t, kind in self.plan.sim_log if kind == "reset")
+            self.fault_until_ns = self.fault_from_ns + int(START_UP_S * 1e9)
         return self._lines()
 
     def _lines(self) -> bytes:
@@ -82,7 +85,7 @@ class DSP3000Sim(SerialDeviceSim):
             else:
                 values = np.mod(self.integrated_deg + np.cumsum(step), 360.0)
                 self.integrated_deg = float(values[-1])
-        flags = np.where(t_ns < self.fault_until_ns, 0, 1)
+        flags = np.where((t_ns >= self.fault_from_ns) & (t_ns < self.fault_until_ns), 0, 1)
         text = "".join(f" {v:13.6f}   {f}\r\n" for v, f in zip(values.tolist(), flags.tolist(), strict=True))
         data = text.encode("ascii")
         if self.plan is not None:

@@ -33,6 +33,7 @@ class Serial(SerialBase):
         if device.unplugged():
             raise SerialException(f"could not open port {url!r}: [Errno 2] No such file or directory")
         self.device = device
+        device.produce()  # what the device sent while no port was open is lost
         self._line = bytearray()
         self._credit = 0.0
         self._t_ns = device.clock.now_ns()
