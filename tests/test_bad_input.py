@@ -35,7 +35,7 @@ def test_malformed_config(tmp_path):
 @pytest.mark.parametrize(
     "body,needles",
     [
-        ('[[device]]\nname="g"\ndriver="nosuch"\nbus="i2c:1"\n', ["device[0].driver", "'nosuch'", "known: bmx055"]),
+        ('[[device]]\nname="g"\ndriver="nosuch"\nbus="i2c:1"\n', ["device[0].driver", "'nosuch'", "known: ", "bmx055"]),
         ('[[device]]\nname="g"\ndriver="bmx055"\nbus="i2c:1"\nrate_hz=123\n', ["rate_hz = 123", "allows"]),
         ('[[device]]\nname="g"\ndriver="bmx055"\nbus="usb3:1"\n', ["device[0].bus", "unknown scheme"]),
         (

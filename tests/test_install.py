@@ -16,6 +16,7 @@ SUBPACKAGES = [
     "imustation.drivers",
     "imustation.drivers.bus",
     "imustation.drivers.sim",
+    "imustation.drivers.sim.serial_handlers",
     "imustation.analysis",
 ]
 

@@ -56,12 +56,25 @@ def _invensense(table_key: str) -> Callable[[dict, int], dict[str, SourceFactory
     return sources
 
 
+def _gyro_only(table_key: str, axes: tuple[str, ...]) -> Callable[[dict, int], dict[str, SourceFactory]]:
+    """Sources of the SPI/serial devices: the gyro from Table IV (their simulators make
+    the accelerometer signal themselves: gravity on +z plus white noise)."""
+
+    def sources(sim: dict, seed: int) -> dict[str, SourceFactory]:
+        return {"gyro": lambda fs: NoiseSource.for_device(table_key, axes, fs, sim, seed)}
+
+    return sources
+
+
 #: driver -> (sim table, seed) -> channel -> signal source factory (fs_hz -> source)
 SOURCES: dict[str, Callable[[dict, int], dict[str, SourceFactory]]] = {
     "bmx055": _bmx055_gyro,
     "bmx055_accel": _bmx055_accel,
     "mpu9150": _invensense("mpu9150"),
     "mpu6500": _invensense("mpu6500"),
+    "adis16448": _gyro_only("adis16448", _XYZ),
+    "mti": _gyro_only("mti", _XYZ),
+    "dsp3000": _gyro_only("dsp3000", ("z",)),
 }
 
 
@@ -92,6 +105,18 @@ def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
         from imustation.drivers.sim.bmx055_accel import BMA2x2Sim
 
         return BMA2x2Sim(clock, sources["accel"], plan), plan
+    if driver == "adis16448":
+        from imustation.drivers.sim.adis16448 import ADIS16448Sim
+
+        return ADIS16448Sim(clock, sources["gyro"], plan, seed), plan
+    if driver == "mti":
+        from imustation.drivers.sim.xsens_mti import MTiSim
+
+        return MTiSim(clock, sources["gyro"], plan, seed), plan
+    if driver == "dsp3000":
+        from imustation.drivers.sim.kvh_dsp3000 import DSP3000Sim
+
+        return DSP3000Sim(clock, sources["gyro"], plan, rate_hz=settings["rate_hz"]), plan
     from imustation.drivers.invensense import VARIANTS
     from imustation.drivers.sim.invensense import InvenSenseSim
 
@@ -153,8 +178,9 @@ def simulated_truth(config) -> dict:
     for dev in config.devices:
         seed = station_device_seed(config.seed, dev.name)
         for channel, factory in SOURCES[dev.driver](dev.sim, seed).items():
-            src = factory(dev.settings["rate_hz"])
-            for axis, model in zip(_XYZ, src.models, strict=True):
+            src = factory(_output_rate(dev))
+            axes = ("z",) if dev.driver == "dsp3000" else _XYZ
+            for axis, model in zip(axes, src.models, strict=True):
                 out[f"{dev.name}/{channel}/{axis}"] = model
     return out
 
@@ -164,3 +190,12 @@ def station_device_seed(station_seed: int, name: str) -> int:
     import zlib
 
     return (station_seed * 1_000_003 + zlib.crc32(name.encode())) % (2**31)
+
+
+def _output_rate(dev) -> float:
+    """Output data rate of a configured device, Hz (the ADIS16448 sets it by decimation)."""
+    if dev.driver == "adis16448":
+        from imustation.drivers.adis16448 import rate_hz
+
+        return rate_hz(dev.settings["decimation"])
+    return float(dev.settings["rate_hz"])

@@ -1,0 +1,89 @@
+"""Silicon Labs CP2130 USB-to-SPI bridge through pyusb (``cp2130:`` URLs).
+
+Protocol (``shared/reference/sensors.md`` §4.7, sources [CP-B] bloguetronica/cp2130
+and [CP-R] rust-driver-cp2130): configuration by vendor control transfers on
+endpoint 0, SPI data by commands on the bulk endpoints - an 8-byte header
+``00 00 cmd 00 len(u32 LE)`` followed by the data; for WriteRead the device
+returns exactly ``len`` bytes on bulk IN. The bulk endpoint addresses depend on
+the OTP transfer priority, so they are read from the interface descriptor.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import ClassVar
+
+from imustation.drivers.bus.spi import USBSPIBridge
+from imustation.errors import BusError, DeviceError
+
+# --- control requests, sensors.md §4.7 [CP-B][CP-R] --------------------------------
+REQTYPE_OUT = 0x40  # host-to-device | vendor | device
+REQTYPE_IN = 0xC0  # device-to-host | vendor | device
+REQ_GET_GPIO_CHIP_SELECT = 0x24
+REQ_SET_GPIO_CHIP_SELECT = 0x25  # data [channel, ctl]
+CS_CTL_ENABLE_ONLY = 0x02  # "enabled + others disabled"
+REQ_GET_SPI_WORD = 0x30  # returns one SPI word per channel
+REQ_SET_SPI_WORD = 0x31  # data [channel, word]
+SPI_WORD_LEN = 11  # Get_SPI_Word returns 11 bytes, one per channel
+SPI_WORD_CPHA = 0x20  # bit5
+SPI_WORD_CPOL = 0x10  # bit4
+SPI_WORD_PUSH_PULL = 0x08  # bit3: CS push-pull
+#: SPI clock codes bits2:0 -> Hz
+CLOCKS_HZ = (12e6, 6e6, 3e6, 1.5e6, 750e3, 375e3, 187.5e3, 93.75e3)
+
+# --- bulk commands ----------------------------------------------------------------
+CMD_WRITE_READ = 0x02  # full duplex
+HEADER = struct.Struct("<HBBI")  # 00 00 | cmd | 00 | length (u32 LE)
+#: data bytes per WriteRead so header + data fit one 64-byte full-speed packet [CP-B]
+MAX_WRITEREAD_BYTES = 56
+ENDPOINT_TYPE_BULK = 0x02
+
+
+def spi_word(mode: int, clock_code: int) -> int:
+    """SPI word of Set_SPI_Word: CPOL/CPHA from the mode, push-pull CS, clock code."""
+    cpol, cpha = mode >> 1 & 1, mode & 1
+    return (SPI_WORD_CPHA if cpha else 0) | (SPI_WORD_CPOL if cpol else 0) | SPI_WORD_PUSH_PULL | clock_code
+
+
+def clock_code(hz: float) -> int:
+    """Fastest CP2130 clock not above ``hz``."""
+    for code, f in enumerate(CLOCKS_HZ):
+        if f <= hz:
+            return code
+    raise ValueError(f"SPI clock {hz:g} Hz below the CP2130 minimum {CLOCKS_HZ[-1]:g} Hz")
+
+
+class CP2130(USBSPIBridge):
+    """CP2130 bridge: one chip select of 11 (``cs=0..10``)."""
+
+    NAME: ClassVar[str] = "CP2130"
+    SCHEME: ClassVar[str] = "cp2130"
+    DEFAULT_VID: ClassVar[int] = 0x10C4  # sensors.md §4.7 [CP-B][CP-R]
+    DEFAULT_PID: ClassVar[int] = 0x87A0
+    N_CS: ClassVar[int] = 11
+
+    def _setup(self) -> None:
+        try:
+            code = clock_code(self.requested_hz)
+        except ValueError as exc:
+            raise BusError(f"{self.where}: {exc}") from None
+        self.hz = CLOCKS_HZ[code]
+        self.ep_out, self.ep_in = self._endpoints(ENDPOINT_TYPE_BULK)
+        word = spi_word(self.mode, code)
+        t = self.timeout_ms
+        self.dev.ctrl_transfer(REQTYPE_OUT, REQ_SET_SPI_WORD, 0, 0, bytes([self.cs, word]), t)
+        self.dev.ctrl_transfer(REQTYPE_OUT, REQ_SET_GPIO_CHIP_SELECT, 0, 0, bytes([self.cs, CS_CTL_ENABLE_ONLY]), t)
+        back = bytes(self.dev.ctrl_transfer(REQTYPE_IN, REQ_GET_SPI_WORD, 0, 0, SPI_WORD_LEN, t))
+        if len(back) != SPI_WORD_LEN or back[self.cs] != word:
+            raise DeviceError(
+                f"{self.where}: SPI word of channel {self.cs} reads back {back.hex(' ')}, wrote {word:02X}"
+            )
+
+    def _transfer(self, tx: bytes) -> bytes:
+        if len(tx) > MAX_WRITEREAD_BYTES:
+            raise ValueError(f"CP2130 WriteRead of {len(tx)} bytes: at most {MAX_WRITEREAD_BYTES} per transfer")
+        self.dev.write(self.ep_out, HEADER.pack(0, CMD_WRITE_READ, 0, len(tx)) + tx, self.timeout_ms)
+        rx = bytes(self.dev.read(self.ep_in, len(tx), self.timeout_ms))
+        if len(rx) != len(tx):
+            raise BusError(f"{self.where}: WriteRead of {len(tx)} bytes returned {len(rx)}")
+        return rx

@@ -1,0 +1,144 @@
+"""Microchip MCP2210 USB-to-SPI bridge through pyusb (``mcp2210:`` URLs).
+
+Protocol (``shared/reference/sensors.md`` §4.7, sources [MCP-B] bloguetronica/mcp2210
+and [MCP-A] arachnidlabs/mcp2210): a USB HID device; each command is one 64-byte
+report on the interrupt OUT endpoint, answered by one 64-byte report on
+interrupt IN whose byte 0 echoes the command and byte 1 is a status. The kernel
+HID driver is detached and the raw endpoints used (no report-ID byte).
+
+An SPI transaction is ``bytes per transaction`` long (a setting): CS is asserted
+at its first byte and released after its last, so a transfer of n bytes sets
+that length (cached) and then sends 0x42 reports of <= 60 bytes, then empty ones
+until the engine reports the transfer finished.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import ClassVar
+
+from imustation.drivers.bus.spi import USBSPIBridge
+from imustation.errors import BusError, BusTimeout, DeviceError
+
+REPORT_LEN = 64  # every command and reply is one 64-byte report [MCP-B] COMMAND_SIZE
+ENDPOINT_TYPE_INTR = 0x03
+
+# --- commands [MCP-B][MCP-A] --------------------------------------------------------
+CMD_CANCEL_SPI = 0x11
+CMD_GET_CHIP_SETTINGS = 0x20
+CMD_SET_CHIP_SETTINGS = 0x21
+CMD_SET_SPI_SETTINGS = 0x40
+CMD_TRANSFER = 0x42
+#: chip settings reply: byte 4.. = 9 pin designations, GPIO outputs u16, directions u16,
+#: other settings u8, access control u8; the set command takes the same bytes + 8-byte password
+CHIP_SETTINGS_AT = 4
+CHIP_SETTINGS_LEN = 9 + 2 + 2 + 1 + 1
+N_PINS = 9
+PIN_CHIP_SELECT = 0x01
+PASSWORD_LEN = 8
+
+# --- statuses (reply byte 1) ----------------------------------------------------------
+STATUS_OK = 0x00
+STATUS_BUS_BUSY = 0xF7  # SPI bus not available (external master)
+STATUS_IN_PROGRESS = 0xF8  # transfer in progress, data not accepted: send again
+STATUS_TEXT = {
+    0xF7: "SPI bus not available",
+    0xF8: "transfer in progress",
+    0xF9: "unknown command",
+    0xFA: "EEPROM write failure",
+    0xFB: "blocked (access control)",
+    0xFC: "rejected",
+    0xFD: "wrong password",
+}
+# --- transfer engine status (reply byte 3 of 0x42) ------------------------------------
+ENGINE_FINISHED = 0x10
+ENGINE_STARTED = 0x20
+ENGINE_DATA = 0x30
+MAX_CHUNK = 60  # data bytes per 0x42 report
+
+#: 0x40 payload after the 4-byte header: bit rate u32, idle CS u16, active CS u16,
+#: CS-to-data, last-data-to-CS, inter-byte delays u16 (100 us units), bytes per
+#: transaction u16, SPI mode u8 - all little-endian (sensors.md §4.7)
+SPI_SETTINGS = struct.Struct("<BBBBIHHHHHHB")
+ALL_CS_IDLE_HIGH = (1 << N_PINS) - 1
+#: 0x42 reports before a transfer is declared stuck (a 60-byte transfer needs ~3)
+MAX_TRANSFER_REPORTS = 64
+#: pause before re-sending data the engine did not accept (0xF8), s
+BUSY_RETRY_S = 0.0005
+
+
+class MCP2210(USBSPIBridge):
+    """MCP2210 bridge: chip select on GP0..GP8 (``cs=0..8``)."""
+
+    NAME: ClassVar[str] = "MCP2210"
+    SCHEME: ClassVar[str] = "mcp2210"
+    DEFAULT_VID: ClassVar[int] = 0x04D8  # sensors.md §4.7 [MCP-B]
+    DEFAULT_PID: ClassVar[int] = 0x00DE
+    N_CS: ClassVar[int] = N_PINS
+
+    def _command(self, payload: bytes, what: str) -> bytes:
+        report = payload.ljust(REPORT_LEN, b"\0")
+        self.dev.write(self.ep_out, report, self.timeout_ms)
+        reply = bytes(self.dev.read(self.ep_in, REPORT_LEN, self.timeout_ms))
+        if len(reply) < 4 or reply[0] != payload[0]:
+            raise DeviceError(
+                f"{self.where}: {what}: reply {reply[:4].hex(' ')} does not echo command {payload[0]:02X}"
+            )
+        return reply
+
+    def _check(self, reply: bytes, what: str) -> None:
+        if reply[1] != STATUS_OK:
+            text = STATUS_TEXT.get(reply[1], "unknown status")
+            raise BusError(f"{self.where}: {what}: status 0x{reply[1]:02X} ({text})")
+
+    def _setup(self) -> None:
+        self.ep_out, self.ep_in = self._endpoints(ENDPOINT_TYPE_INTR)
+        reply = self._command(bytes([CMD_GET_CHIP_SETTINGS, 0, 0, 0]), "get chip settings")
+        self._check(reply, "get chip settings")
+        settings = bytearray(reply[CHIP_SETTINGS_AT : CHIP_SETTINGS_AT + CHIP_SETTINGS_LEN])
+        if settings[self.cs] != PIN_CHIP_SELECT:
+            settings[self.cs] = PIN_CHIP_SELECT  # volatile: the NVRAM power-up settings stay
+            cmd = bytes([CMD_SET_CHIP_SETTINGS, 0, 0, 0]) + bytes(settings) + bytes(PASSWORD_LEN)
+            self._check(self._command(cmd, "set chip settings"), f"designate GP{self.cs} as chip select")
+        self.hz = self.requested_hz  # the MCP2210 divides its clock; the rate it picks is not read back
+        self._tx_size = -1
+
+    def _spi_settings(self, n: int) -> None:
+        active = ALL_CS_IDLE_HIGH & ~(1 << self.cs)
+        cmd = SPI_SETTINGS.pack(
+            CMD_SET_SPI_SETTINGS, 0, 0, 0, int(self.hz), ALL_CS_IDLE_HIGH, active, 0, 0, 0, n, self.mode
+        )
+        self._check(self._command(cmd, "set SPI settings"), "set SPI settings")
+        self._tx_size = n
+
+    def _transfer(self, tx: bytes) -> bytes:
+        if not 1 <= len(tx) <= 0xFFFF:
+            raise ValueError(f"MCP2210 transfer of {len(tx)} bytes: 1..65535 allowed")
+        if self._tx_size != len(tx):
+            self._spi_settings(len(tx))
+        sent, rx = 0, bytearray()
+        for _ in range(MAX_TRANSFER_REPORTS):
+            chunk = tx[sent : sent + MAX_CHUNK]
+            reply = self._command(bytes([CMD_TRANSFER, len(chunk), 0, 0]) + chunk, "SPI transfer")
+            if reply[1] == STATUS_IN_PROGRESS:
+                self._sleep(BUSY_RETRY_S)
+                continue
+            self._check(reply, "SPI transfer")
+            sent += len(chunk)
+            rx += reply[4 : 4 + reply[2]]
+            if reply[3] == ENGINE_FINISHED and sent == len(tx):
+                break
+        else:
+            raise BusTimeout(
+                f"{self.where}: SPI transfer of {len(tx)} bytes not finished after {MAX_TRANSFER_REPORTS} reports"
+            )
+        if len(rx) != len(tx):
+            raise BusError(f"{self.where}: SPI transfer of {len(tx)} bytes returned {len(rx)}")
+        return bytes(rx)
+
+    def _recover(self) -> None:
+        # a transfer may be half done after a failed report: cancel it (best effort)
+        try:
+            self._command(bytes([CMD_CANCEL_SPI, 0, 0, 0]), "cancel")
+        except Exception:  # noqa: BLE001 - the retry reports the real error
+            pass

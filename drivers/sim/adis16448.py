@@ -1,0 +1,220 @@
+"""Byte-level simulator of the ADIS16448 on SPI (sensors.md §4).
+
+Answers 16-bit SPI frames as the chip does: a read command returns its
+register on the *next* frame, writes are one byte per frame, ``3E 00`` with CS
+held low starts a burst (DIAG_STAT, gyro, accel, mag, baro, temp, and the
+CRC-16 when MSC_CTRL bit 4 is set). PROD_ID reads 0x4040. A software reset
+(GLOB_CMD bit 7) restores the power-on registers and the chip answers zeros
+for the 90 ms recovery time. Wrong SPI mode or a clock above the chip's limit
+gives unusable MISO bytes (0xFF).
+
+Samples are produced on the station clock at 819.2 / 2^D Hz; the output
+registers hold the newest one. Gyro rates come from the signal source
+(Table IV key ``adis16448``); the accelerometer reads gravity on +z plus white
+noise, the magnetometer a fixed field, the barometer 1013.25 mbar plus white
+noise, the temperature the source's die temperature. Bursts are built a chunk
+of samples at a time with numpy (CRC included), so the simulator costs little
+per sample.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from imustation.clock import Clock
+from imustation.drivers import adis16448 as chip
+from imustation.drivers.sim.faults import FaultPlan
+from imustation.drivers.sim.sources import SignalSource
+
+#: power-on register values; datasheet defaults are UNCONFIRMED (sensors.md §4.2)
+#: except SENS_AVG range code 100 (+-1000 deg/s) [PX4-ADIS]
+POR_REGS = {
+    chip.REG_PROD_ID: chip.PROD_ID_VALUE,
+    chip.REG_SMPL_PRD: 0x0001,  # D = 0, internal clock
+    chip.REG_SENS_AVG: 0x0400,  # +-1000 deg/s, filter off
+    chip.REG_MSC_CTRL: 0x0006,  # data ready on DIO1, active high; CRC off
+    chip.REG_LOT_ID1: 0x1824,  # the lot PX4 knows to carry the burst CRC [PX4-ADIS]
+    chip.REG_LOT_ID2: 0x0001,
+    chip.REG_SERIAL_NUM: 0x0448,
+}
+READ_ONLY = frozenset(range(chip.REG_XGYRO_OUT, 0x1A)) | {
+    chip.REG_PROD_ID,
+    chip.REG_LOT_ID1,
+    chip.REG_LOT_ID2,
+    chip.REG_SERIAL_NUM,
+    chip.REG_DIAG_STAT,
+}
+POWER_ON_START_S = 0.205  # §4.1 [PX4-ADIS]
+ACCEL_NOISE_G = 1.5e-3  # white accel noise per sample, g (simulation choice)
+BARO_NOISE_MBAR = 0.05  # simulation choice
+BARO_MBAR = 1013.25
+MAG_GAUSS = (0.21, 0.0, 0.43)  # a mid-latitude earth field, gauss (simulation choice)
+CHUNK = 1024  # samples built per numpy step
+DIAG_SPI_FAILURE = 1 << 3
+MISO_GARBAGE = 0xFF
+
+
+def burst_crc_rows(words: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`chip.burst_crc` over rows of 11 words (n, 11) uint16 -> (n,) uint16."""
+    table = np.array(chip._CRC_TABLE, dtype=np.uint32)
+    crc = np.full(len(words), 0xFFFF, dtype=np.uint32)
+    for j in range(words.shape[1]):
+        w = words[:, j].astype(np.uint32)
+        for byte in (w & 0xFF, w >> 8):  # low byte first
+            crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
+    crc = ~crc & 0xFFFF
+    return (((crc << 8) | (crc >> 8)) & 0xFFFF).astype(np.uint16)
+
+
+class ADIS16448Sim:
+    """ADIS16448 behind a simulated SPI bridge (implements ``spi_transfer``).
+
+    Parameters
+    ----------
+    clock : the station clock.
+    source_factory : ``fs_hz -> SignalSource`` of X/Y/Z rate, rad/s.
+    plan : faults: ``checksum`` (one burst with a wrong CRC), ``reset`` (power-on reset).
+    seed : seed of the accelerometer/barometer noise.
+    """
+
+    def __init__(
+        self,
+        clock: Clock,
+        source_factory: Callable[[float], SignalSource],
+        plan: FaultPlan | None = None,
+        seed: int = 0,
+    ):
+        self.clock = clock
+        self.plan = plan
+        self.source_factory = source_factory
+        self.source: SignalSource | None = None
+        self.rng = np.random.default_rng([seed, 0xAD15])
+        self.sim_resets = 0
+        self.sim_bursts = 0
+        self._power_on(0.0)  # powered up long before the station opens it
+
+    # -- state ----------------------------------------------------------------------------
+    def _power_on(self, busy_s: float) -> None:
+        self.regs = dict(POR_REGS)
+        self.pending = 0  # the word the next frame returns
+        self.busy_until_ns = self.clock.now_ns() + int(busy_s * 1e9)
+        self.diag = 0
+        self._restart()
+
+    def _restart(self) -> None:
+        self.t_start_ns = self.clock.now_ns()
+        self.produced = 0
+        self._chunk = np.zeros((0, 13), dtype=np.uint16)
+        self._chunk_first = 0
+        fs = self.rate_hz
+        if self.source is None or self.source.fs_hz != fs:
+            self.source = self.source_factory(fs)
+
+    @property
+    def rate_hz(self) -> float:
+        return chip.rate_hz(self.regs.get(chip.REG_SMPL_PRD, 0) >> chip.SMPL_PRD_D_SHIFT & 0x1F)
+
+    @property
+    def gyro_scale(self) -> float:
+        code = self.regs.get(chip.REG_SENS_AVG, 0) >> chip.SENS_AVG_RANGE_SHIFT & 0x7
+        row = next((r for r in chip.GYRO_RANGES if r.code == code), chip.GYRO_RANGES[-1])
+        return row.dps_per_lsb * chip.DEG2RAD
+
+    def _build(self, n: int) -> None:
+        """Draw the next ``n`` samples and build their burst words (n, 13): diag, 11 data, CRC."""
+        assert self.source is not None
+        rates = self.source.next(n)
+        t_mid = (self.produced + n / 2) / self.rate_hz
+        w = np.zeros((n, 13), dtype=np.int64)
+        w[:, 0] = self.diag
+        w[:, 1:4] = np.clip(np.rint(rates / self.gyro_scale), -32768, 32767)
+        accel = np.array([0.0, 0.0, 1.0]) + self.rng.normal(0.0, ACCEL_NOISE_G, (n, 3))
+        w[:, 4:7] = np.clip(np.rint(accel / chip.ACCEL_G_PER_LSB), -32768, 32767)
+        w[:, 7:10] = np.rint(np.array(MAG_GAUSS) / chip.MAG_GAUSS_PER_LSB)
+        baro = BARO_MBAR + self.rng.normal(0.0, BARO_NOISE_MBAR, n)
+        w[:, 10] = np.clip(np.rint(baro / chip.BARO_MBAR_PER_LSB), 0, 65535)
+        temp = self.source.temperature(t_mid)
+        w[:, 11] = int(np.clip(round((temp - chip.TEMP_OFFSET_C) / chip.TEMP_C_PER_LSB), -2048, 2047)) & 0x0FFF
+        words = (w & 0xFFFF).astype(np.uint16)
+        words[:, 12] = burst_crc_rows(words[:, 1:12])
+        self._chunk = words
+        self._chunk_first = self.produced
+        self.produced += n
+
+    def _latest(self) -> np.ndarray | None:
+        """Burst words of the newest sample due by now (None before the first)."""
+        due = int((self.clock.now_ns() - self.t_start_ns) * self.rate_hz / 1e9)
+        if due <= 0:
+            return None
+        while self.produced < due:
+            self._build(max(CHUNK, due - self.produced))
+        return self._chunk[due - 1 - self._chunk_first]
+
+    # -- wire protocol -------------------------------------------------------------------------
+    def spi_transfer(self, tx: bytes, mode: int, hz: float) -> bytes:
+        if self.plan is not None and self.plan.fire("reset"):
+            self.sim_resets += 1
+            self._power_on(POWER_ON_START_S)
+        if self.clock.now_ns() < self.busy_until_ns:
+            return bytes(len(tx))
+        burst = len(tx) > 2 and tx[:2] == chip.BURST_CMD
+        if mode != chip.SPI_MODE or hz > (chip.SPI_MAX_HZ_BURST if burst else chip.SPI_MAX_HZ_REGISTER):
+            return bytes([MISO_GARBAGE]) * len(tx)
+        if len(tx) % 2:
+            self.diag |= DIAG_SPI_FAILURE
+        if burst:
+            return self._burst(len(tx))
+        out = bytearray()
+        for i in range(0, len(tx) - 1, 2):
+            out += self.pending.to_bytes(2, "big")
+            self._frame(tx[i], tx[i + 1])
+        return bytes(out)
+
+    def _frame(self, b0: int, b1: int) -> None:
+        addr = b0 & chip.READ_MASK
+        if b0 & chip.WRITE_FLAG:
+            self.pending = 0
+            self._write_byte(addr, b1)
+            return
+        self.pending = self._read(addr & ~1)
+
+    def _read(self, reg: int) -> int:
+        if reg == chip.REG_DIAG_STAT:
+            value, self.diag = self.diag, 0  # DIAG_STAT clears on read
+            return value
+        if chip.REG_XGYRO_OUT <= reg <= 0x18:
+            row = self._latest()
+            return 0 if row is None else int(row[1 + (reg - chip.REG_XGYRO_OUT) // 2])
+        return self.regs.get(reg, 0)
+
+    def _write_byte(self, addr: int, value: int) -> None:
+        reg = addr & ~1
+        if reg == chip.REG_GLOB_CMD:
+            if addr == reg and value & chip.GLOB_CMD_SOFTWARE_RESET:
+                self.sim_resets += 1
+                self._power_on(chip.RESET_RECOVERY_S)
+            return
+        if reg in READ_ONLY:
+            return
+        old = self.regs.get(reg, 0)
+        new = (old & 0xFF00) | value if addr == reg else (old & 0x00FF) | value << 8
+        self.regs[reg] = new
+        if reg in (chip.REG_SMPL_PRD, chip.REG_SENS_AVG):
+            self._latest()  # samples due so far belong to the old setting
+            self._restart()
+
+    def _burst(self, n: int) -> bytes:
+        self.sim_bursts += 1
+        row = self._latest()
+        words = np.zeros(13, dtype=np.uint16) if row is None else row.copy()
+        crc_on = bool(self.regs.get(chip.REG_MSC_CTRL, 0) & chip.MSC_CTRL_CRC)
+        if crc_on and self.plan is not None and self.plan.fire("checksum"):
+            words[12] ^= 0x5A5A
+        body = words.astype(">u2").tobytes()
+        if not crc_on:
+            body = body[:-2] + bytes(2)  # MISO idle after the 12 words
+        out = self.pending.to_bytes(2, "big") + body
+        self.pending = 0
+        return (out + bytes(max(0, n - len(out))))[:n]

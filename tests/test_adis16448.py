@@ -1,0 +1,170 @@
+"""ADIS16448: byte-level checks against sensors.md §4 worked examples, driver through both bridges."""
+
+import numpy as np
+import pytest
+
+from imustation.clock import VirtualClock
+from imustation.drivers import adis16448 as adis
+from imustation.drivers.bus.spi import open_spi
+from imustation.drivers.sim.adis16448 import ADIS16448Sim, burst_crc_rows
+from imustation.drivers.sim.faults import FaultPlan, FaultSpec
+from imustation.drivers.sim.sources import NoiseSource
+from imustation.drivers.sim.spi_bridges import CP2130Sim, MCP2210Sim
+from imustation.drivers.sim.usb_backend import SimUSBBackend
+from imustation.errors import ChipIdMismatch, DeviceError, SettingError
+from imustation.units import DEG2RAD, G0
+
+JC_BYTES = bytes.fromhex("0F 00 F8 FF 0A 00 41 FE CC FF 56 04 27 02 A3 FD 12 F4 3C C1 6C FF")  # LSB first
+JC_BURST = bytes.fromhex("00 00 00 0F FF F8 00 0A FE 41 FF CC 04 56 02 27 FD A3 F4 12 C1 3C FF 6C 9A F4")
+
+
+def crc_bitwise(lsb_first: bytes) -> int:
+    """Independent oracle: the bitwise loop exactly as sensors.md §4.6 states it."""
+    crc = 0xFFFF
+    for byte in lsb_first:
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0x1021 if (crc ^ byte) & 1 else crc >> 1
+            byte >>= 1
+    crc = ~crc & 0xFFFF
+    return ((crc << 8) | (crc >> 8)) & 0xFFFF
+
+
+def msb_first(words):
+    return b"".join(w.to_bytes(2, "big") for w in words)
+
+
+def test_crc_reference_vectors():
+    assert crc_bitwise(JC_BYTES) == 0x9AF4  # [JC] crc16adis.m
+    words = [int.from_bytes(JC_BYTES[i : i + 2], "little") for i in range(0, 22, 2)]
+    assert adis.burst_crc(msb_first(words)) == 0x9AF4
+    second = [0x0019, 0xFFE7, 0, 0, 0, 0x04B0, 0x0007, 0, 0xFFF9, 0xC5E6, 0x00D8]
+    assert adis.burst_crc(msb_first(second)) == 0x09E6 == crc_bitwise(b"".join(w.to_bytes(2, "little") for w in second))
+    rng = np.random.default_rng(1)
+    rows = rng.integers(0, 65536, (50, 11)).astype(np.uint16)
+    expect = [crc_bitwise(b"".join(int(w).to_bytes(2, "little") for w in r)) for r in rows]
+    assert burst_crc_rows(rows).tolist() == expect
+
+
+def test_full_burst_example_and_scales():
+    diag, *rest = adis.BURST.unpack(JC_BURST[:24])
+    assert diag == 0 and adis.burst_crc(JC_BURST[2:24]) == int.from_bytes(JC_BURST[24:], "big")
+    # §4.4 examples
+    assert 25 * 0.04 == pytest.approx(1.00)
+    assert 1200 * adis.ACCEL_G_PER_LSB == pytest.approx(1.0)
+    assert 7 * adis.MAG_GAUSS_PER_LSB * 1e3 == pytest.approx(1.0)
+    assert adis.decode_temperature(0x0FFF) == pytest.approx(30.926, abs=1e-3)
+    assert adis.decode_temperature(0x00D8) == pytest.approx(46.95, abs=1e-2)
+    assert adis.decode_temperature(0xFF6C) == pytest.approx(20.069, abs=1e-3)
+    assert 50662 * adis.BARO_MBAR_PER_LSB == pytest.approx(1013.24)
+
+
+def test_diag_decoding():
+    assert adis.decode_diag(0) == []
+    assert adis.decode_diag((1 << 3) | (1 << 15)) == ["Z accelerometer self-test failure", "SPI communication failure"]
+
+
+class RecordingSPI:
+    def __init__(self, inner):
+        self.inner, self.frames = inner, []
+        self.where, self.mode, self.hz = inner.where, inner.mode, inner.hz
+
+    def transfer(self, tx):
+        rx = self.inner.transfer(tx)
+        self.frames.append((bytes(tx), rx))
+        return rx
+
+    def transfer_frames(self, frames, gap_s):
+        return [self.transfer(f) for f in frames]
+
+    def ensure_open(self):
+        self.inner.ensure_open()
+        self.hz = self.inner.hz
+
+    def close(self):
+        self.inner.close()
+
+
+def rig(scheme="cp2130", settings=None, faults=(), mode=None, seed=4):
+    clock = VirtualClock()
+    plan = FaultPlan(list(faults), clock) if faults else None
+    chip = ADIS16448Sim(clock, lambda fs: NoiseSource.for_device("adis16448", "xyz", fs, {}, seed), plan)
+    fn = CP2130Sim("1", plan) if scheme == "cp2130" else MCP2210Sim("1", plan)
+    fn.attach(0, chip)
+    spi = open_spi(
+        f"{scheme}:", mode=adis.SPI_MODE if mode is None else mode, sleep=clock.sleep, backend=SimUSBBackend([fn])
+    )
+    rec = RecordingSPI(spi)
+    return adis.ADIS16448(rec, settings or {}, sleep=clock.sleep), rec, chip, clock
+
+
+def test_register_frames_match_worked_examples():
+    drv, rec, _, _ = rig()
+    rec.ensure_open()
+    assert drv.read_regs([adis.REG_PROD_ID]) == [0x4040]
+    assert [tx for tx, _ in rec.frames] == [bytes.fromhex("56 00"), bytes.fromhex("00 00")]
+    assert rec.frames[1][1] == bytes.fromhex("40 40")  # data comes on the next frame
+    rec.frames.clear()
+    drv.write_reg(adis.REG_SMPL_PRD, 0x0201)
+    assert [tx for tx, _ in rec.frames] == [bytes.fromhex("B6 01"), bytes.fromhex("B7 02")]
+    assert drv.read_regs([adis.REG_SMPL_PRD]) == [0x0201]
+
+
+@pytest.mark.parametrize("scheme", ["cp2130", "mcp2210"])
+def test_open_and_stream(scheme):
+    drv, rec, chip, clock = rig(scheme, {"decimation": 2, "gyro_range_dps": 500, "filter_taps": 4})
+    info = drv.open()
+    assert info.rate_hz == pytest.approx(204.8) and info.identity.startswith("prod_id=0x4040")
+    assert chip.regs[adis.REG_SMPL_PRD] == 0x0201 and chip.regs[adis.REG_SENS_AVG] == 0x0202
+    assert chip.regs[adis.REG_MSC_CTRL] & adis.MSC_CTRL_CRC
+    gyro = next(c for c in info.channels if c.name == "gyro")
+    assert gyro.scale == pytest.approx(0.02 * DEG2RAD)
+    accel = next(c for c in info.channels if c.name == "accel")
+    n, rows = 0, []
+    for _ in range(410):
+        clock.sleep(info.poll_interval_s)
+        block = drv.read_block()
+        n += block.n
+        rows.append(block.channels["accel"])
+    assert 405 <= n <= 410  # one sample per period; a poll that finds the same sample stores nothing
+    acc = np.concatenate(rows) * accel.scale
+    assert acc[:, 2].mean() == pytest.approx(G0, abs=0.01)  # the simulator's gravity on +z
+    burst = [tx for tx, _ in rec.frames if len(tx) == 28]
+    assert burst and all(tx == bytes([0x3E, 0x00]) + bytes(26) for tx in burst)
+
+
+def test_bad_crc_drops_the_sample_and_says_so():
+    drv, _, chip, clock = rig(faults=[FaultSpec("checksum", at_s=1.0)])
+    info = drv.open()
+    notes = []
+    for _ in range(1000):
+        clock.sleep(info.poll_interval_s)
+        b = drv.read_block()
+        if b.lost:
+            notes.append((b.n, b.lost, b.note))
+    assert notes == [(0, 1, "checksum: burst CRC mismatch, sample dropped")]
+
+
+def test_reset_is_detected_as_lost_configuration():
+    drv, _, chip, clock = rig(settings={"crc": False}, faults=[FaultSpec("reset", at_s=1.0)])
+    info = drv.open()
+    with pytest.raises(DeviceError, match="configuration lost"):
+        for _ in range(2000):
+            clock.sleep(info.poll_interval_s)
+            drv.read_block()
+    clock.sleep(0.3)
+    drv.open()  # re-initialised after the start-up time
+
+
+def test_wrong_spi_mode_or_chip():
+    drv, _, _, _ = rig(mode=0)
+    with pytest.raises(ChipIdMismatch, match="expected ADIS16448 \\(id 0x4040\\), found id 0xFFFF"):
+        drv.open()
+
+
+@pytest.mark.parametrize(
+    "settings,needle",
+    [({"decimation": 9}, "decimation = 9"), ({"stall_us": 2}, "stall_us = 2"), ({"filter_taps": 3}, "filter_taps = 3")],
+)
+def test_bad_settings(settings, needle):
+    with pytest.raises(SettingError, match=needle):
+        adis.ADIS16448.check_settings(settings)
