@@ -91,39 +91,33 @@ def kalman_profile(blocks: list[_TermBlock], r_angle: np.ndarray, lay: Layout) -
     gap_idx = np.flatnonzero(lay.new_segment & (lay.gap > 0))
     if len(gap_idx):
         Phi_g, Q_g = discretize_blocks(blocks, lay.gap[gap_idx][:, None])
-    x = np.zeros((K, p))
-    xr = np.zeros((K, p))
+    # data and regressor columns share the gains: one (K, p, 2) state array
+    x = np.zeros((K, p, 2))
     nu = np.empty((M, K))
     u = np.empty((M, K))
     B = np.empty((M, K))
+    obs = np.stack([lay.Y, lay.X], axis=1)  # (M, 2)
     PhiT = np.swapaxes(Phi, -1, -2)
     g = 0
     for i in range(M):
         if lay.new_segment[i]:
             if g < len(gap_idx) and gap_idx[g] == i:
                 Pg, Qg = Phi_g[g][:, :ns, :ns], Q_g[g][:, :ns, :ns]
-                x[:, :ns] = np.einsum("kij,kj->ki", Pg, x[:, :ns])
-                xr[:, :ns] = np.einsum("kij,kj->ki", Pg, xr[:, :ns])
+                x[:, :ns] = Pg @ x[:, :ns]
                 P[:, :ns, :ns] = Pg @ P[:, :ns, :ns] @ np.swapaxes(Pg, -1, -2) + Qg
                 g += 1
             x[:, a] = 0.0
-            xr[:, a] = 0.0
             P[:, a, :] = 0.0
             P[:, :, a] = 0.0
             P[:, a, a] = R
-        F = Phi[i]
-        x = np.einsum("kij,kj->ki", F, x)
-        xr = np.einsum("kij,kj->ki", F, xr)
-        P = F @ P @ PhiT[i] + Qd[i]
+        x = Phi[i] @ x
+        P = Phi[i] @ P @ PhiT[i] + Qd[i]
         Bi = P[:, a, a] + R
-        e = lay.Y[i] - x[:, a]
-        ur = lay.X[i] - xr[:, a]
+        inn = obs[i] - x[:, a]  # (K, 2): data and regressor innovations
         G = P[:, :, a] / Bi[:, None]
-        x += G * e[:, None]
-        xr += G * ur[:, None]
-        P = P - G[:, :, None] * G[:, None, :] * Bi[:, None, None]
-        P = 0.5 * (P + np.swapaxes(P, -1, -2))
-        nu[i], u[i], B[i] = e, ur, Bi
+        x += G[:, :, None] * inn[:, None, :]
+        P -= G[:, :, None] * P[:, a, None, :]
+        nu[i], u[i], B[i] = inn[:, 0], inn[:, 1], Bi
     s_ee = np.sum(nu * nu / B, axis=0)
     s_eu = np.sum(nu * u / B, axis=0)
     s_uu = np.sum(u * u / B, axis=0)

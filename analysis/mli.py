@@ -409,8 +409,10 @@ class _Spec:
         total = inc.duration
         dt_min = float(inc.dt.min())
         box = {
-            # r = sigma^2/sigma_w^2 from "invisible over the record" to "dominates at one interval"
-            "r": (math.log(1e-6 / total**2), math.log(10.0 / dt_min**2)),
+            # r = sigma^2/sigma_w^2 from "invisible over the record" to "dominates at one
+            # interval"; a Gauss-Markov term can hide the white noise even with long
+            # intervals (angle variance r tau^2 dt vs dt), so its bound uses tau >= 1/fs
+            "r": (math.log(1e-6 / total**2), math.log(10.0 * inc.fs_hz**2)),
             "r_rw": (math.log(1e-6 / total**2), math.log(10.0 / dt_min**2)),
             "tau": (math.log(2.0 / inc.fs_hz), math.log(100.0 * total)),
             "r_wa": (math.log(1e-4 * dt_min), math.log(10.0 * total)),
@@ -674,14 +676,16 @@ def _newton(fun, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, stop=None, max_
         norm = float(np.linalg.norm(step))
         if norm > 2.0:
             step *= 2.0 / norm
-        alpha = 1.0
-        for _ in range(20):
-            x_new = np.clip(x + alpha * step, lo, hi)
-            f_new = float(fun(x_new[None, :])[0])
-            if f_new <= f0 + 1e-4 * alpha * float(g @ step):
+        # backtracking line search, four step lengths per batched evaluation
+        x_new = None
+        for alphas in (1.0 / 2.0 ** np.arange(0, 4), 1.0 / 2.0 ** np.arange(4, 8), 1.0 / 2.0 ** np.arange(8, 12)):
+            cand = np.clip(x[None, :] + alphas[:, None] * step[None, :], lo, hi)
+            f_new = fun(cand)
+            ok = f_new <= f0 + 1e-4 * alphas * float(g @ step)
+            if ok.any():
+                x_new = cand[int(np.argmax(ok))]
                 break
-            alpha *= 0.5
-        else:
+        if x_new is None:
             ok = pd and float(np.abs(g[free]).max(initial=0.0)) < 1e-2
             return _NewtonResult(x, f0, ok, "converged (flat optimum)" if ok else "no further decrease", it)
         if np.allclose(x_new, x, rtol=0, atol=1e-9):
@@ -741,8 +745,9 @@ def _intervals(
     for name, p, v in zip(names, phi, var, strict=True):
         value = math.exp(p)
         se_log = math.sqrt(v) if v > 0 and np.isfinite(v) else float("nan")
-        stderr[name] = value * se_log
-        ci90[name] = (value * math.exp(-Z90 * se_log), value * math.exp(Z90 * se_log))
+        stderr[name] = value * se_log if se_log < 700.0 else math.inf
+        half = min(Z90 * se_log, 700.0) if math.isfinite(se_log) else math.nan  # exp() range
+        ci90[name] = (value * math.exp(-half), value * math.exp(half))
     return stderr, ci90
 
 
