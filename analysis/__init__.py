@@ -5,14 +5,17 @@ Public API::
     from imustation.analysis import oadev, fit_mli
     res = oadev(rate, fs_hz)            # .tau, .adev, .adev_lo, .adev_hi
     fit = fit_mli(rate, fs_hz)          # .sigma_w, .sigma_b, .tau_b, .b_on, .stderr, .nll
+    fit = fit_mli(rate, fs_hz, model="wn+2gm", segments=[(0, n1), (n2, n)])
 
 This layer imports nothing from ``imustation.drivers`` or ``imustation.acquisition``.
 """
 
 from imustation.analysis.allan import AllanResult, oadev
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.mli import MLiResult, fit_mli
+from imustation.analysis.ml_rate import fit_ml_rate
+from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, fit_mli, integrate
 from imustation.analysis.models import StandardModel, simulate_standard
+from imustation.analysis.noise_models import NoiseModel
 
 __all__ = [
     "AllanResult",
@@ -21,6 +24,11 @@ __all__ = [
     "ieee_coefficients",
     "MLiResult",
     "fit_mli",
+    "fit_integrated",
+    "integrate",
+    "compare_models",
+    "fit_ml_rate",
+    "NoiseModel",
     "StandardModel",
     "simulate_standard",
 ]

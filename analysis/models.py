@@ -52,6 +52,12 @@ class StandardModel:
     def adev(self, tau: np.ndarray) -> np.ndarray:
         return np.sqrt(self.avar(tau))
 
+    def to_noise_model(self):
+        """The same model as a :class:`imustation.analysis.noise_models.NoiseModel` (PSD, discretisation)."""
+        from imustation.analysis.noise_models import standard
+
+        return standard(self.sigma_w, self.sigma_b, self.tau_b, self.b_on)
+
 
 class StandardNoiseStream:
     """Seeded, block-wise simulator of the standard model (Algorithm 1).

@@ -10,7 +10,7 @@ fitted by each estimator:
 ``ml-log``, ``ml-uniform``
     classical ML on rate samples picked with the same patterns.
 
-The summary gives, per estimator, level and parameter: mean, relative bias,
+The summary gives, per estimator, level and parameter: mean, median, relative bias,
 spread (std), RMSE, coverage of the 90 % intervals, and the mean time per fit.
 """
 
@@ -104,6 +104,7 @@ class SummaryRow:
     param: str
     truth: float
     mean: float
+    median: float
     bias_rel: float
     std: float
     rmse_rel: float
@@ -134,6 +135,7 @@ def summarize(fits: list[StudyFit]) -> list[SummaryRow]:
                     p,
                     truth,
                     float(np.mean(v)),
+                    float(np.median(v)),
                     float(np.mean(v) / truth - 1.0),
                     float(np.std(v, ddof=1)) if len(v) > 1 else math.nan,
                     float(np.sqrt(np.mean((v / truth - 1.0) ** 2))),
@@ -150,13 +152,14 @@ def markdown(rows: list[SummaryRow], header: str = "") -> str:
     """The summary as a Markdown table (relative numbers in %)."""
     lines = [header, ""] if header else []
     lines += [
-        "| estimator | sigma_b level | parameter | truth | mean | bias | std | RMSE | 90 % CI coverage "
+        "| estimator | sigma_b level | parameter | truth | mean | median | bias | std | RMSE | 90 % CI coverage "
         "| converged | s/fit |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r.estimator} | x{r.level:g} | {r.param} | {r.truth:.4g} | {r.mean:.4g} | {100 * r.bias_rel:+.1f} % "
+            f"| {r.estimator} | x{r.level:g} | {r.param} | {r.truth:.4g} | {r.mean:.4g} | {r.median:.4g} "
+            f"| {100 * r.bias_rel:+.1f} % "
             f"| {r.std:.3g} ({100 * r.std / r.truth:.1f} %) | {100 * r.rmse_rel:.1f} % | {100 * r.coverage90:.0f} % "
             f"| {r.converged}/{r.count} | {r.time_per_fit_s:.3f} |"
         )
