@@ -57,7 +57,6 @@ from imustation.errors import InputError
 _LOG2PI = math.log(2.0 * math.pi)
 #: z-score of the two-sided 90 % interval
 Z90 = 1.6448536269514722
-_f3 = f3  # name kept for callers of the first version
 
 
 # ---------------------------------------------------------------------------
@@ -870,6 +869,8 @@ def _result(
     H = _observed_information(problem, phi)
     stderr, ci90 = _intervals(names, phi, H)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))
+    lo, hi = problem.lo, problem.hi
+    at_bound = {names[1 + j] for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3}
     # order several Gauss-Markov terms by correlation time (the likelihood is symmetric)
     ngm = spec.codes.count("gm")
     if ngm > 1:
@@ -879,11 +880,9 @@ def _result(
             for new_i, old_i in enumerate(order, start=1):
                 for key in ("sigma_b", "tau_b"):
                     dct[f"{key}{new_i}"] = old[f"{key}{old_i}"]
-    lo, hi = problem.lo, problem.hi
-    kinds = spec.theta_kinds()
-    at_bound = tuple(
-        sorted({_bound_name(spec, j, kinds) for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3})
-    )
+        rename = {f"{k}{o}": f"{k}{i}" for i, o in enumerate(order, 1) for k in ("sigma_b", "tau_b")}
+        at_bound = {rename.get(b, b) for b in at_bound}
+    at_bound = tuple(sorted(at_bound))
     if "gm" in spec.codes:
         sfx = "" if ngm == 1 else str(ngm)
         sigma_b, tau_b = params[f"sigma_b{sfx}"], params[f"tau_b{sfx}"]
@@ -924,10 +923,6 @@ def _result(
         estimator=estimator,
         noise_model=spec.model(phi, b_on),
     )
-
-
-def _bound_name(spec: _Spec, j: int, kinds: list[str]) -> str:
-    return spec.phi_names()[1 + j]
 
 
 def fit_integrated(
