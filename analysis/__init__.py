@@ -7,6 +7,7 @@ Public API::
     psd = welch_psd(rate, fs_hz)        # .f, .psd (one-sided unless sides="two"); log_average(psd)
     ar = fit_ar(rate)                   # AR(p) by least squares, SBC order; gauss_markov_from_ar1
     fit = fit_mli(rate, fs_hz)          # .sigma_w, .sigma_b, .tau_b, .b_on, .stderr, .nll
+    fit = fit_mli(rate, fs_hz, model="wn+2gm", segments=[(0, n1), (n2, n)])
 
 This layer imports nothing from ``imustation.drivers`` or ``imustation.acquisition``.
 """
@@ -14,8 +15,10 @@ This layer imports nothing from ``imustation.drivers`` or ``imustation.acquisiti
 from imustation.analysis.allan import AllanResult, mdev, oadev, ohdev, totdev
 from imustation.analysis.ar import ARResult, GaussMarkov, fit_ar, gauss_markov_from_ar1
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.mli import MLiResult, fit_mli
+from imustation.analysis.ml_rate import fit_ml_rate
+from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, fit_mli, integrate
 from imustation.analysis.models import StandardModel, simulate_standard
+from imustation.analysis.noise_models import NoiseModel
 from imustation.analysis.psd import PSDResult, log_average, welch_psd
 
 __all__ = [
@@ -35,6 +38,11 @@ __all__ = [
     "ieee_coefficients",
     "MLiResult",
     "fit_mli",
+    "fit_integrated",
+    "integrate",
+    "compare_models",
+    "fit_ml_rate",
+    "NoiseModel",
     "StandardModel",
     "simulate_standard",
 ]

@@ -45,12 +45,18 @@ class StandardModel:
         bracket = np.where(
             a > 1e-3,
             1.0 - (3.0 - 4.0 * np.exp(-a) + np.exp(-2.0 * a)) / (2.0 * np.where(a > 1e-3, a, 1.0)),
-            a / 3.0 - a**2 / 4.0 + 7.0 * a**3 / 60.0,
+            a**2 / 3.0 - a**3 / 4.0 + 7.0 * a**4 / 60.0,
         )
         return white + self.sigma_b**2 * self.tau_b**2 / tau * bracket
 
     def adev(self, tau: np.ndarray) -> np.ndarray:
         return np.sqrt(self.avar(tau))
+
+    def to_noise_model(self):
+        """The same model as a :class:`imustation.analysis.noise_models.NoiseModel` (PSD, discretisation)."""
+        from imustation.analysis.noise_models import standard
+
+        return standard(self.sigma_w, self.sigma_b, self.tau_b, self.b_on)
 
 
 class StandardNoiseStream:

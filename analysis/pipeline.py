@@ -10,7 +10,7 @@ import numpy as np
 from imustation.analysis.allan import AllanResult, oadev
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.loaders import Channel
-from imustation.analysis.mli import MLiResult, fit_mli
+from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, integrate
 
 DOC_FORMAT = "imustation-analysis"
 DOC_VERSION = 1
@@ -22,14 +22,27 @@ class ChannelAnalysis:
     allan: AllanResult
     ieee: IEEECoefficients
     mli: MLiResult
+    models: tuple[MLiResult, ...] = ()
 
 
-def analyze_channel(ch: Channel, *, pattern: str = "log", m: int = 1000) -> ChannelAnalysis:
-    """Allan deviation, IEEE-952 coefficients and the ML_i fit of one channel."""
+def analyze_channel(
+    ch: Channel,
+    *,
+    pattern: str = "log",
+    m: int = 1000,
+    model: str = "wn+gm",
+    compare: tuple[str, ...] = (),
+) -> ChannelAnalysis:
+    """Allan deviation, IEEE-952 coefficients and the ML_i fit of one channel.
+
+    ``compare``: further models fitted to the same integrated record (AIC/BIC).
+    """
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     ieee = ieee_coefficients(allan)
-    mli = fit_mli(ch.data, ch.fs_hz, pattern=pattern, m=m, scale=ch.scale)
-    return ChannelAnalysis(ch, allan, ieee, mli)
+    inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
+    mli = fit_integrated(inc, model)
+    models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
+    return ChannelAnalysis(ch, allan, ieee, mli, models)
 
 
 def _num(x: float) -> float | None:
@@ -62,6 +75,7 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "source": ch.source,
             "gaps": ch.gaps,
             "mli": res.mli.as_dict(),
+            **({"models": [r.as_dict() for r in res.models]} if res.models else {}),
             "allan": {
                 "tau": res.allan.tau,
                 "adev": res.allan.adev,

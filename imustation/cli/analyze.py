@@ -8,6 +8,7 @@ import math
 import click
 
 from imustation.analysis.loaders import load_inputs
+from imustation.analysis.mli import DEFAULT_COMPARISON
 from imustation.analysis.pipeline import analysis_document, analyze_channel
 from imustation.cli import cli
 from imustation.errors import InputError
@@ -33,6 +34,8 @@ def results_table(results) -> str:
             f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
             f"{_g(m.b_on):>10} {_g(adev1):>10}  {flag}"
         )
+        for alt in r.models:
+            lines.append(f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
     lines.append(
         "units: sigma_w (unit)/s*sqrt(s) = (unit)/sqrt(Hz); sigma_b (unit)/s/sqrt(Hz); "
         "b_on, ADEV in the channel unit (rad/s or m/s^2)"
@@ -75,9 +78,23 @@ def _interp_adev(allan, tau: float) -> float:
 @click.option(
     "-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Number of ML_i pattern intervals."
 )
+@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model, e.g. wn+gm, wn+2gm, wa+wn+gm.")
+@click.option(
+    "--compare-models",
+    "compare",
+    is_flag=True,
+    help="Also fit wn+gm, wn+gm+rw and wn+2gm and report AIC/BIC (JSON key 'models').",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 def analyze(
-    inputs: tuple[str, ...], globs: tuple[str, ...], rate_hz: float | None, pattern: str, m: int, as_json: bool
+    inputs: tuple[str, ...],
+    globs: tuple[str, ...],
+    rate_hz: float | None,
+    pattern: str,
+    m: int,
+    model: str,
+    compare: bool,
+    as_json: bool,
 ) -> None:
     """Allan deviation and ML_i noise-model fit of every channel of INPUTS.
 
@@ -92,7 +109,9 @@ def analyze(
     for ch in channels:
         if not as_json:
             click.echo(f"analysing {ch.id} ({ch.n} samples) ...", err=True)
-        results.append(analyze_channel(ch, pattern=pattern, m=m))
+        results.append(
+            analyze_channel(ch, pattern=pattern, m=m, model=model, compare=DEFAULT_COMPARISON if compare else ())
+        )
     if as_json:
         click.echo(json.dumps(analysis_document(results)))
     else:
