@@ -40,14 +40,8 @@ class DeviceConfig:
 
 
 @dataclass(frozen=True)
-class ThermometerConfig:
-    name: str
-    driver: str
-    bus: str
-    address: int | None
-    settings: dict[str, Any]
-    sim: dict[str, Any] = field(default_factory=dict)
-    index: int = 0
+class ThermometerConfig(DeviceConfig):
+    """A ``[[thermometer]]`` entry: the same fields as a device, a separate driver registry."""
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from imustation.analysis.mli import (
     _check_rate,
     _NewtonResult,
     _optimise,
+    _Problem,
     _result,
     _scan_affine,
     _scan_moebius,
@@ -63,8 +64,12 @@ def rate_filter(z: np.ndarray, gaps: np.ndarray, fs_hz: float, r: np.ndarray, ta
     return Profile(s_ee - s_eu * b_on, np.sum(np.log(B), axis=0), np.log(s_uu), b_on, len(z))
 
 
-class _RateProblem:
-    """Likelihood of the standard model on subsampled rate, batched (duck-types mli._Problem)."""
+class _RateProblem(_Problem):
+    """Likelihood of the standard model on subsampled rate, batched.
+
+    Shares :class:`imustation.analysis.mli._Problem`'s ``nll``/``full_nll`` and
+    optimiser; only the data, the search box and ``profile`` (the rate filter) differ.
+    """
 
     def __init__(self, z: np.ndarray, gaps: np.ndarray, fs_hz: float, duration: float):
         self.z, self.gaps, self.fs_hz = z, gaps, fs_hz
@@ -88,21 +93,6 @@ class _RateProblem:
             *(np.concatenate([getattr(p, f) for p in parts]) for f in ("s_tilde", "logdet", "log_suu", "b_on")),
             parts[0].m,
         )
-
-    def nll(self, theta: np.ndarray) -> np.ndarray:
-        from imustation.analysis.mli import _profile_nll
-
-        with np.errstate(all="ignore"):
-            out = _profile_nll(self.profile(theta))
-        return np.where(np.isfinite(out), out, np.inf)
-
-    def full_nll(self, phi: np.ndarray) -> np.ndarray:
-        from imustation.analysis.mli import _full_nll
-
-        phi = np.atleast_2d(phi)
-        with np.errstate(all="ignore"):
-            out = _full_nll(self.profile(self.spec.theta_of_phi(phi)), np.exp(2.0 * phi[:, 0]))
-        return np.where(np.isfinite(out), out, np.inf)
 
 
 def fit_ml_rate(

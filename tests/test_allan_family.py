@@ -2,21 +2,10 @@
 
 import numpy as np
 import pytest
+from reference_data import NBS14_10_FREQ, nbs14_1000
 
 from imustation.analysis.allan import edf_oadev, mdev, oadev, ohdev, totdev
 from imustation.errors import InputError
-
-
-def nbs14_1000():
-    """NIST SP 1065 Table 31 1000-point data set (noise-formulas.md sec. 1.1)."""
-    n = np.empty(1000, dtype=np.int64)
-    n[0] = 1234567890
-    for i in range(999):
-        n[i + 1] = (16807 * n[i]) % 2147483647
-    return n / 2147483647.0
-
-
-NBS14_10_FREQ = np.array([892, 809, 823, 798, 671, 644, 883, 903, 677], dtype=float)
 
 # SP 1065 Table 31 (7 significant figures) at m = 1, 10, 100 (noise-formulas.md sec. 1.1)
 NBS14_1000 = {

@@ -2,19 +2,11 @@
 
 import numpy as np
 import pytest
+from reference_data import nbs14_1000
 
 from imustation.analysis import StandardModel, fit_mli, oadev, simulate_standard
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.mli import _filter, _full_nll, integrate_pattern, sampling_pattern
-
-
-def nbs14_1000():
-    """NIST SP 1065 Table 31 1000-point data set (noise-formulas.md §1.1)."""
-    n = np.empty(1000, dtype=np.int64)
-    n[0] = 1234567890
-    for i in range(999):
-        n[i + 1] = (16807 * n[i]) % 2147483647
-    return n / 2147483647.0
 
 
 def test_nbs14_generator_check_values():
