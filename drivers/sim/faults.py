@@ -102,6 +102,9 @@ class FaultPlan:
             if first is None and spec.every_s is not None:
                 first = float(self._rng.exponential(spec.every_s))
             self._next.append(first)
+        # earliest pending event, ns on the clock: buses ask several times per
+        # transaction, and almost always nothing is due (see _collect)
+        self._due_ns = self._earliest_ns()
         self._windows: dict[str, list[tuple[float, float]]] = {}
         self._pending: dict[str, list[float]] = {}
         self.sim_log: list[tuple[int, str]] = []
@@ -109,8 +112,14 @@ class FaultPlan:
     def _now_s(self) -> float:
         return (self.clock.now_ns() - self.t0_ns) / 1e9
 
+    def _earliest_ns(self) -> float:
+        pending = [t for t in self._next if t is not None]
+        return self.t0_ns + min(pending) * 1e9 if pending else float("inf")
+
     def _collect(self) -> dict[str, int]:
         """Move every event due by now into the log; return counts per kind."""
+        if self.clock.now_ns() < self._due_ns:
+            return {}
         now = self._now_s()
         fired: dict[str, int] = {}
         for i, spec in enumerate(self.specs):
@@ -126,6 +135,7 @@ class FaultPlan:
                 else:
                     t = None
             self._next[i] = t
+        self._due_ns = self._earliest_ns()
         return fired
 
     def fire(self, kind: str) -> bool:
@@ -141,6 +151,8 @@ class FaultPlan:
     def active(self, kind: str) -> bool:
         """True while the clock is inside a window of an event of ``kind`` (``duration_s``)."""
         self._collect()
+        if not self._windows.get(kind):
+            return False
         now = self._now_s()
         windows = [w for w in self._windows.get(kind, []) if w[1] > now]
         self._windows[kind] = windows
