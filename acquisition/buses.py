@@ -30,6 +30,7 @@ from imustation.drivers.bus.base import RegisterDevice
 from imustation.drivers.bus.i2c import I2CBus, open_i2c
 from imustation.drivers.bus.serial_port import SerialPort
 from imustation.drivers.bus.spi import USBSPIBridge, open_spi
+from imustation.drivers.bus.trace import Trace, TraceWriter, TracingTransport
 from imustation.drivers.bus.url import SPI_SCHEMES, parse_bus_url, parse_usb_target
 from imustation.drivers.sim import make_simulator, make_thermometer_simulator, station_device_seed
 from imustation.drivers.sim.i2c import SimSMBus
@@ -43,10 +44,21 @@ SIM_SERIAL = "0001"  # USB serial number of simulated bridges without one in the
 class BusFactory:
     """Opens (and later closes) every bus a station needs."""
 
-    def __init__(self, *, simulate: bool, clock: Clock, seed: int):
+    def __init__(
+        self,
+        *,
+        simulate: bool,
+        clock: Clock,
+        seed: int,
+        trace: TraceWriter | None = None,
+        replay: Trace | None = None,
+    ):
         self.simulate = simulate
         self.clock = clock
         self.seed = seed
+        #: record every transaction (``capture --trace``) / answer from a trace (``--replay``)
+        self.trace = trace
+        self.replay = replay
         self._i2c: dict[str, I2CBus] = {}
         #: (bus URL, address) -> name of the device or thermometer using it
         self._claimed: dict[tuple[str, int], str] = {}
@@ -59,8 +71,18 @@ class BusFactory:
         return station_device_seed(self.seed, name)
 
     def register_device(self, dev: DeviceConfig) -> Any:
-        """The transport of ``dev``: register device (I2C), SPI device or serial port."""
+        """The transport of ``dev``: register device (I2C), SPI device or serial port.
+
+        With a replay trace the transport answers from the trace; with a trace
+        writer it is wrapped so that every transaction is recorded.
+        """
         kind = DRIVERS[dev.driver].bus_kind
+        if self.replay is not None:
+            return self.replay.transport(dev.name, kind, self.clock)
+        transport = self._open_device(dev, kind)
+        return TracingTransport(transport, kind, dev.name, self.trace, self.clock) if self.trace else transport
+
+    def _open_device(self, dev: DeviceConfig, kind: str) -> Any:
         scheme = parse_bus_url(dev.bus).scheme
         if scheme not in SCHEMES_FOR_KIND[kind]:
             allowed = ", ".join(f"{s}:" for s in SCHEMES_FOR_KIND[kind])
@@ -81,6 +103,12 @@ class BusFactory:
     def register_thermometer(self, th: ThermometerConfig) -> RegisterDevice:
         """The register device of a ``[[thermometer]]`` (I2C; simulated with ``simulate``)."""
         kind = THERMOMETER_DRIVERS[th.driver].bus_kind
+        if self.replay is not None:
+            return self.replay.transport(th.name, kind, self.clock)
+        regs = self._open_thermometer(th, kind)
+        return TracingTransport(regs, kind, th.name, self.trace, self.clock) if self.trace else regs
+
+    def _open_thermometer(self, th: ThermometerConfig, kind: str) -> RegisterDevice:
         if kind != "i2c":
             raise ConfigError("<config>", f"thermometer {th.name}", f"bus kind {kind!r} not supported yet")
         if parse_bus_url(th.bus).scheme == "sim" and not self.simulate:

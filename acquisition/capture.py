@@ -19,7 +19,8 @@ from imustation.acquisition.config import StationConfig
 from imustation.acquisition.recorder import Recorder
 from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
 from imustation.clock import Clock
-from imustation.errors import DiskFullError
+from imustation.drivers.bus.trace import Trace, TraceWriter
+from imustation.errors import DiskFullError, InputError
 from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
 
 
@@ -51,6 +52,8 @@ def capture(
     fsync: bool = True,
     min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
     ballast_bytes: int = DEFAULT_BALLAST_BYTES,
+    trace: str | os.PathLike | None = None,
+    replay: str | os.PathLike | None = None,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -61,6 +64,9 @@ def capture(
     pace : simulation only: at most this many virtual seconds per wall second.
     clock : override the station clock (tests run simulated chips on a real clock).
     fsync, min_free_bytes, ballast_bytes : see :class:`~imustation.runfile.RunWriter`.
+    trace : write every bus transaction of every device to this JSON-lines file.
+    replay : answer every driver from this trace instead of a bus (virtual clock);
+        the drivers must ask exactly what they asked when it was recorded.
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
@@ -79,8 +85,16 @@ def capture(
         min_free_bytes=min_free_bytes,
         ballast_bytes=ballast_bytes,
     )
+    if trace is not None and replay is not None:
+        raise InputError("--trace and --replay exclude each other")
+    replayed = Trace(replay) if replay is not None else None
     recorder.reserve()
-    station = Station(config, simulate=simulate, clock=clock)
+    try:
+        tracer = TraceWriter(trace) if trace is not None else None
+    except BaseException:
+        recorder.lock.release()
+        raise
+    station = Station(config, simulate=simulate, clock=clock, trace=tracer, replay=replayed)
     stop = _StopFlag()
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -117,6 +131,8 @@ def capture(
         raise
     finally:
         station.close()
+        if tracer is not None:
+            tracer.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 

@@ -35,6 +35,7 @@ from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
 from imustation.clock import Clock, MonotonicClock, VirtualClock
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS, DriverInfo
+from imustation.drivers.bus.trace import Trace, TraceWriter
 from imustation.errors import BusError, DeviceError, DiskFullError
 from imustation.runfile import DeviceSpec
 
@@ -151,11 +152,20 @@ class Station:
         queue, any other clock the threaded readers.
     """
 
-    def __init__(self, config: StationConfig, *, simulate: bool, clock: Clock | None = None):
+    def __init__(
+        self,
+        config: StationConfig,
+        *,
+        simulate: bool,
+        clock: Clock | None = None,
+        trace: TraceWriter | None = None,
+        replay: Trace | None = None,
+    ):
         self.config = config
         self.simulate = simulate
-        self.clock: Clock = clock or (VirtualClock() if simulate else MonotonicClock())
-        self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed)
+        # a replayed trace, like a simulation, runs on a virtual clock
+        self.clock: Clock = clock or (VirtualClock() if simulate or replay else MonotonicClock())
+        self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed, trace=trace, replay=replay)
         self.devices: dict[str, DeviceState] = {}
         self.thermometers: dict[str, ThermometerState] = {}
         self.t0 = 0

@@ -78,6 +78,25 @@ SOURCES: dict[str, Callable[[dict, int], dict[str, SourceFactory]]] = {
 }
 
 
+def _with_replays(driver: str, settings: dict, sources: dict[str, SourceFactory], sim: dict) -> dict:
+    """Swap the noise model for a recording where ``sim.replay`` / ``sim.accel_replay`` name one.
+
+    The recording is checked once against the device's configured output rate and is
+    one stream whatever rate the chip asks with: a chip that powers up at another
+    rate draws its few start-up samples (which drivers discard) from it too.
+    """
+    from imustation.drivers.sim.sources import ReplaySource
+
+    out = dict(sources)
+    axes = ("z",) if driver == "dsp3000" else _XYZ
+    rate = _configured_rate(driver, settings)
+    for channel, key in (("gyro", "replay"), ("accel", "accel_replay")):
+        if key in sim and channel in out:
+            source = ReplaySource.open(str(sim[key]), rate, axes, sim)
+            out[channel] = lambda fs, source=source: source
+    return out
+
+
 def _plan(clock, sim: dict, seed: int):
     from imustation.drivers.sim.faults import FaultPlan, parse_faults
 
@@ -96,7 +115,7 @@ def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
     if driver not in SOURCES:
         raise SettingError(f"driver {driver!r} has no simulator")
     plan = _plan(clock, sim, seed)
-    sources = SOURCES[driver](sim, seed)
+    sources = _with_replays(driver, settings, SOURCES[driver](sim, seed), sim)
     if driver == "bmx055":
         from imustation.drivers.sim.bmx055 import BMG160Sim
 
@@ -178,6 +197,8 @@ def simulated_truth(config) -> dict:
     for dev in config.devices:
         seed = station_device_seed(config.seed, dev.name)
         for channel, factory in SOURCES[dev.driver](dev.sim, seed).items():
+            if ("replay" if channel == "gyro" else "accel_replay") in dev.sim:
+                continue  # a recording: no model to compare with
             src = factory(_output_rate(dev))
             axes = ("z",) if dev.driver == "dsp3000" else _XYZ
             for axis, model in zip(axes, src.models, strict=True):
@@ -193,9 +214,13 @@ def station_device_seed(station_seed: int, name: str) -> int:
 
 
 def _output_rate(dev) -> float:
+    return _configured_rate(dev.driver, dev.settings)
+
+
+def _configured_rate(driver: str, settings: dict) -> float:
     """Output data rate of a configured device, Hz (the ADIS16448 sets it by decimation)."""
-    if dev.driver == "adis16448":
+    if driver == "adis16448":
         from imustation.drivers.adis16448 import rate_hz
 
-        return rate_hz(dev.settings["decimation"])
-    return float(dev.settings["rate_hz"])
+        return rate_hz(settings["decimation"])
+    return float(settings["rate_hz"])

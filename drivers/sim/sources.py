@@ -52,10 +52,14 @@ SIM_KEYS = (
     "accel_b_on_mg",
     "accel_turn_on_bias_std_mg",
     "gravity_g",
+    # a recorded signal instead of the noise model (see ReplaySource)
+    "replay",
+    "replay_rate_hz",
+    "accel_replay",
 )
 
 #: keys that shape a gyroscope source / an accelerometer source
-GYRO_SIM_KEYS = ("sigma_w", "sigma_b", "tau_b", "b_on_dps", "turn_on_bias_std_dps")
+GYRO_SIM_KEYS = ("sigma_w", "sigma_b", "tau_b", "b_on_dps", "turn_on_bias_std_dps", "replay")
 ACCEL_SIM_KEYS = (
     "accel_sigma_w",
     "accel_sigma_b",
@@ -63,6 +67,7 @@ ACCEL_SIM_KEYS = (
     "accel_b_on_mg",
     "accel_turn_on_bias_std_mg",
     "gravity_g",
+    "accel_replay",
 )
 
 #: default turn-on bias spread of simulated gyros, deg/s
@@ -263,3 +268,81 @@ def _check_keys(sim: Mapping[str, object]) -> None:
     for key in sim:
         if key not in SIM_KEYS:
             raise SettingError(f"sim.{key}: unknown (known: {', '.join(SIM_KEYS)})")
+
+
+class ReplaySource:
+    """A recorded signal played back to a chip simulator (``[device.sim] replay = ...``).
+
+    Sources (rates in SI units, one column per axis):
+
+    * ``"run.h5#device/gyro"`` - a channel of a run file (counts x scale), its rate
+      from the file;
+    * ``"rates.npy"`` / ``"rates.csv"`` - an ``(n, k)`` array, rate given by
+      ``replay_rate_hz`` (default: the device's configured output rate).
+
+    No resampling: the recording's rate must equal the configured output rate. When the
+    recording is used up the next draw raises :class:`DeviceError`, so the capture
+    logs a fault instead of inventing data.
+    """
+
+    def __init__(self, data: np.ndarray, fs_hz: float, label: str, *, temp_c: float = 25.0):
+        self.data = np.ascontiguousarray(data, dtype=float)
+        self.fs_hz = float(fs_hz)
+        self.label = label
+        self.temp_c = temp_c
+        self._pos = 0
+
+    def next(self, n: int) -> np.ndarray:
+        from imustation.errors import DeviceError
+
+        if self._pos + n > len(self.data):
+            raise DeviceError(f"replayed recording {self.label} used up after {len(self.data)} samples")
+        out = self.data[self._pos : self._pos + n]
+        self._pos += n
+        return out
+
+    def temperature(self, t_s: float) -> float:
+        return self.temp_c
+
+    @classmethod
+    def open(cls, spec: str, fs_hz: float, axes: Sequence[str], sim: Mapping[str, object]) -> ReplaySource:
+        """Load ``spec`` for a chip producing ``axes`` at ``fs_hz``; one-line errors on mismatch."""
+        from imustation.errors import RunFileError
+
+        temp_c = float(sim.get("temp_c", 25.0))
+        if "#" in spec:
+            path, channel = spec.split("#", 1)
+            device, _, quantity = channel.partition("/")
+            from imustation.runfile import open_run
+
+            try:
+                with open_run(path) as run:
+                    info = run.devices.get(device)
+                    if info is None or quantity not in info.channels:
+                        raise SettingError(f"sim.replay = {spec!r}: no channel {channel} in {path}")
+                    ch = info.channels[quantity]
+                    data = run.read(device, quantity).astype(float) * ch.scale + ch.offset
+                    rate = info.rate_hz
+            except RunFileError as exc:
+                raise SettingError(f"sim.replay = {spec!r}: {exc}") from None
+        else:
+            try:
+                if spec.lower().endswith(".npy"):
+                    data = np.load(spec, allow_pickle=False)
+                else:
+                    data = np.loadtxt(spec, delimiter="," if spec.lower().endswith(".csv") else None, ndmin=2)
+            except (OSError, ValueError) as exc:
+                raise SettingError(f"sim.replay = {spec!r}: cannot read ({exc})") from None
+            rate = float(sim.get("replay_rate_hz", fs_hz))
+        data = np.asarray(data, dtype=float)
+        if data.ndim == 1:
+            data = data[:, None]
+        if data.shape[1] != len(axes):
+            raise SettingError(f"sim.replay = {spec!r}: {data.shape[1]} columns for {len(axes)} axes")
+        if not np.all(np.isfinite(data)):
+            raise SettingError(f"sim.replay = {spec!r}: holds NaN or infinite values")
+        if abs(rate - fs_hz) > 1e-6 * fs_hz:
+            raise SettingError(
+                f"sim.replay = {spec!r}: recorded at {rate:g} Hz, the device is set to {fs_hz:g} Hz (no resampling)"
+            )
+        return cls(data, fs_hz, spec, temp_c=temp_c)

@@ -74,6 +74,21 @@ def _write_status_file(path: str, status: dict) -> None:
 @click.option(
     "--status-interval", default=1.0, show_default=True, type=float, metavar="SECONDS", help="Wall s between statuses."
 )
+@click.option(
+    "--trace",
+    "trace_file",
+    default=None,
+    metavar="FILE",
+    help="Record every bus transaction of every device to FILE (JSON lines), to replay later.",
+)
+@click.option(
+    "--replay",
+    "replay_file",
+    default=None,
+    metavar="FILE",
+    help="Answer every driver from a trace made with --trace instead of a bus (virtual clock; "
+    "use the same config and duration): a recorded capture becomes a regression test.",
+)
 @click.option("--sim-speed", default=None, type=float, hidden=True, help="Simulation: max virtual s per wall s.")
 @click.option("--no-fsync", is_flag=True, hidden=True, help="Skip fsync after flushes (tests on slow disks).")
 def capture(
@@ -87,6 +102,8 @@ def capture(
     json_status: bool,
     status_file: str | None,
     status_interval: float,
+    trace_file: str | None,
+    replay_file: str | None,
     sim_speed: float | None,
     no_fsync: bool,
 ) -> None:
@@ -126,6 +143,8 @@ def capture(
         rotate_s=rotate_s,
         pace=sim_speed,
         fsync=not no_fsync,
+        trace=trace_file,
+        replay=replay_file,
     )
     if tty and live:
         click.echo("", err=True)
