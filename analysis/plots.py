@@ -156,23 +156,23 @@ def bias_track(rate: np.ndarray, fs_hz: float, block_s: float, scale: float = 1.
 def temperature_figure(
     t_s: np.ndarray,
     temp_c: np.ndarray,
-    bias_t_s: np.ndarray,
-    bias: np.ndarray,
+    biases: Sequence[tuple[str, np.ndarray, np.ndarray]],
     *,
     label: str,
     bias_unit: str,
     settings: str = "",
     warmup_s: float | None = None,
 ) -> Figure:
-    """Temperature (°C) over time (s from the start), with the bias on a second axis."""
+    """Temperature (°C) over time (s from the start), with biases ``(label, t_s, bias)`` on a second axis."""
     fig, ax = _new(f"Temperature and bias — {label}", settings)
     h = 3600.0
-    ax.plot(t_s / h, temp_c, "C3-", lw=1, label="temperature")
+    ax.plot(t_s / h, temp_c, "k-", lw=1.2, label="temperature")
     ax.set_xlabel("time [h]")
-    ax.set_ylabel("temperature [°C]", color="C3")
+    ax.set_ylabel("temperature [°C]")
     ax2 = ax.twinx()
-    ax2.plot(bias_t_s / h, bias, "C0-", lw=0.8, label="bias (block mean)")
-    ax2.set_ylabel(f"bias [{bias_unit}]", color="C0")
+    for i, (lbl, bt, b) in enumerate(biases):
+        ax2.plot(bt / h, b, "-", color=f"C{i % 10}", lw=0.8, label=f"bias {lbl}")
+    ax2.set_ylabel(f"bias [{bias_unit}]")
     if warmup_s is not None and warmup_s > 0:
         ax.axvspan(0, warmup_s / h, color="0.85", label="warm-up (excluded)")
     ax.grid(True, lw=0.3, alpha=0.5)

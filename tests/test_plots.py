@@ -55,5 +55,7 @@ def test_multi_psd_temperature(analysed, tmp_path):
     bt, b = plots.bias_track(rate, 400.0, 60.0)
     assert len(b) == 20 and b[0] == pytest.approx(rate[:24000].mean())
     t = np.linspace(0, 1200, 50)
-    fig = plots.temperature_figure(t, 25 + 0.1 * np.sin(t / 200), bt, b, label="z", bias_unit="rad/s", warmup_s=100)
+    fig = plots.temperature_figure(
+        t, 25 + 0.1 * np.sin(t / 200), [("z", bt, b)], label="d", bias_unit="rad/s", warmup_s=1
+    )
     _files_ok(plots.save_figure(fig, tmp_path / "temp"))
