@@ -190,3 +190,37 @@ def save_figure(fig: Figure, stem: str | os.PathLike) -> list[str]:
         fig.savefig(path, **kw)
         out.append(path)
     return out
+
+
+def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, min_windows: int = 10) -> Figure:
+    """Angle-error std vs integration time: the identified model's prediction against the data's spread.
+
+    Lags from 10 samples to 1/``min_windows`` of the longest segment; independent windows. The data's
+    turn-on bias is the segment mean, so the model curve uses the bias variance about that mean
+    (:func:`~imustation.analysis.attitude.angle_error_std` with ``record_s``).
+    """
+    from imustation.analysis.attitude import angle_error_std, angle_spread
+
+    ch = res.channel
+    a, b = max(ch.segments, key=lambda s: s[1] - s[0])
+    t_max = (b - a) / ch.fs_hz / min_windows
+    lags = np.logspace(np.log10(10.0 / ch.fs_hz), np.log10(t_max), n_lags)
+    sp = angle_spread(ch.data, ch.fs_hz, lags, scale=ch.scale, segment=(a, b))
+    unit = "rad" if _sensor(ch) == "gyro" else "m/s"
+    fig, ax = _new(f"Attitude-error growth — {ch.id}", settings)
+    yerr = np.vstack([sp.std - sp.std_lo, sp.std_hi - sp.std])
+    ax.errorbar(sp.t_s, sp.std, yerr=yerr, fmt="k.", ms=4, lw=0.8, label=f"data: std over {sp.windows} windows")
+    model = res.mli.noise_model
+    if model is not None:
+        t = np.logspace(np.log10(sp.t_s[0]), np.log10(sp.t_s[-1]), 200)
+        rec = (b - a) / ch.fs_hz
+        lbl = f"{res.mli.model} model, bias about the record mean"
+        ax.loglog(t, angle_error_std(model, t, record_s=rec), "C3-", lw=1.4, label=lbl)
+        ax.loglog(t, angle_error_std(model, t, bias_known=True), "C0--", lw=1, label="model, bias known at start")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("integration time [s]")
+    ax.set_ylabel(f"angle error std [{unit}]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, loc="best")
+    return fig

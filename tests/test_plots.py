@@ -59,3 +59,15 @@ def test_multi_psd_temperature(analysed, tmp_path):
         t, 25 + 0.1 * np.sin(t / 200), [("z", bt, b)], label="d", bias_unit="rad/s", warmup_s=1
     )
     _files_ok(plots.save_figure(fig, tmp_path / "temp"))
+
+
+def test_attitude_figure(analysed, tmp_path):
+    from imustation.analysis.attitude import angle_error_std
+
+    res = analysed[0]
+    fig = plots.attitude_figure(res, "s")
+    line = next(ln for ln in fig.axes[0].get_lines() if "record mean" in ln.get_label())
+    t, s = line.get_data()
+    np.testing.assert_allclose(s, angle_error_std(res.mli.noise_model, t, record_s=1200.0))
+    assert t[-1] == pytest.approx(1200.0 / 10, rel=1e-6)
+    _files_ok(plots.save_figure(fig, tmp_path / "att"))
