@@ -27,6 +27,9 @@ import numpy as np
 from imustation.errors import InputError
 from imustation.runfile import open_run
 
+#: smallest temperature span (K) a coefficient is fitted over: about twice the finest MCP9804
+#: resolution (0.0625 degC); below it the slope is quantisation noise
+MIN_SPAN_C = 0.125
 #: readings per second kept when a device's temperature channel is read (block means)
 TEMP_READ_HZ = 1.0
 
@@ -85,12 +88,19 @@ class TempcoResult:
     n: int
 
 
-def fit_tempco(bias_t_s: np.ndarray, bias: np.ndarray, temp_t_s: np.ndarray, temp_c: np.ndarray) -> TempcoResult:
+def fit_tempco(
+    bias_t_s: np.ndarray,
+    bias: np.ndarray,
+    temp_t_s: np.ndarray,
+    temp_c: np.ndarray,
+    min_span_c: float = MIN_SPAN_C,
+) -> TempcoResult:
     """Least-squares bias-vs-temperature line.
 
     bias_t_s, bias : block centres (s) and block-mean rate (unit).
     temp_t_s, temp_c : temperature readings (s, °C), interpolated to the block centres;
         blocks outside the readings' time span are not used.
+    min_span_c : refuse (InputError) when the temperature covers less than this (K).
     """
     bias_t_s, bias = np.asarray(bias_t_s, float), np.asarray(bias, float)
     temp_t_s, temp_c = np.asarray(temp_t_s, float), np.asarray(temp_c, float)
@@ -105,14 +115,17 @@ def fit_tempco(bias_t_s: np.ndarray, bias: np.ndarray, temp_t_s: np.ndarray, tem
     xm = float(x.mean())
     dx = x - xm
     sxx = float(dx @ dx)
-    if sxx == 0.0:
-        raise InputError("temperature is constant over the record: no temperature coefficient can be fitted")
+    span = float(x.max() - x.min())
+    if span < min_span_c:
+        raise InputError(
+            f"temperature spans {span:.3g} K (< {min_span_c:g} K) over the record: no temperature coefficient"
+        )
     slope = float(dx @ (y - y.mean())) / sxx
     resid = y - y.mean() - slope * dx
     s2 = float(resid @ resid) / (n - 2)
     syy = float(((y - y.mean()) ** 2).sum())
     r2 = 1.0 - float(resid @ resid) / syy if syy > 0 else math.nan
-    return TempcoResult(slope, math.sqrt(s2 / sxx), float(y.mean()), xm, float(x.max() - x.min()), r2, n)
+    return TempcoResult(slope, math.sqrt(s2 / sxx), float(y.mean()), xm, span, r2, n)
 
 
 def detect_warmup(

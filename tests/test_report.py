@@ -19,7 +19,7 @@ def test_report_writes_expected_files(sim_run, tmp_path):
     names = {p.name for p in d.iterdir()}
     for stem in ["allan_bmx055_gyro"] + [f"{k}_bmx055_gyro_{a}" for k in ("allan", "psd", "attitude") for a in "xyz"]:
         assert {stem + ".png", stem + ".pdf"} <= names
-    assert {"temperature_bmx055.png", "noise.csv", "noise.md", "noise.tex", "index.html"} <= names
+    assert {"temperature_bmx055_gyro.png", "noise.csv", "noise.md", "noise.tex", "index.html"} <= names
     rows = list(csv.DictReader((d / "noise.csv").open(encoding="utf-8")))
     assert [row["axis"] for row in rows] == ["x", "y", "z"]
     page = (d / "index.html").read_text(encoding="utf-8")

@@ -34,8 +34,10 @@ def test_tempco_recovered_from_simulation():
 
 
 def test_tempco_refuses_constant_temperature():
-    with pytest.raises(InputError, match="constant"):
+    with pytest.raises(InputError, match="temperature spans 0 K"):
         fit_tempco(np.arange(10.0), np.ones(10), np.array([0.0, 20.0]), np.array([25.0, 25.0]))
+    with pytest.raises(InputError, match="spans 0.1 K"):  # below the default 0.125 K
+        fit_tempco(np.arange(10.0), np.ones(10), np.array([0.0, 9.0]), np.array([25.0, 25.1]))
 
 
 def test_warmup_detection():

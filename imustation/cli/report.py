@@ -12,7 +12,12 @@ from imustation.analysis import plots
 from imustation.analysis.loaders import load_run
 from imustation.analysis.pipeline import analyze_channel
 from imustation.analysis.tables import noise_rows, table_csv, table_latex, table_markdown, units_of
-from imustation.analysis.temperature import detect_warmup, device_temperature, fit_tempco
+from imustation.analysis.temperature import (
+    detect_warmup,
+    device_temperature,
+    fit_tempco,
+    thermometer_temperature,
+)
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.runfile import open_run
@@ -79,7 +84,13 @@ def report_run(path: str, out_dir: str, globs: tuple[str, ...], model: str, warm
     with open_run(path) as run:
         run_attrs = dict(run.attrs)
         temp_devices = [d for d, info in run.devices.items() if "temp" in info.channels and info.n > 0]
+        thermometer_names = list(run.thermometers)
     temps = {d: device_temperature(path, d) for d in temp_devices}
+    therms = {}
+    for name in thermometer_names:
+        t, c = thermometer_temperature(path, name)
+        if len(t) >= 2:
+            therms[name] = (t, c)
     written: list[str] = []
     sections: list[str] = []
     # warm-up: per device, from its own temperature when 'auto'
@@ -114,10 +125,15 @@ def report_run(path: str, out_dir: str, globs: tuple[str, ...], model: str, warm
         f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured.</p>"
     )
 
+    def sources(dev):
+        """Temperatures to show and regress on: the device's own, then the room thermometers."""
+        own = [("internal", *temps[dev])] if dev in temps else []
+        return own + [(name, t, c) for name, (t, c) in therms.items()]
+
     def span(dev):
-        if dev not in temps:
+        if not sources(dev):
             return None
-        t, c = temps[dev]
+        _, t, c = sources(dev)[0]
         keep = t >= excluded.get(dev, 0.0)
         return (float(c[keep].min()), float(c[keep].max())) if keep.any() else None
 
@@ -150,46 +166,51 @@ def report_run(path: str, out_dir: str, globs: tuple[str, ...], model: str, warm
     if len({r.channel.meta["device"] for r in gyros}) > 1:  # Fig. 8: the devices side by side
         fig = plots.allan_multi_figure(gyros, "Allan deviation — all gyroscopes")
         figs.append(save(fig, "allan_all_gyro", "all gyroscopes of the run"))
-    for dev, (t, c) in temps.items():
-        group = [r for r in results if r.channel.meta["device"] == dev]
-        if not group:
+    for (dev, sensor), group in by_group.items():
+        srcs = sources(dev)
+        if not srcs:
             continue
+        _, disp_unit, factor = units_of(sensor, "B")
+        si_unit = units_of(sensor, "B")[0]
         biases = []
         for r in group:
             ch = r.channel
-            sensor = ch.id.split("/")[1]
             bt, b = plots.bias_track(ch.data, ch.fs_hz, BIAS_BLOCK_S, ch.scale)
             keep = bt >= excluded.get(dev, 0.0)
-            _, disp_unit, factor = units_of(sensor, "B")
-            biases.append((ch.id, bt, (b - b[keep].mean() if keep.any() else b) * factor, disp_unit))
-            try:
-                tc = fit_tempco(bt[keep], b[keep], t, c)
-                tempco_rows.append((ch.id, tc, factor, disp_unit, units_of(sensor, "B")[0]))
-            except InputError as exc:
-                tempco_rows.append((ch.id, None, factor, disp_unit, str(exc)))
+            biases.append((ch.id, bt, (b - b[keep].mean() if keep.any() else b) * factor))
+            for src, t, c in srcs:
+                try:
+                    tc = fit_tempco(bt[keep], b[keep], t, c)
+                    tempco_rows.append((ch.id, src, tc, factor, disp_unit, si_unit))
+                except InputError as exc:
+                    tempco_rows.append((ch.id, src, None, factor, disp_unit, str(exc)))
             ch.release()
+        src, t, c = srcs[0]
         settings = plots.settings_line(group[0].channel, span(dev))
         fig = plots.temperature_figure(
             t,
             c,
-            [(lbl, bt, b) for lbl, bt, b, _ in biases],
-            label=dev,
-            bias_unit=biases[0][3] + " (mean removed)",
+            biases,
+            label=f"{dev} {sensor} ({src} temperature)",
+            bias_unit=disp_unit + " (mean removed)",
             settings=settings,
             warmup_s=excluded.get(dev, 0.0),
         )
-        figs.append(save(fig, f"temperature_{_slug(dev)}", f"temperature and bias of {dev}: {settings}"))
+        name = f"temperature_{_slug(dev)}_{sensor}"
+        figs.append(save(fig, name, f"{src} temperature and {sensor} bias of {dev}: {settings}"))
     if tempco_rows:
         lines = [
-            "<h2>Bias temperature coefficient</h2><table><tr><th>channel</th><th>slope [SI/K]</th>"
-            "<th>slope [display/K]</th><th>± (OLS, lower bound)</th><th>span [K]</th><th>R²</th></tr>"
+            "<h2>Bias temperature coefficient</h2><table><tr><th>channel</th><th>temperature</th>"
+            "<th>slope [SI/K]</th><th>slope [display/K]</th><th>± (OLS, lower bound)</th><th>span [K]</th>"
+            "<th>R²</th></tr>"
         ]
-        for cid, tc, factor, disp, si in tempco_rows:
+        for cid, src, tc, factor, disp, si in tempco_rows:
+            cells = f"<tr><td>{html.escape(cid)}</td><td>{html.escape(src)}</td>"
             if tc is None:
-                lines.append(f"<tr><td>{html.escape(cid)}</td><td colspan=5>{html.escape(si)}</td></tr>")
+                lines.append(cells + f"<td colspan=5>{html.escape(si)}</td></tr>")
                 continue
             lines.append(
-                f"<tr><td>{html.escape(cid)}</td><td>{tc.slope:.3g} {html.escape(si)}/K</td>"
+                cells + f"<td>{tc.slope:.3g} {html.escape(si)}/K</td>"
                 f"<td>{tc.slope * factor:.3g} {html.escape(disp)}/K</td><td>{tc.slope_stderr * factor:.2g}</td>"
                 f"<td>{tc.span_c:.2f}</td><td>{tc.r2:.2f}</td></tr>"
             )
