@@ -63,6 +63,10 @@ from imustation.units import G0
 FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
 RW_CONVERSIONS = ("diffusion", "tau_b")
 SOURCES = ("mli", "ieee")
+#: a Gauss-Markov bias decorrelating faster than this (s) looks like white noise at the time
+#: scales VIO filters integrate over (camera frame intervals and longer): its random-walk
+#: figure is flagged (typically a record too short to identify the slow bias)
+WHITE_LIKE_TAU_B_S = 1.0
 #: formats read by OpenCV's cv::FileStorage, which wants this first line
 _OPENCV_DIRECTIVE = "%YAML:1.0"
 
@@ -98,6 +102,8 @@ class AxisNoise:
     channel: str
     noise_density: float
     random_walk: float
+    #: why the random-walk figure is doubtful ("" when it is not)
+    warning: str = ""
 
 
 @dataclass(frozen=True)
@@ -122,9 +128,15 @@ class SensorNoise:
 def axis_noise(res: ChannelAnalysis, source: str = "mli", rw: str = "diffusion") -> AxisNoise:
     """White-noise and random-walk densities of one analysed channel (SI)."""
     cid = res.channel.id
+    warning = ""
     if source == "mli":
         nd = res.mli.sigma_w
         rwv = random_walk_from_params(res.mli.params, rw)
+        taus = [v for k, v in res.mli.params.items() if k.startswith("tau_b") and math.isfinite(v)]
+        if res.mli.at_bound or not res.mli.converged:
+            warning = f"fit not converged or at a bound ({', '.join(res.mli.at_bound) or res.mli.message})"
+        elif taus and min(taus) < WHITE_LIKE_TAU_B_S:
+            warning = f"tau_b = {min(taus):.3g} s < {WHITE_LIKE_TAU_B_S:g} s: that bias acts as white noise"
     elif source == "ieee":
         nd, rwv = res.ieee.N, res.ieee.K
     else:
@@ -134,7 +146,7 @@ def axis_noise(res: ChannelAnalysis, source: str = "mli", rw: str = "diffusion")
     if not (math.isfinite(rwv) and rwv > 0):
         hint = " (the Allan fit needs no rate-random-walk term; try --source mli)" if source == "ieee" else ""
         raise InputError(f"channel {cid}: random-walk density {rwv} from {source} is not positive{hint}")
-    return AxisNoise(cid, float(nd), float(rwv))
+    return AxisNoise(cid, float(nd), float(rwv), warning)
 
 
 def sensor_noise(results: list[ChannelAnalysis], kind: str, source: str = "mli", rw: str = "diffusion") -> SensorNoise:
@@ -242,6 +254,8 @@ def export_text(
             continue
         for a in s.axes:
             comments.append(f"  {a.channel}: {a.noise_density:.4e}, {a.random_walk:.4e}")
+            if a.warning:
+                comments.append(f"  WARNING {a.channel}: random walk doubtful: {a.warning}; record longer")
     if accel is None:
         comments.append("no accelerometer exported: accelerometer keys left out (add them before use)")
     if fmt == "vins":

@@ -146,3 +146,15 @@ def test_cli_export_sim_run(sim_run, demo_config, tmp_path):
     # without an accelerometer the export refuses rather than writing a file Kalibr would reject
     r = runner.invoke(cli, ["export", str(path), "--format", "kalibr"])
     assert r.exit_code == 2 and "no accelerometer channels" in r.output
+
+
+def test_short_record_random_walk_is_flagged(tmp_path, demo_config):
+    # 30 s of the demo BMX055: far too short for its bias (tau_b ~ 10^3 s); the export says so
+    from imustation.acquisition import capture
+
+    path = tmp_path / "short.h5"
+    capture(demo_config, path, 30.0, simulate=True)
+    r = CliRunner().invoke(cli, ["export", str(path), "--format", "kalibr", "--gyro-only"])
+    assert r.exit_code == 0
+    flagged = [ln for ln in r.output.splitlines() if ln.startswith("#   WARNING")]
+    assert flagged, r.output

@@ -94,6 +94,10 @@ def export(
 
     gyro = sensor_noise(fit(gyros), "gyro", source, rw)
     accel = sensor_noise(fit(accels), "accel", source, rw) if accels else None
+    for s in (gyro, accel):
+        for a in s.axes if s is not None else ():
+            if a.warning:
+                click.echo(f"warning: {a.channel}: random walk doubtful: {a.warning}", err=True)
     text = export_text(gyro, accel, fmt, topic=topic, origin=run)
     if output:
         with open(output, "w", encoding="utf-8") as fh:
