@@ -33,3 +33,18 @@ def test_report_rejects_bad_warmup(sim_run, tmp_path):
     path, _ = sim_run
     r = CliRunner().invoke(cli, ["report", str(path), "-o", str(tmp_path), "--warmup", "soon"])
     assert r.exit_code == 2 and "duration 'soon'" in r.output
+
+
+def test_report_two_runs_has_combined_table(sim_run, tmp_path):
+    import shutil
+
+    path, _ = sim_run
+    second = tmp_path / "second.h5"
+    shutil.copy(path, second)
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(cli, ["report", str(path), str(second), "-o", str(out), "--warmup", "0", "--channel", "*/z"])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader((out / "noise.csv").open(encoding="utf-8")))
+    assert [row["device"] for row in rows] == [f"{path.stem}:bmx055", "second:bmx055"]
+    assert rows[0]["sigma_w"] == rows[1]["sigma_w"]  # the same data gives the same fit
+    assert (out / path.stem / "index.html").exists() and (out / "second" / "index.html").exists()
