@@ -158,3 +158,18 @@ def test_short_record_random_walk_is_flagged(tmp_path, demo_config):
     assert r.exit_code == 0
     flagged = [ln for ln in r.output.splitlines() if ln.startswith("#   WARNING")]
     assert flagged, r.output
+
+
+def test_cli_random_walk_conversions_differ_by_the_closed_form(sim_run):
+    # the demo's x axis is fitted with a finite tau_b: 'tau_b' gives 0.710 x the 'diffusion' figure
+    path, _ = sim_run
+    runner = CliRunner()
+    vals = {}
+    for rw in ("diffusion", "tau_b"):
+        args = ["export", str(path), "--format", "vins", "--gyro-only", "--random-walk", rw]
+        r = runner.invoke(cli, args)
+        assert r.exit_code == 0, r.output
+        x = next(ln for ln in r.output.splitlines() if ln.startswith("#   bmx055/gyro/x:"))
+        vals[rw] = float(x.split(",")[1])
+    ratio = math.sqrt(3.0 * (1.0 - (3.0 - 4.0 * math.exp(-1.0) + math.exp(-2.0)) / 2.0))
+    assert vals["tau_b"] / vals["diffusion"] == pytest.approx(ratio, rel=1e-3)  # 4 printed digits
