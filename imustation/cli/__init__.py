@@ -59,4 +59,4 @@ def main() -> None:
 
 
 # subcommand modules register themselves on the group
-from imustation.cli import analyze, capture, demo, devices, inspect, study  # noqa: E402,F401
+from imustation.cli import analyze, capture, demo, devices, export, inspect, report, study  # noqa: E402,F401

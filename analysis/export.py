@@ -1,0 +1,266 @@
+"""Noise parameters for visual-inertial estimators: Kalibr, OpenVINS, VINS-Fusion, ORB-SLAM3.
+
+All four tools model each axis as white noise plus a random-walk bias
+(noise-formulas.md §3, Kalibr wiki "IMU-Noise-Model"):
+
+* white:  E[n(t1) n(t2)] = sigma_g^2 delta(t1 - t2), ``sigma_g`` in rad/s/sqrt(Hz)
+  (m/s^2/sqrt(Hz) for accelerometers) — the continuous-time density, i.e. the
+  IEEE-952 ``N`` and the paper's ``sigma_w``; **not** ``N * sqrt(rate)``.
+* bias:   db/dt = sigma_bg w(t), ``sigma_bg`` in rad/s^2/sqrt(Hz) (m/s^3/sqrt(Hz)) —
+  the IEEE-952 rate random walk ``K`` (not ``K/sqrt 3``, not ``B``).
+
+The identified models here usually have a first-order Gauss-Markov bias
+(db/dt = -b/tau_b + w, PSD(w) = sigma_b^2), which these tools cannot express.
+Two documented conversions to a random-walk figure (``rw``):
+
+``"diffusion"`` (default, conservative)
+    ``sigma_bg = sqrt(sigma_k^2 + sum_i sigma_b_i^2)``: the short-time limit —
+    for tau << tau_b the Gauss-Markov Allan variance is ``sigma_b^2 tau / 3``,
+    exactly a random walk with ``K = sigma_b``. At every tau the random walk's
+    Allan variance is at least the Gauss-Markov one (the GM saturates at
+    ``tau ~ tau_b`` and then falls), so the filter never under-states bias drift.
+``"tau_b"``
+    each Gauss-Markov term is replaced by the random walk whose Allan variance
+    equals it at ``tau = tau_b``: ``K_i^2 = 3 AVAR_GM(tau_b) / tau_b = 0.504 sigma_b^2``
+    (``K_i = 0.710 sigma_b``). Matches the drift at the bias time scale, still
+    over-states it beyond; under-states nothing by more than 1/0.71 below tau_b.
+
+With ``source="ieee"`` the densities come from the IEEE-952 fit of the Allan
+curve instead: ``sigma_g = N``, ``sigma_bg = K``.
+
+Each tool takes one value per sensor, not per axis: the largest axis value is
+written (conservative); every axis's value goes into the header comments.
+
+Key names and file conventions followed (public code, checked):
+
+* Kalibr: ``kalibr_common/ConfigReader.py`` ``ImuParameters`` (ethz-asl/kalibr;
+  noise-formulas.md §3.2): flat ``rostopic, update_rate, *_noise_density, *_random_walk``.
+* OpenVINS: ``config/euroc_mav/kalibr_imu_chain.yaml`` (rpng/open_vins): the
+  Kalibr keys under ``imu0:`` plus ``time_offset``, OpenCV ``%YAML:1.0`` header.
+* VINS-Fusion: ``vins_estimator/src/estimator/parameters.cpp`` (reads ``imu``,
+  ``imu_topic``, ``acc_n``, ``acc_w``, ``gyr_n``, ``gyr_w``, ``g_norm``) and
+  ``config/euroc/euroc_stereo_imu_config.yaml`` (HKUST-Aerial-Robotics/VINS-Fusion);
+  the EuRoC config puts continuous-time densities there, as written here.
+* ORB-SLAM3: ``Examples/Stereo-Inertial/EuRoC.yaml`` (UZ-SLAMLab/ORB_SLAM3):
+  ``IMU.NoiseGyro, IMU.NoiseAcc, IMU.GyroWalk, IMU.AccWalk`` (the EuRoC Kalibr
+  values) and integer ``IMU.Frequency``.
+
+The VINS-Fusion and ORB-SLAM3 files are fragments to merge into a full
+camera configuration. This module only builds dicts and text; no file I/O.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+from imustation.analysis.noise_models import GaussMarkov
+from imustation.analysis.pipeline import ChannelAnalysis
+from imustation.errors import InputError
+from imustation.units import G0
+
+FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
+RW_CONVERSIONS = ("diffusion", "tau_b")
+SOURCES = ("mli", "ieee")
+#: a Gauss-Markov bias decorrelating faster than this (s) looks like white noise at the time
+#: scales VIO filters integrate over (camera frame intervals and longer): its random-walk
+#: figure is flagged (typically a record too short to identify the slow bias)
+WHITE_LIKE_TAU_B_S = 1.0
+#: formats read by OpenCV's cv::FileStorage, which wants this first line
+_OPENCV_DIRECTIVE = "%YAML:1.0"
+
+
+def gm_to_rw_at_tau_b(sigma_b: float, tau_b: float) -> float:
+    """Random-walk density K (unit/s/sqrt(Hz)) with the Gauss-Markov's Allan variance at tau = tau_b."""
+    return math.sqrt(3.0 * float(GaussMarkov(sigma_b, tau_b).avar(tau_b)) / tau_b)
+
+
+def random_walk_from_params(params: dict[str, float], rw: str = "diffusion") -> float:
+    """Random-walk figure (unit/s/sqrt(Hz)) from an ML_i parameter dict (see module docstring).
+
+    ``params``: ``sigma_k`` and/or ``sigma_b``/``tau_b`` (or ``sigma_b1, tau_b1, ...``), SI.
+    """
+    if rw not in RW_CONVERSIONS:
+        raise InputError(f"random-walk conversion {rw!r}: use one of {', '.join(RW_CONVERSIONS)}")
+    total = params.get("sigma_k", 0.0) ** 2
+    gms = [(params[k], params["tau_b" + k[len("sigma_b") :]]) for k in params if k.startswith("sigma_b")]
+    for sigma_b, tau_b in gms:
+        if not (math.isfinite(sigma_b) and sigma_b > 0):
+            continue
+        if rw == "diffusion" or math.isinf(tau_b):
+            total += sigma_b**2
+        else:
+            total += gm_to_rw_at_tau_b(sigma_b, tau_b) ** 2
+    return math.sqrt(total)
+
+
+@dataclass(frozen=True)
+class AxisNoise:
+    """One axis: white-noise density (unit/sqrt(Hz)) and random-walk density (unit/s/sqrt(Hz))."""
+
+    channel: str
+    noise_density: float
+    random_walk: float
+    #: why the random-walk figure is doubtful ("" when it is not)
+    warning: str = ""
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """One sensor (gyroscope or accelerometer) of a device; the exported value is the largest axis."""
+
+    kind: str
+    rate_hz: float
+    axes: tuple[AxisNoise, ...]
+    source: str
+    rw: str
+
+    @property
+    def noise_density(self) -> float:
+        return max(a.noise_density for a in self.axes)
+
+    @property
+    def random_walk(self) -> float:
+        return max(a.random_walk for a in self.axes)
+
+
+def axis_noise(res: ChannelAnalysis, source: str = "mli", rw: str = "diffusion") -> AxisNoise:
+    """White-noise and random-walk densities of one analysed channel (SI)."""
+    cid = res.channel.id
+    warning = ""
+    if source == "mli":
+        nd = res.mli.sigma_w
+        rwv = random_walk_from_params(res.mli.params, rw)
+        taus = [v for k, v in res.mli.params.items() if k.startswith("tau_b") and math.isfinite(v)]
+        if res.mli.at_bound or not res.mli.converged:
+            warning = f"fit not converged or at a bound ({', '.join(res.mli.at_bound) or res.mli.message})"
+        elif taus and min(taus) < WHITE_LIKE_TAU_B_S:
+            warning = f"tau_b = {min(taus):.3g} s < {WHITE_LIKE_TAU_B_S:g} s: that bias acts as white noise"
+    elif source == "ieee":
+        nd, rwv = res.ieee.N, res.ieee.K
+    else:
+        raise InputError(f"source {source!r}: use one of {', '.join(SOURCES)}")
+    if not (math.isfinite(nd) and nd > 0):
+        raise InputError(f"channel {cid}: white-noise density {nd} from {source} is not positive")
+    if not (math.isfinite(rwv) and rwv > 0):
+        hint = " (the Allan fit needs no rate-random-walk term; try --source mli)" if source == "ieee" else ""
+        raise InputError(f"channel {cid}: random-walk density {rwv} from {source} is not positive{hint}")
+    return AxisNoise(cid, float(nd), float(rwv), warning)
+
+
+def sensor_noise(results: list[ChannelAnalysis], kind: str, source: str = "mli", rw: str = "diffusion") -> SensorNoise:
+    """Combine the analysed axes of one sensor (all at one rate)."""
+    if not results:
+        raise InputError(f"no {kind} channels to export")
+    rates = {r.channel.fs_hz for r in results}
+    if len(rates) != 1:
+        raise InputError(f"{kind} channels have different rates {sorted(rates)}: export one device at a time")
+    return SensorNoise(kind, rates.pop(), tuple(axis_noise(r, source, rw) for r in results), source, rw)
+
+
+def export_dict(
+    gyro: SensorNoise, accel: SensorNoise | None, fmt: str, *, topic: str = "/imu0", g_norm: float = G0
+) -> dict:
+    """The keys ``fmt`` expects, in SI continuous-time units; ``accel=None`` leaves its keys out."""
+    if fmt not in FORMATS:
+        raise InputError(f"format {fmt!r}: use one of {', '.join(FORMATS)}")
+    rate = gyro.rate_hz
+    acc = {} if accel is None else {"nd": accel.noise_density, "rw": accel.random_walk}
+    if fmt in ("kalibr", "openvins"):
+        d = {"rostopic": topic, "update_rate": float(rate)}
+        if acc:
+            d["accelerometer_noise_density"] = acc["nd"]
+            d["accelerometer_random_walk"] = acc["rw"]
+        d["gyroscope_noise_density"] = gyro.noise_density
+        d["gyroscope_random_walk"] = gyro.random_walk
+        if fmt == "openvins":
+            d["time_offset"] = 0.0
+            return {"imu0": d}
+        return d
+    if fmt == "vins":
+        d = {"imu": 1, "imu_topic": topic}
+        if acc:
+            d["acc_n"] = acc["nd"]
+        d["gyr_n"] = gyro.noise_density
+        if acc:
+            d["acc_w"] = acc["rw"]
+        d["gyr_w"] = gyro.random_walk
+        d["g_norm"] = float(g_norm)
+        return d
+    d = {"IMU.NoiseGyro": gyro.noise_density}
+    if acc:
+        d["IMU.NoiseAcc"] = acc["nd"]
+    d["IMU.GyroWalk"] = gyro.random_walk
+    if acc:
+        d["IMU.AccWalk"] = acc["rw"]
+    d["IMU.Frequency"] = int(round(rate))  # ORB-SLAM3 reads an integer
+    return d
+
+
+def _scalar(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise InputError(f"value {v} cannot be exported")
+        return f"{v:.6e}"  # always a dot and a signed exponent: a float for YAML 1.1 and OpenCV alike
+    return json.dumps(str(v))  # a double-quoted YAML scalar
+
+
+def to_yaml(d: dict, comments: list[str] = (), directive: str | None = None, indent: int = 0) -> str:
+    """Block-style YAML of nested dicts of str/int/float, with leading ``#`` comments."""
+    lines = [] if indent else ([directive] if directive else []) + [f"# {c}" if c else "#" for c in comments]
+    for k, v in d.items():
+        pad = " " * indent
+        if isinstance(v, dict):
+            lines.append(f"{pad}{k}:")
+            lines.append(to_yaml(v, indent=indent + 2).rstrip("\n"))
+        else:
+            lines.append(f"{pad}{k}: {_scalar(v)}")
+    return "\n".join(lines) + "\n"
+
+
+def _units() -> list[str]:
+    return [
+        "units: noise densities rad/s/sqrt(Hz) (gyro), m/s^2/sqrt(Hz) (accel), continuous time;",
+        "random walks rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz); rate Hz. Discrete per-sample sigma = density*sqrt(rate).",
+    ]
+
+
+def export_text(
+    gyro: SensorNoise,
+    accel: SensorNoise | None,
+    fmt: str,
+    *,
+    topic: str = "/imu0",
+    g_norm: float = G0,
+    origin: str = "",
+) -> str:
+    """The file for ``fmt``: keys of :func:`export_dict`, with comments naming units, source and axes."""
+    d = export_dict(gyro, accel, fmt, topic=topic, g_norm=g_norm)
+    how = (
+        "IEEE-952 Allan fit: noise density = N, random walk = K"
+        if gyro.source == "ieee"
+        else f"ML_i fit: noise density = sigma_w, random walk from the bias model ({gyro.rw!r} conversion, "
+        "docs/reports.md)"
+    )
+    comments = [f"imustation export --format {fmt}" + (f" of {origin}" if origin else ""), *_units(), how]
+    comments.append("largest axis value written; per axis (noise density, random walk):")
+    for s in (gyro, accel):
+        if s is None:
+            continue
+        for a in s.axes:
+            comments.append(f"  {a.channel}: {a.noise_density:.4e}, {a.random_walk:.4e}")
+            if a.warning:
+                comments.append(f"  WARNING {a.channel}: random walk doubtful: {a.warning}; record longer")
+    if accel is None:
+        comments.append("no accelerometer exported: accelerometer keys left out (add them before use)")
+    if fmt == "vins":
+        comments.append("g_norm: standard gravity; replace by the local value. Merge into the full VINS config.")
+    if fmt == "orbslam3":
+        comments.append("merge into the ORB-SLAM3 settings file (camera keys not written)")
+    directive = None if fmt == "kalibr" else _OPENCV_DIRECTIVE
+    return to_yaml(d, comments, directive)

@@ -1,0 +1,226 @@
+"""Figures of a run (matplotlib, Agg; PNG and PDF): the paper's Fig. 6, 8, 9 styles and temperature.
+
+* :func:`allan_figure` — measured Allan deviation with its confidence band, the
+  identified model's Allan curve and each of its terms, and the earth-rate line
+  (Fig. 6 style);
+* :func:`allan_multi_figure` — several channels on one plot (Fig. 8);
+* :func:`psd_figure` — two-sided Welch PSD near Nyquist with the model's exact
+  sampled PSD (Fig. 9);
+* :func:`temperature_figure` — temperature over time with the bias (block means of
+  the rate) on a second axis.
+
+Every figure carries its settings line (:func:`settings_line`: rate, bandwidth,
+decimation/filter settings, duration, temperature span). Figures are built on
+:class:`matplotlib.figure.Figure` directly (no pyplot state, no display);
+:func:`save_figure` writes the files.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from imustation.analysis.noise_models import NoiseModel
+from imustation.analysis.pipeline import ChannelAnalysis
+from imustation.analysis.psd import log_average, welch_psd
+from imustation.analysis.tables import units_of
+from imustation.units import EARTH_RATE, format_duration
+
+#: device settings shown on figures besides rate and bandwidth (substrings of run-file attribute names)
+_SETTING_HINTS = ("decim", "filter", "dlpf", "range", "bw_code")
+_SIZE = (7.0, 4.6)
+#: Welch window of the near-Nyquist PSD, s (about 0.1 Hz resolution, many windows to average)
+_PSD_WINDOW_S = 8.0
+
+
+def _sensor(ch) -> str:
+    parts = ch.id.split("/")
+    if len(parts) >= 3 and parts[-2] in ("gyro", "accel"):
+        return parts[-2]
+    return "accel" if ch.units == "m/s^2" else "gyro"
+
+
+def settings_line(ch, temp_span_c: tuple[float, float] | None = None) -> str:
+    """``rate 400 Hz, bandwidth 47 Hz, gyro_range_dps 125, duration 20m00s, 24.9-25.3 °C``."""
+    s = dict(ch.meta.get("settings", {}))
+    parts = [f"rate {ch.fs_hz:g} Hz"]
+    if "bandwidth_hz" in s:
+        parts.append(f"bandwidth {float(s['bandwidth_hz']):g} Hz")
+    for k, v in sorted(s.items()):
+        if k not in ("rate_hz", "bandwidth_hz") and any(h in k for h in _SETTING_HINTS):
+            parts.append(f"{k} {v}")
+    parts.append(f"duration {format_duration(ch.n / ch.fs_hz)}")
+    if temp_span_c is not None and all(math.isfinite(t) for t in temp_span_c):
+        parts.append(f"temperature {temp_span_c[0]:.2f}–{temp_span_c[1]:.2f} °C")
+    else:
+        parts.append("temperature not recorded")
+    return ", ".join(parts)
+
+
+def _new(title: str, settings: str) -> tuple[Figure, object]:
+    fig = Figure(figsize=_SIZE, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.set_title(title, fontsize=10)
+    fig.text(0.5, 0.005, settings, ha="center", va="bottom", fontsize=7, color="0.3", wrap=True)
+    fig.get_layout_engine().set(h_pad=0.25)
+    return fig, ax
+
+
+def _term_label(t) -> str:
+    p = ", ".join(f"{k} {v:.3g}" for k, v in t.params().items())
+    return f"{type(t).__name__} ({p})"
+
+
+def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = True) -> Figure:
+    """Fig. 6: ADEV with its 68 % band, the ML_i model's ADEV and terms; earth rate for gyros."""
+    ch, al = res.channel, res.allan
+    fig, ax = _new(f"Allan deviation — {ch.id}", settings)
+    ax.fill_between(al.tau, al.adev_lo, al.adev_hi, color="0.8", label="68 % confidence", linewidth=0)
+    ax.loglog(al.tau, al.adev, "k.", ms=3, label="measured (overlapping)")
+    model: NoiseModel | None = res.mli.noise_model
+    if model is not None:
+        tau = np.logspace(np.log10(al.tau[0]), np.log10(al.tau[-1]), 200)
+        ax.loglog(tau, model.adev(tau, ch.fs_hz), "C3-", lw=1.5, label=f"identified {res.mli.model} (ML_i)")
+        for i, t in enumerate(model.terms):  # continuous forms: the sampled GM form cancels badly for tau_b >> tau
+            ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t))
+    sensor = _sensor(ch)
+    if earth_rate and sensor == "gyro":
+        ax.axhline(EARTH_RATE, color="C2", ls=":", lw=1, label=f"earth rate {EARTH_RATE:.3g} rad/s")
+    ax.set_xlabel("averaging time τ [s]")
+    ax.set_ylabel(f"Allan deviation [{units_of(sensor, 'B')[0]}]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def allan_multi_figure(
+    results: Sequence[ChannelAnalysis], title: str = "Allan deviation", settings: str = ""
+) -> Figure:
+    """Fig. 8: measured ADEV (with bands) of several channels, and their identified models."""
+    fig, ax = _new(title, settings)
+    sensors = set()
+    for i, res in enumerate(results):
+        al, c = res.allan, f"C{i % 10}"
+        ax.fill_between(al.tau, al.adev_lo, al.adev_hi, color=c, alpha=0.15, linewidth=0)
+        ax.loglog(al.tau, al.adev, ".", color=c, ms=2.5, label=res.channel.id)
+        if res.mli.noise_model is not None:
+            ax.loglog(al.tau, res.mli.noise_model.adev(al.tau, res.channel.fs_hz), "-", color=c, lw=0.9)
+        sensors.add(_sensor(res.channel))
+    if sensors == {"gyro"}:
+        ax.axhline(EARTH_RATE, color="0.4", ls=":", lw=1, label="earth rate")
+    unit = units_of(sensors.pop(), "B")[0] if len(sensors) == 1 else "SI"
+    ax.set_xlabel("averaging time τ [s]")
+    ax.set_ylabel(f"Allan deviation [{unit}]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, loc="best", title="dots: data, lines: identified models", title_fontsize=7)
+    return fig
+
+
+def psd_figure(res: ChannelAnalysis, settings: str = "", f_min_hz: float = 1.0) -> Figure:
+    """Fig. 9: two-sided Welch PSD from ``f_min_hz`` to Nyquist, with the model's exact sampled PSD."""
+    ch = res.channel
+    longest = max(b - a for a, b in ch.segments)
+    nps = int(min(2 ** math.floor(math.log2(_PSD_WINDOW_S * ch.fs_hz)), 2 ** math.floor(math.log2(longest))))
+    psd = log_average(welch_psd(ch.data, ch.fs_hz, scale=ch.scale, nperseg=nps, segments=ch.segments, sides="two"), 40)
+    keep = psd.f >= min(f_min_hz, ch.fs_hz / 4)
+    fig, ax = _new(f"PSD near Nyquist — {ch.id}", settings)
+    ax.loglog(psd.f[keep], psd.psd[keep], color="0.6", lw=1, label=f"Welch ({psd.windows} windows of {psd.nperseg})")
+    model = res.mli.noise_model
+    if model is not None:
+        f = np.logspace(np.log10(psd.f[keep][0]), np.log10(ch.fs_hz / 2), 300)
+        ax.loglog(f, model.psd(f, ch.fs_hz), "k-", lw=1.2, label=f"identified {res.mli.model} (exact, sampled)")
+    ax.axvline(ch.fs_hz / 2, color="0.3", ls=":", lw=0.8, label=f"Nyquist {ch.fs_hz / 2:g} Hz")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel(f"two-sided PSD [({units_of(_sensor(ch), 'B')[0]})²/Hz]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def bias_track(rate: np.ndarray, fs_hz: float, block_s: float, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Block means of the rate: times (s, block centres) and bias (unit) over blocks of ``block_s`` s."""
+    m = max(1, int(round(block_s * fs_hz)))
+    k = len(rate) // m
+    if k == 0:
+        return np.zeros(0), np.zeros(0)
+    means = rate[: k * m].reshape(k, m).astype(np.float64).mean(axis=1) * scale
+    return (np.arange(k) + 0.5) * m / fs_hz, means
+
+
+def temperature_figure(
+    t_s: np.ndarray,
+    temp_c: np.ndarray,
+    biases: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    *,
+    label: str,
+    bias_unit: str,
+    settings: str = "",
+    warmup_s: float | None = None,
+) -> Figure:
+    """Temperature (°C) over time (s from the start), with biases ``(label, t_s, bias)`` on a second axis."""
+    fig, ax = _new(f"Temperature and bias — {label}", settings)
+    h = 3600.0
+    ax.plot(t_s / h, temp_c, "k-", lw=1.2, label="temperature")
+    ax.set_xlabel("time [h]")
+    ax.set_ylabel("temperature [°C]")
+    ax2 = ax.twinx()
+    for i, (lbl, bt, b) in enumerate(biases):
+        ax2.plot(bt / h, b, "-", color=f"C{i % 10}", lw=0.8, label=f"bias {lbl}")
+    ax2.set_ylabel(f"bias [{bias_unit}]")
+    if warmup_s is not None and warmup_s > 0:
+        ax.axvspan(0, warmup_s / h, color="0.85", label="warm-up (excluded)")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    lines = ax.get_legend_handles_labels()
+    lines2 = ax2.get_legend_handles_labels()
+    ax.legend(lines[0] + lines2[0], lines[1] + lines2[1], fontsize=7, loc="best")
+    return fig
+
+
+def save_figure(fig: Figure, stem: str | os.PathLike) -> list[str]:
+    """Write ``stem.png`` (150 dpi) and ``stem.pdf``; returns both paths."""
+    out = []
+    for ext, kw in ((".png", {"dpi": 150}), (".pdf", {})):
+        path = os.fspath(stem) + ext
+        fig.savefig(path, **kw)
+        out.append(path)
+    return out
+
+
+def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, min_windows: int = 10) -> Figure:
+    """Angle-error std vs integration time: the identified model's prediction against the data's spread.
+
+    Lags from 10 samples to 1/``min_windows`` of the longest segment; independent windows. The data's
+    turn-on bias is the segment mean, so the model curve uses the bias variance about that mean
+    (:func:`~imustation.analysis.attitude.angle_error_std` with ``record_s``).
+    """
+    from imustation.analysis.attitude import angle_error_std, angle_spread
+
+    ch = res.channel
+    a, b = max(ch.segments, key=lambda s: s[1] - s[0])
+    t_max = (b - a) / ch.fs_hz / min_windows
+    lags = np.logspace(np.log10(10.0 / ch.fs_hz), np.log10(t_max), n_lags)
+    sp = angle_spread(ch.data, ch.fs_hz, lags, scale=ch.scale, segment=(a, b))
+    unit = "rad" if _sensor(ch) == "gyro" else "m/s"
+    fig, ax = _new(f"Attitude-error growth — {ch.id}", settings)
+    yerr = np.vstack([sp.std - sp.std_lo, sp.std_hi - sp.std])
+    ax.errorbar(sp.t_s, sp.std, yerr=yerr, fmt="k.", ms=4, lw=0.8, label=f"data: std over {sp.windows} windows")
+    model = res.mli.noise_model
+    if model is not None:
+        t = np.logspace(np.log10(sp.t_s[0]), np.log10(sp.t_s[-1]), 200)
+        rec = (b - a) / ch.fs_hz
+        lbl = f"{res.mli.model} model, bias about the record mean"
+        ax.loglog(t, angle_error_std(model, t, record_s=rec), "C3-", lw=1.4, label=lbl)
+        ax.loglog(t, angle_error_std(model, t, bias_known=True), "C0--", lw=1, label="model, bias known at start")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("integration time [s]")
+    ax.set_ylabel(f"angle error std [{unit}]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, loc="best")
+    return fig

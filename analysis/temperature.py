@@ -1,0 +1,164 @@
+"""Temperature: readings from run files, bias-vs-temperature regression, warm-up detection.
+
+* :func:`device_temperature` / :func:`thermometer_temperature` read a device's
+  internal temperature channel or an MCP9804 room thermometer (°C, times in s
+  from the first sample of the run).
+* :func:`fit_tempco` regresses the bias (block means of the rate) on the
+  temperature interpolated to the block centres: slope in unit/K (e.g.
+  rad/s/K; x 3600·180/π for °/h/K). Its standard error is the OLS one; block
+  means of a rate with bias fluctuations are correlated, so it is a lower bound
+  — the slope is meaningful only when the temperature span is well above the
+  thermometer resolution.
+* :func:`detect_warmup` finds the end of the warm-up: the first time after
+  which the temperature's rate of change (least-squares slope over sliding
+  windows) stays below a limit. The paper discards at least the first hour;
+  callers combine both (``max(detected, minimum)``).
+
+Estimators take arrays and return dataclasses; only the two readers touch files.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from imustation.errors import InputError
+from imustation.runfile import open_run
+
+#: smallest temperature span (K) a coefficient is fitted over: about twice the finest MCP9804
+#: resolution (0.0625 degC); below it the slope is quantisation noise
+MIN_SPAN_C = 0.125
+#: readings per second kept when a device's temperature channel is read (block means)
+TEMP_READ_HZ = 1.0
+
+
+def _t0_ns(run) -> int:
+    firsts = [int(run.dataset(d, "t")[0]) for d, info in run.devices.items() if info.n > 0]
+    return min(firsts) if firsts else 0
+
+
+def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
+    """A device's ``temp`` channel: times (s from the run's first sample) and °C, block-averaged to ~1 Hz.
+
+    Raises :class:`InputError` if the device has no temperature channel.
+    """
+    with open_run(path) as run:
+        info = run.devices.get(device)
+        if info is None or "temp" not in info.channels:
+            raise InputError(f"{path}: device {device} has no temperature channel")
+        ch = info.channels["temp"]
+        n = run.rows(device)
+        m = max(1, int(round(info.rate_hz / TEMP_READ_HZ)))
+        k = n // m
+        if k == 0:
+            raise InputError(f"{path}: device {device} has fewer than {m} temperature samples")
+        raw = run.read(device, "temp", 0, k * m).astype(np.float64)
+        raw = raw.reshape(k, m, -1).mean(axis=(1, 2)) if raw.ndim > 1 else raw.reshape(k, m).mean(axis=1)
+        t = run.read(device, "t", 0, k * m).astype(np.int64).reshape(k, m)[:, m // 2]
+        t0 = _t0_ns(run)
+    return (t - t0) * 1e-9, raw * ch.scale + ch.offset
+
+
+def thermometer_temperature(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Thermometer ``name`` (e.g. MCP9804): times (s from the run's first sample) and °C."""
+    with open_run(path) as run:
+        if name not in run.thermometers:
+            raise InputError(f"{path}: no thermometer {name} (have: {', '.join(run.thermometers) or 'none'})")
+        t, c = run.temperatures(name)
+        t0 = _t0_ns(run)
+    return (np.asarray(t, dtype=np.int64) - t0) * 1e-9, np.asarray(c, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class TempcoResult:
+    """Bias = intercept + slope * (T - T_mean): ``slope`` (unit/K) with OLS ``slope_stderr``.
+
+    ``t_mean_c`` the mean temperature (°C), ``span_c`` the temperature range covered (K),
+    ``r2`` the fraction of bias variance explained, ``n`` blocks used.
+    """
+
+    slope: float
+    slope_stderr: float
+    intercept: float
+    t_mean_c: float
+    span_c: float
+    r2: float
+    n: int
+
+
+def fit_tempco(
+    bias_t_s: np.ndarray,
+    bias: np.ndarray,
+    temp_t_s: np.ndarray,
+    temp_c: np.ndarray,
+    min_span_c: float = MIN_SPAN_C,
+) -> TempcoResult:
+    """Least-squares bias-vs-temperature line.
+
+    bias_t_s, bias : block centres (s) and block-mean rate (unit).
+    temp_t_s, temp_c : temperature readings (s, °C), interpolated to the block centres;
+        blocks outside the readings' time span are not used.
+    min_span_c : refuse (InputError) when the temperature covers less than this (K).
+    """
+    bias_t_s, bias = np.asarray(bias_t_s, float), np.asarray(bias, float)
+    temp_t_s, temp_c = np.asarray(temp_t_s, float), np.asarray(temp_c, float)
+    if len(temp_t_s) < 2:
+        raise InputError("temperature regression needs at least two temperature readings")
+    inside = (bias_t_s >= temp_t_s[0]) & (bias_t_s <= temp_t_s[-1])
+    x = np.interp(bias_t_s[inside], temp_t_s, temp_c)
+    y = bias[inside]
+    n = len(y)
+    if n < 3:
+        raise InputError(f"temperature regression needs at least 3 bias blocks inside the readings, got {n}")
+    xm = float(x.mean())
+    dx = x - xm
+    sxx = float(dx @ dx)
+    span = float(x.max() - x.min())
+    if span < min_span_c:
+        raise InputError(
+            f"temperature spans {span:.3g} K (< {min_span_c:g} K) over the record: no temperature coefficient"
+        )
+    slope = float(dx @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * dx
+    s2 = float(resid @ resid) / (n - 2)
+    syy = float(((y - y.mean()) ** 2).sum())
+    r2 = 1.0 - float(resid @ resid) / syy if syy > 0 else math.nan
+    return TempcoResult(slope, math.sqrt(s2 / sxx), float(y.mean()), xm, span, r2, n)
+
+
+def detect_warmup(
+    t_s: np.ndarray, temp_c: np.ndarray, *, window_s: float = 600.0, max_rate_c_per_h: float = 1.0
+) -> float:
+    """End of the warm-up (s): first window start after which every window's |dT/dt| <= the limit.
+
+    t_s, temp_c : temperature readings (s, °C), increasing times.
+    window_s : sliding window of the slope estimate (s), stepped by half a window.
+    max_rate_c_per_h : settled when the temperature changes slower than this (°C/h).
+    Returns 0 when the record is settled from the start, and the record's end
+    time when it never settles.
+    """
+    t_s, temp_c = np.asarray(t_s, float), np.asarray(temp_c, float)
+    if len(t_s) < 3 or t_s[-1] - t_s[0] < window_s:
+        return 0.0
+    starts = np.arange(t_s[0], t_s[-1] - window_s + 1e-9, window_s / 2.0)
+    # slope of each window from cumulative sums (vectorised least squares)
+    c = np.concatenate([[0.0], np.cumsum(t_s)])
+    c2 = np.concatenate([[0.0], np.cumsum(t_s * t_s)])
+    cy = np.concatenate([[0.0], np.cumsum(temp_c)])
+    cxy = np.concatenate([[0.0], np.cumsum(t_s * temp_c)])
+    lo = np.searchsorted(t_s, starts, side="left")
+    hi = np.searchsorted(t_s, starts + window_s, side="right")
+    k = (hi - lo).astype(float)
+    sx, sxx, sy, sxy = c[hi] - c[lo], c2[hi] - c2[lo], cy[hi] - cy[lo], cxy[hi] - cxy[lo]
+    den = k * sxx - sx * sx
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where((k >= 3) & (den > 0), (k * sxy - sx * sy) / den, 0.0)  # °C/s
+    fast = np.abs(slope) * 3600.0 > max_rate_c_per_h
+    if not fast.any():
+        return 0.0
+    last = int(np.nonzero(fast)[0][-1])
+    if last + 1 >= len(starts):
+        return float(t_s[-1])
+    return float(starts[last + 1])

@@ -1,0 +1,175 @@
+"""Exports for Kalibr / OpenVINS / VINS-Fusion / ORB-SLAM3 (noise-formulas.md §3)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from imustation.analysis.export import (
+    AxisNoise,
+    SensorNoise,
+    axis_noise,
+    export_dict,
+    export_text,
+    gm_to_rw_at_tau_b,
+    random_walk_from_params,
+)
+from imustation.analysis.loaders import Channel
+from imustation.analysis.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate
+from imustation.analysis.pipeline import analyze_channel
+from imustation.cli import cli
+from imustation.drivers.sim import simulated_truth
+
+KALIBR_KEYS = [
+    "rostopic",
+    "update_rate",
+    "accelerometer_noise_density",
+    "accelerometer_random_walk",
+    "gyroscope_noise_density",
+    "gyroscope_random_walk",
+]
+
+
+def _load(text: str) -> dict:
+    """Parse with PyYAML; the OpenCV ``%YAML:1.0`` directive is not YAML 1.1, so drop it first."""
+    if text.startswith("%YAML:1.0"):
+        text = text.split("\n", 1)[1]
+    return yaml.safe_load(text)
+
+
+def _sensors():
+    gyro = SensorNoise(
+        "gyro", 200.0, (AxisNoise("d/gyro/x", 1.6968e-4, 1.9393e-5), AxisNoise("d/gyro/y", 1.2e-4, 1e-5)), "mli", "x"
+    )
+    accel = SensorNoise("accel", 200.0, (AxisNoise("d/accel/x", 2.0e-3, 3.0e-3),), "mli", "x")
+    return gyro, accel
+
+
+def test_kalibr_keys_and_values_round_trip():
+    # EuRoC ADIS16448 values (noise-formulas.md §3.1) must come back unchanged, as the largest axis
+    gyro, accel = _sensors()
+    d = _load(export_text(gyro, accel, "kalibr", topic="/imu0"))
+    assert list(d) == KALIBR_KEYS
+    assert d["rostopic"] == "/imu0" and d["update_rate"] == 200.0
+    assert d["gyroscope_noise_density"] == pytest.approx(1.6968e-4, rel=1e-6)
+    assert d["gyroscope_random_walk"] == pytest.approx(1.9393e-5, rel=1e-6)
+    assert d["accelerometer_noise_density"] == pytest.approx(2.0e-3, rel=1e-6)
+    assert d["accelerometer_random_walk"] == pytest.approx(3.0e-3, rel=1e-6)
+    assert all(isinstance(d[k], float) for k in KALIBR_KEYS[1:])
+
+
+def test_other_formats_keys():
+    gyro, accel = _sensors()
+    ov = _load(export_text(gyro, accel, "openvins"))
+    assert set(KALIBR_KEYS) <= set(ov["imu0"]) and ov["imu0"]["gyroscope_noise_density"] == pytest.approx(1.6968e-4)
+    vins = _load(export_text(gyro, accel, "vins"))
+    assert vins["gyr_n"] == pytest.approx(1.6968e-4) and vins["acc_w"] == pytest.approx(3.0e-3)
+    assert {"imu", "imu_topic", "acc_n", "acc_w", "gyr_n", "gyr_w", "g_norm"} == set(vins)
+    orb = _load(export_text(gyro, accel, "orbslam3"))
+    assert orb == {
+        "IMU.NoiseGyro": pytest.approx(1.6968e-4),
+        "IMU.NoiseAcc": pytest.approx(2.0e-3),
+        "IMU.GyroWalk": pytest.approx(1.9393e-5),
+        "IMU.AccWalk": pytest.approx(3.0e-3),
+        "IMU.Frequency": 200,
+    }
+    for fmt in ("openvins", "vins", "orbslam3"):
+        assert export_text(gyro, accel, fmt).startswith("%YAML:1.0\n")  # cv::FileStorage files
+
+
+def test_gyro_only_leaves_accel_keys_out():
+    gyro, _ = _sensors()
+    d = export_dict(gyro, None, "kalibr")
+    assert "accelerometer_noise_density" not in d and d["gyroscope_noise_density"] == 1.6968e-4
+
+
+def test_diffusion_conversion_bounds_gm_at_every_tau():
+    # K = sigma_b: equal AVAR slope for tau << tau_b, never below the GM (IEEE 952 closed forms)
+    gm = GaussMarkov(2e-6, 500.0)
+    K = random_walk_from_params({"sigma_w": 1e-4, "sigma_b": 2e-6, "tau_b": 500.0})
+    assert K == 2e-6
+    tau = np.logspace(-2, 5, 200)
+    rw = RandomWalk(K).avar(tau)
+    assert np.all(rw >= gm.avar(tau))
+    assert gm.avar(np.array([0.01]))[0] == pytest.approx(rw[0], rel=1e-4)
+
+
+def test_tau_b_conversion_matches_adev_at_tau_b():
+    # independent closed form: AVAR_GM(T) = q T [1 - (3 - 4/e + 1/e^2)/2] (noise-formulas.md §5)
+    sigma_b, T = 2e-6, 500.0
+    K = random_walk_from_params({"sigma_b": sigma_b, "tau_b": T}, "tau_b")
+    ratio2 = 3.0 * (1.0 - (3.0 - 4.0 * math.exp(-1.0) + math.exp(-2.0)) / 2.0)
+    assert K == pytest.approx(sigma_b * math.sqrt(ratio2), rel=1e-12)
+    assert K / sigma_b == pytest.approx(0.710, abs=1e-3)
+    assert RandomWalk(K).avar(np.array([T]))[0] == pytest.approx(GaussMarkov(sigma_b, T).avar(np.array([T]))[0])
+    assert gm_to_rw_at_tau_b(sigma_b, T) == K
+    # a random-walk term passes through; terms add in variance
+    assert random_walk_from_params({"sigma_k": 3e-6, "sigma_b": 4e-6, "tau_b": math.inf}) == pytest.approx(5e-6)
+
+
+@pytest.fixture(scope="module")
+def wn_rw_analysis():
+    """White + rate random walk, 2000 s at 200 Hz: both the Allan fit and ML_i see N and K."""
+    fs, N, K = 200.0, 1.7e-4, 2e-5
+    rate = NoiseModel((WhiteRate(N), RandomWalk(K))).simulate(int(2000 * fs), fs, seed=3)
+    return analyze_channel(Channel("sim/gyro/x", fs, "rad/s", rate), model="wn+rw"), N, K
+
+
+def test_sigma_g_is_N_and_sigma_bg_is_K(wn_rw_analysis):
+    res, N, K = wn_rw_analysis
+    ieee = axis_noise(res, "ieee")
+    assert ieee.noise_density == res.ieee.N and ieee.random_walk == res.ieee.K  # not N*sqrt(rate), not K/sqrt 3
+    mli = axis_noise(res, "mli")
+    assert mli.noise_density == res.mli.sigma_w and mli.random_walk == res.mli.params["sigma_k"]
+    # and both estimate the simulated densities (tolerances: a few standard errors of each estimator)
+    assert ieee.noise_density == pytest.approx(N, rel=0.05) and mli.noise_density == pytest.approx(N, rel=0.02)
+    assert ieee.random_walk == pytest.approx(K, rel=0.5) and mli.random_walk == pytest.approx(K, rel=0.5)
+
+
+def test_cli_export_sim_run(sim_run, demo_config, tmp_path):
+    path, _ = sim_run
+    out = tmp_path / "imu.yaml"
+    runner = CliRunner()
+    r = runner.invoke(cli, ["export", str(path), "--format", "kalibr", "--gyro-only", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    d = yaml.safe_load(out.read_text())
+    assert d["update_rate"] == 400.0 and d["rostopic"] == "/imu0"
+    truth = simulated_truth(demo_config)
+    # the largest simulated sigma_w of the three axes, recovered by ML_i within a few percent
+    sw = max(truth[f"bmx055/gyro/{a}"].sigma_w for a in "xyz")
+    assert d["gyroscope_noise_density"] == pytest.approx(sw, rel=0.05)
+    assert d["gyroscope_random_walk"] > 0
+    # without an accelerometer the export refuses rather than writing a file Kalibr would reject
+    r = runner.invoke(cli, ["export", str(path), "--format", "kalibr"])
+    assert r.exit_code == 2 and "no accelerometer channels" in r.output
+
+
+def test_short_record_random_walk_is_flagged(tmp_path, demo_config):
+    # 30 s of the demo BMX055: far too short for its bias (tau_b ~ 10^3 s); the export says so
+    from imustation.acquisition import capture
+
+    path = tmp_path / "short.h5"
+    capture(demo_config, path, 30.0, simulate=True)
+    r = CliRunner().invoke(cli, ["export", str(path), "--format", "kalibr", "--gyro-only"])
+    assert r.exit_code == 0
+    flagged = [ln for ln in r.output.splitlines() if ln.startswith("#   WARNING")]
+    assert flagged, r.output
+
+
+def test_cli_random_walk_conversions_differ_by_the_closed_form(sim_run):
+    # the demo's x axis is fitted with a finite tau_b: 'tau_b' gives 0.710 x the 'diffusion' figure
+    path, _ = sim_run
+    runner = CliRunner()
+    vals = {}
+    for rw in ("diffusion", "tau_b"):
+        args = ["export", str(path), "--format", "vins", "--gyro-only", "--random-walk", rw]
+        r = runner.invoke(cli, args)
+        assert r.exit_code == 0, r.output
+        x = next(ln for ln in r.output.splitlines() if ln.startswith("#   bmx055/gyro/x:"))
+        vals[rw] = float(x.split(",")[1])
+    ratio = math.sqrt(3.0 * (1.0 - (3.0 - 4.0 * math.exp(-1.0) + math.exp(-2.0)) / 2.0))
+    assert vals["tau_b"] / vals["diffusion"] == pytest.approx(ratio, rel=1e-3)  # 4 printed digits

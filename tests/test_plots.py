@@ -1,0 +1,73 @@
+"""Figures: every plot writes a non-empty PNG and PDF; the model curves drawn are the model's."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imustation.analysis import plots
+from imustation.analysis.loaders import load_run
+from imustation.analysis.pipeline import analyze_channel
+
+
+@pytest.fixture(scope="module")
+def analysed(sim_run):
+    path, _ = sim_run
+    return [analyze_channel(ch) for ch in load_run(str(path))]
+
+
+def _files_ok(paths):
+    assert [p[-4:] for p in paths] == [".png", ".pdf"]
+    with open(paths[0], "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+    with open(paths[1], "rb") as fh:
+        assert fh.read(5) == b"%PDF-"
+    import os
+
+    assert all(os.path.getsize(p) > 5000 for p in paths)
+
+
+def test_allan_figure(analysed, tmp_path):
+    res = analysed[2]
+    s = plots.settings_line(res.channel, (24.5, 25.25))
+    assert s.startswith("rate 400 Hz, bandwidth 47 Hz") and "duration 20m00s" in s and "24.50–25.25 °C" in s
+    fig = plots.allan_figure(res, s)
+    ax = fig.axes[0]
+    model_line = next(ln for ln in ax.get_lines() if ln.get_label().startswith("identified"))
+    tau, adev = model_line.get_data()
+    np.testing.assert_allclose(adev, res.mli.noise_model.adev(tau, res.channel.fs_hz))
+    labels = [ln.get_label() for ln in ax.get_lines()]
+    assert any(lb.startswith("earth rate") for lb in labels)
+    assert sum(lb.startswith(("WhiteRate", "GaussMarkov")) for lb in labels) == 2
+    _files_ok(plots.save_figure(fig, tmp_path / "allan"))
+
+
+def test_multi_psd_temperature(analysed, tmp_path):
+    _files_ok(plots.save_figure(plots.allan_multi_figure(analysed), tmp_path / "multi"))
+    res = analysed[2]
+    fig = plots.psd_figure(res, "s")
+    line = next(ln for ln in fig.axes[0].get_lines() if ln.get_label().startswith("identified"))
+    f, p = line.get_data()
+    assert f[-1] == pytest.approx(200.0)
+    np.testing.assert_allclose(p, res.mli.noise_model.psd(f, 400.0))
+    _files_ok(plots.save_figure(fig, tmp_path / "psd"))
+    rate = res.channel.rate()
+    bt, b = plots.bias_track(rate, 400.0, 60.0)
+    assert len(b) == 20 and b[0] == pytest.approx(rate[:24000].mean())
+    t = np.linspace(0, 1200, 50)
+    fig = plots.temperature_figure(
+        t, 25 + 0.1 * np.sin(t / 200), [("z", bt, b)], label="d", bias_unit="rad/s", warmup_s=1
+    )
+    _files_ok(plots.save_figure(fig, tmp_path / "temp"))
+
+
+def test_attitude_figure(analysed, tmp_path):
+    from imustation.analysis.attitude import angle_error_std
+
+    res = analysed[0]
+    fig = plots.attitude_figure(res, "s")
+    line = next(ln for ln in fig.axes[0].get_lines() if "record mean" in ln.get_label())
+    t, s = line.get_data()
+    np.testing.assert_allclose(s, angle_error_std(res.mli.noise_model, t, record_s=1200.0))
+    assert t[-1] == pytest.approx(1200.0 / 10, rel=1e-6)
+    _files_ok(plots.save_figure(fig, tmp_path / "att"))

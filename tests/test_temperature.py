@@ -1,0 +1,62 @@
+"""Temperature regression (simulate an injected tempco, fit it back) and warm-up detection."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imustation.analysis.plots import bias_track
+from imustation.analysis.temperature import detect_warmup, device_temperature, fit_tempco
+from imustation.errors import InputError
+
+
+def _warm_temperature(t):
+    # chip warm-up: +3 degC with a 900 s time constant, then a slow room drift
+    return 25.0 + 3.0 * (1.0 - np.exp(-t / 900.0)) + 0.3 * np.sin(2 * np.pi * t / 21600.0)
+
+
+def test_tempco_recovered_from_simulation():
+    fs, hours, alpha, sigma_w = 10.0, 4.0, 2e-6, 1e-4  # alpha rad/s/K; white rate noise rad/s/sqrt(Hz)
+    t = np.arange(int(hours * 3600 * fs)) / fs
+    temp = _warm_temperature(t)
+    rng = np.random.default_rng(5)
+    rate = 1e-3 + alpha * (temp - 25.0) + rng.normal(0, sigma_w * math.sqrt(fs), len(t))
+    bt, b = bias_track(rate, fs, 60.0)
+    tt = t[::10]  # a 1 Hz thermometer
+    res = fit_tempco(bt, b, tt, _warm_temperature(tt))
+    # oracle: the injected slope; the OLS standard error is exact for white noise (independent block means)
+    expected_se = sigma_w / math.sqrt(60.0) / math.sqrt(np.sum((_warm_temperature(bt) - res.t_mean_c) ** 2))
+    assert res.slope_stderr == pytest.approx(expected_se, rel=0.1)
+    assert abs(res.slope - alpha) < 4 * res.slope_stderr
+    assert res.n == 240 and res.span_c > 2.5
+
+
+def test_tempco_refuses_constant_temperature():
+    with pytest.raises(InputError, match="temperature spans 0 K"):
+        fit_tempco(np.arange(10.0), np.ones(10), np.array([0.0, 20.0]), np.array([25.0, 25.0]))
+    with pytest.raises(InputError, match="spans 0.1 K"):  # below the default 0.125 K
+        fit_tempco(np.arange(10.0), np.ones(10), np.array([0.0, 9.0]), np.array([25.0, 25.1]))
+
+
+def test_warmup_detection():
+    t = np.arange(0.0, 4 * 3600.0, 1.0)
+    # closed form: dT/dt = (3/900) e^{-t/900} + 0.3 (2 pi/21600) cos(2 pi t/21600) degC/s; the last time it
+    # exceeds 1 degC/h (~2580 s); a 600 s window centred there starts 300 s earlier (+- one 300 s step)
+    rate_h = 3600 * (3.0 / 900 * np.exp(-t / 900) + 0.3 * 2 * np.pi / 21600 * np.cos(2 * np.pi * t / 21600))
+    settle = t[np.nonzero(np.abs(rate_h) > 1.0)[0][-1]]
+    assert 2400 < settle < 2700
+    end = detect_warmup(t, _warm_temperature(t), window_s=600.0, max_rate_c_per_h=1.0)
+    assert settle - 600 <= end <= settle + 300
+    assert detect_warmup(t, np.full_like(t, 25.0)) == 0.0
+    assert detect_warmup(t, 25 + t / 600.0) == pytest.approx(t[-1])  # 6 degC/h: never settles
+
+
+def test_device_temperature_from_run(sim_run):
+    path, _ = sim_run
+    t, c = device_temperature(str(path), "bmx055")
+    assert len(t) == pytest.approx(1200, abs=2) and np.all(np.diff(t) > 0)
+    assert 10.0 < np.median(c) < 50.0
+    with pytest.raises(InputError, match="no temperature channel"):
+        device_temperature(str(path), "nope")
