@@ -59,13 +59,17 @@ def test_threaded_readers_on_a_real_clock_lose_nothing(tmp_path, monkeypatch):
                 n = run.devices[name].n
                 lost = sum(e.lost for e in run.events() if e.source == name)
                 assert n == summary.samples[name]
+                # the oracle: every sample produced is written, logged as lost, or still in the FIFO
                 assert n + lost + in_fifo == chip.produced - produced0[name]
-                # 1.5 s at 400 Hz, less at most one poll interval (0.1 s) at the end
-                assert 1.5 * 400 - 45 <= n <= 1.5 * 400 + 1
+                # 1.5 s at 400 Hz, less at most one poll interval (0.1 s) at the end; a loaded
+                # machine may delay a reader into a FIFO overrun, which must then be logged
+                assert 1.5 * 400 - 45 <= n + lost <= 1.5 * 400 + 1
                 t = run.read(name, "t")
                 assert (np.diff(t) > 0).all()
             t, c = run.temperatures("amb")
-            assert len(t) == summary.readings["amb"] in (5, 6)  # 4 Hz for 1.5 s
+            missed = sum(e.lost for e in run.events() if e.source == "amb")
+            assert len(t) == summary.readings["amb"]
+            assert 5 <= len(t) + missed <= 7  # 4 Hz for 1.5 s (a late slot may be read late, not twice)
             assert np.all((c > 19) & (c < 31))
     finally:
         station.close()
@@ -87,12 +91,16 @@ def test_a_disconnected_device_does_not_stop_the_other_bus(tmp_path):
     summary = capture(cfg, out, 1.5, simulate=True, clock=MonotonicClock())
     with open_run(out) as run:
         kinds = {name: [e.kind for e in run.events() if e.source == name] for name in ("ok", "flaky")}
-        assert kinds["ok"] == []
-        assert kinds["flaky"] == ["fault", "reconnect", "gap"]
-        gap = next(e for e in run.events() if e.kind == "gap")
+        # the healthy bus is untouched by the outage (a loaded machine may add overruns, logged)
+        assert set(kinds["ok"]) <= {"overrun"}
+        assert kinds["flaky"][:3] == ["fault", "reconnect", "gap"]
+        gap = next(e for e in run.events() if e.source == "flaky" and e.kind == "gap")
         # the outage (0.4 s) plus up to one poll interval and the re-initialisation, at 400 Hz
-        assert 0.4 * 400 <= gap.lost <= 0.65 * 400
-        assert run.devices["ok"].n == summary.samples["ok"] >= 1.5 * 400 - 45
+        # (more when the machine is loaded)
+        assert 0.4 * 400 <= gap.lost <= 1.1 * 400
+        lost_ok = sum(e.lost for e in run.events() if e.source == "ok")
+        assert run.devices["ok"].n == summary.samples["ok"]
+        assert run.devices["ok"].n + lost_ok >= 1.5 * 400 - 45
         assert run.complete
 
 
