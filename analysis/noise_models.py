@@ -76,6 +76,18 @@ def f3(a: np.ndarray) -> np.ndarray:
 _F3_COEF = tuple((-1) ** k * (2**k - 2) / ((k + 1) * math.factorial(k)) for k in range(2, 13))
 
 
+def _expm1_tail(x: np.ndarray) -> np.ndarray:
+    """``E(x) = x + expm1(-x) = x^2/2 - x^3/6 + ...`` for x >= 0, series below 0.1 (no cancellation)."""
+    x = np.asarray(x, dtype=float)
+    small = x < 0.1
+    out = np.where(small, 0.0, x + np.expm1(-np.where(small, 0.0, x)))
+    s = np.where(small, x, 0.0)
+    acc = np.zeros_like(s)
+    for k in range(14, 1, -1):  # terms beyond x^14/14! are below 1e-16 relative for x < 0.1
+        acc = acc * s + (-1) ** k / math.factorial(k)
+    return np.where(small, acc * s * s, out)
+
+
 def _gm_avar_bracket(a: np.ndarray) -> np.ndarray:
     """``1 - (3 - 4e^-a + e^-2a)/(2a)`` (IEEE 952 Table B.1), series for small ``a``."""
     a = np.asarray(a, dtype=float)
@@ -176,8 +188,10 @@ class GaussMarkov(Term):
         phi = math.exp(-d)
         om = -math.expm1(-d)  # 1 - phi, accurately
         g = -np.expm1(-n * d) / om
+        # n - g = (E(nd) - n E(d)) / om without the cancellation of n - g for n d << 1
+        n_minus_g = (_expm1_tail(n * d) - n * _expm1_tail(np.array(d))) / om
         s2 = q * T / 2.0
-        return s2 / n**2 * (n + 2.0 * phi * (n - g) / om - phi * g * g)
+        return s2 / n**2 * (n + 2.0 * phi * n_minus_g / om - phi * g * g)
 
     def _psd2(self, f, fs_hz):
         q, T = self.sigma_b**2, self.tau_b

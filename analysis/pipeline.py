@@ -8,12 +8,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from imustation.analysis.allan import AllanResult, oadev
+from imustation.analysis.gmwm import fit_gmwm
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.loaders import Channel
 from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, integrate
+from imustation.errors import InputError
 
 DOC_FORMAT = "imustation-analysis"
 DOC_VERSION = 1
+#: estimators of ``analyze --method``
+METHODS = ("mli", "gmwm", "both")
 
 
 @dataclass(frozen=True)
@@ -21,8 +25,9 @@ class ChannelAnalysis:
     channel: Channel
     allan: AllanResult
     ieee: IEEECoefficients
-    mli: MLiResult
+    mli: MLiResult | None
     models: tuple[MLiResult, ...] = ()
+    gmwm: MLiResult | None = None
 
 
 def analyze_channel(
@@ -32,17 +37,25 @@ def analyze_channel(
     m: int = 1000,
     model: str = "wn+gm",
     compare: tuple[str, ...] = (),
+    method: str = "mli",
 ) -> ChannelAnalysis:
-    """Allan deviation, IEEE-952 coefficients and the ML_i fit of one channel.
+    """Allan deviation, IEEE-952 coefficients and the ML_i and/or GMWM fit of one channel.
 
     ``compare``: further models fitted to the same integrated record (AIC/BIC).
+    ``method``: ``"mli"``, ``"gmwm"`` or ``"both"`` (GMWM: :mod:`.gmwm`).
     """
+    if method not in METHODS:
+        raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     ieee = ieee_coefficients(allan)
-    inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
-    mli = fit_integrated(inc, model)
-    models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
-    return ChannelAnalysis(ch, allan, ieee, mli, models)
+    mli, models, gmwm = None, (), None
+    if method in ("mli", "both"):
+        inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
+        mli = fit_integrated(inc, model)
+        models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
+    if method in ("gmwm", "both"):
+        gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+    return ChannelAnalysis(ch, allan, ieee, mli, models, gmwm)
 
 
 def _num(x: float) -> float | None:
@@ -74,7 +87,8 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "duration_s": ch.n / ch.fs_hz,
             "source": ch.source,
             "gaps": ch.gaps,
-            "mli": res.mli.as_dict(),
+            **({"mli": res.mli.as_dict()} if res.mli is not None else {}),
+            **({"gmwm": res.gmwm.as_dict()} if res.gmwm is not None else {}),
             **({"models": [r.as_dict() for r in res.models]} if res.models else {}),
             "allan": {
                 "tau": res.allan.tau,

@@ -9,7 +9,7 @@ import click
 
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.mli import DEFAULT_COMPARISON
-from imustation.analysis.pipeline import analysis_document, analyze_channel
+from imustation.analysis.pipeline import METHODS, analysis_document, analyze_channel
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
@@ -26,14 +26,16 @@ def results_table(results) -> str:
     )
     lines = [head, "-" * len(head)]
     for r in results:
-        m = r.mli
         adev1 = _interp_adev(r.allan, 1.0)
-        flag = "ok" if m.converged else f"! {m.message}"
-        lines.append(
-            f"{r.channel.id:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
-            f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
-            f"{_g(m.b_on):>10} {_g(adev1):>10}  {flag}"
-        )
+        fits = [f for f in (r.mli, r.gmwm) if f is not None]
+        for m in fits:
+            flag = "ok" if m.converged else f"! {m.message}"
+            name = r.channel.id if len(fits) == 1 else f"{r.channel.id} {m.estimator}"
+            lines.append(
+                f"{name:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
+                f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
+                f"{_g(m.b_on):>10} {_g(adev1):>10}  {m.estimator} {flag}"
+            )
         for alt in r.models:
             lines.append(f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
     lines.append(
@@ -85,6 +87,13 @@ def _interp_adev(allan, tau: float) -> float:
     is_flag=True,
     help="Also fit wn+gm, wn+gm+rw and wn+2gm and report AIC/BIC (JSON key 'models').",
 )
+@click.option(
+    "--method",
+    type=click.Choice(METHODS),
+    default="mli",
+    show_default=True,
+    help="Estimator: ML_i, GMWM (wavelet variance, docs/gmwm.md) or both side by side (JSON keys 'mli', 'gmwm').",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 def analyze(
     inputs: tuple[str, ...],
@@ -94,9 +103,10 @@ def analyze(
     m: int,
     model: str,
     compare: bool,
+    method: str,
     as_json: bool,
 ) -> None:
-    """Allan deviation and ML_i noise-model fit of every channel of INPUTS.
+    """Allan deviation and ML_i (and/or GMWM) noise-model fit of every channel of INPUTS.
 
     INPUTS are run files (.h5) or plain rate samples (.npy, .csv; one column
     per channel, SI units, with --rate). Prints a table, or with --json the
@@ -110,7 +120,9 @@ def analyze(
         if not as_json:
             click.echo(f"analysing {ch.id} ({ch.n} samples) ...", err=True)
         results.append(
-            analyze_channel(ch, pattern=pattern, m=m, model=model, compare=DEFAULT_COMPARISON if compare else ())
+            analyze_channel(
+                ch, pattern=pattern, m=m, model=model, compare=DEFAULT_COMPARISON if compare else (), method=method
+            )
         )
     if as_json:
         click.echo(json.dumps(analysis_document(results)))

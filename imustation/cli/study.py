@@ -1,4 +1,4 @@
-"""``imustation study``: Monte Carlo study of ML_i and classical ML (paper Fig. 10, Table III)."""
+"""``imustation study``: Monte Carlo study of ML_i, classical ML and GMWM (paper Figs. 10-11, Table III)."""
 
 from __future__ import annotations
 
