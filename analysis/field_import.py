@@ -116,7 +116,9 @@ def bag_topics(path: str, topic: str | None = None) -> list[tuple[str, int]]:
         reader.close()
 
 
-def iter_bag(path: str, topics: list[str], block: int = BLOCK_ROWS, limit: int | None = None) -> Iterator[tuple[str, Block]]:
+def iter_bag(
+    path: str, topics: list[str], block: int = BLOCK_ROWS, limit: int | None = None
+) -> Iterator[tuple[str, Block]]:
     """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most."""
     reader = _open_bag(path)
     try:
@@ -341,7 +343,11 @@ def load_npy_log(path: str, time_unit: str | None = None) -> Block:
     data = np.asarray(arr[:, 1:], dtype=np.float64)
     if not (np.isfinite(data).all() and np.isfinite(t).all()):
         raise InputError(f"{path}: NaN/infinite values")
-    return np.rint(t * TIME_UNITS[time_unit]).astype(np.int64), data[:, :3], data[:, 3:6] if data.shape[1] == 6 else None
+    return (
+        np.rint(t * TIME_UNITS[time_unit]).astype(np.int64),
+        data[:, :3],
+        data[:, 3:6] if data.shape[1] == 6 else None,
+    )
 
 
 # --- the import --------------------------------------------------------------
@@ -467,9 +473,7 @@ def import_recording(
             overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0,
         )  # fmt: skip
         try:
-            sinks = {
-                t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)
-            }
+            sinks = {t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)}
             writer.event(0, "station", "note", f"imported from {os.path.abspath(source)} ({fmt})"[:256])
             done = 0
             for t, blk in iter_bag(source, list(heads), block=block):
