@@ -17,7 +17,7 @@ record bias both. :func:`data_verdict` applies these rules:
   *marginal*: temperature drift may dominate the bias.
 
 Missing inputs (no fit, no temperature) are stated and do not count against
-the record.
+the record, except a missing or unconverged ``tau_b`` fit (-> *marginal*).
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def data_verdict(
         else:
             reasons.append(f"record is {ratio:.0f} x tau_b ({tau_b_s:.3g} s)")
     else:
-        reasons.append("no finite tau_b fitted: bias process not identified from the fit")
+        worse(1, "no converged finite tau_b: the bias process is not identified by the fit")
     if math.isfinite(allan_min_tau_s):
         clusters = duration_s / allan_min_tau_s
         if allan_min_at_end:
@@ -126,3 +126,29 @@ def data_verdict(
         elif math.isfinite(warmup_s):
             reasons.append(f"temperature spans {temp_span_c:.2g} K")
     return Verdict(LEVELS[level], duration_s, tau_b_s, allan_min_tau_s, warmup_s, temp_span_c, tuple(reasons))
+
+
+def channel_verdict(ch, allan, fit) -> Verdict:
+    """Verdict of an analysed channel: ``allan`` its AllanResult, ``fit`` its MLiResult (or None).
+
+    Warm-up and temperature span come from the device's temperature channel
+    when ``ch`` is a run-file channel that has one (:func:`.temperature.device_temperature`).
+    """
+    from imustation.analysis.temperature import detect_warmup, device_temperature
+    from imustation.errors import InputError
+
+    duration = ch.n / ch.fs_hz
+    tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
+    warmup, span = math.nan, math.nan
+    device = ch.meta.get("device") if ch.ref is not None else None
+    if device:
+        try:
+            t_s, temp_c = device_temperature(ch.source, device)
+        except InputError:
+            t_s = None
+        if t_s is not None and len(t_s) >= 3:
+            warmup = detect_warmup(t_s, temp_c)
+            after = temp_c[t_s >= warmup]
+            span = float(after.max() - after.min()) if len(after) else math.nan
+    tau_b = fit.tau_b if fit is not None and fit.converged else math.nan
+    return data_verdict(duration, tau_b, tau_min, allan_min_at_end=at_end, warmup_s=warmup, temp_span_c=span)
