@@ -406,22 +406,29 @@ class _Sink:
     def __init__(self, writer: RunWriter, name: str, t0: int, with_accel: bool, period_ns: float):
         self.w, self.name, self.t0, self.with_accel = writer, name, t0, with_accel
         self.check = StampChecker(period_ns=period_ns)
+        self._logged = 0
+        self._prev_last = 0
 
     def write(self, blk: Block) -> None:
         t, gyro, accel = blk
         start = self.check.r.n
-        listed = len(self.check.r.gap_list)
-        self.check.update(t)
         rel = t - self.t0
+        self.check.update(t)
         chans = {"gyro": gyro}
         if self.with_accel:
             chans["accel"] = accel if accel is not None else np.zeros_like(gyro)
         self.w.append(self.name, rel, chans)
-        for idx, dt, miss in self.check.r.gap_list[listed:]:
-            self.w.event(int(rel[idx - start]), self.name, "gap", f"stamp gap {dt / 1e6:.3f} ms", lost=miss)
+        self._log_gaps(lambda i: int(rel[i - start]) if i >= start else self._prev_last)
+        self._prev_last = int(rel[-1])
+
+    def _log_gaps(self, stamp_of) -> None:
+        for idx, dt, miss in self.check.r.gap_list[self._logged :]:
+            self.w.event(stamp_of(idx), self.name, "gap", f"stamp gap {dt / 1e6:.3f} ms", lost=miss)
+        self._logged = len(self.check.r.gap_list)
 
     def finish(self) -> StampReport:
         r = self.check.report()
+        self._log_gaps(lambda i: self._prev_last)
         t_end = r.last_ns - self.t0
         if r.gaps > len(r.gap_list):
             self.w.event(t_end, self.name, "note", f"{r.gaps - len(r.gap_list)} further gaps not listed", r.missing)

@@ -11,7 +11,8 @@ Definitions (``dt`` = difference of consecutive stamps in file order):
   thousand samples at least; a block is the importer's read size);
 * backwards: ``dt < 0`` (non-monotonic); duplicate: ``dt == 0``;
 * gap: ``dt > gap_factor`` x nominal period, with the samples it misses
-  ``round(dt / period) - 1``;
+  ``round(dt / period) - 1``, unless a neighbouring step is a duplicate or
+  backward one (then the long step is the other half of a misordered stamp);
 * jitter: standard deviation of the regular steps (positive, not gaps) around
   their mean, in ns;
 * true rate: regular steps counted over the time they span (gaps excluded), Hz.
@@ -80,7 +81,13 @@ class StampReport:
 
 
 class StampChecker:
-    """Streaming hygiene check: :meth:`update` with each block of stamps, then :meth:`report`."""
+    """Streaming hygiene check: :meth:`update` with each block of stamps, then :meth:`report`.
+
+    A long step next to a duplicated or backward step is a misordered stamp,
+    not a gap (a swapped pair makes steps 2T, -T, 2T); so each step is
+    classified once its neighbours are known, the last one of a block with the
+    next block (or in :meth:`report`).
+    """
 
     def __init__(self, gap_factor: float = GAP_FACTOR, period_ns: float | None = None):
         self.gap_factor = float(gap_factor)
@@ -88,6 +95,8 @@ class StampChecker:
         if period_ns is not None:
             self.r.nominal_period_ns = float(period_ns)
         self._last: int | None = None
+        # the last step, not yet classified: (dt, index of the sample after it, previous step was <= 0)
+        self._pending: tuple[int, int, bool] | None = None
         self._reg_n = 0
         self._reg_sum = 0.0
         self._reg_sum2 = 0.0
@@ -99,42 +108,66 @@ class StampChecker:
         r = self.r
         if self._last is None:
             r.first_ns = int(t[0])
+            r.last_ns = int(t.max())
             dt = np.diff(t)
+            g0 = 1
         else:
             dt = np.diff(t, prepend=self._last)
-        base = r.n - (0 if self._last is None else 1)  # index of the sample before dt[0]'s
+            g0 = r.n
+            r.last_ns = max(r.last_ns, int(t.max()))
         if math.isnan(r.nominal_period_ns):
             pos = dt[dt > 0]
             if len(pos):
                 r.nominal_period_ns = float(np.median(pos))
         r.n += len(t)
         self._last = int(t[-1])
-        r.last_ns = max(r.last_ns, int(t.max())) if r.n > len(t) else int(t.max())
         if len(dt) == 0:
             return
+        idx = g0 + np.arange(len(dt), dtype=np.int64)
         back = np.nonzero(dt < 0)[0]
         r.backwards += len(back)
         r.duplicates += int(np.count_nonzero(dt == 0))
         for k in back[: max(0, MAX_LISTED - len(r.backward_list))]:
-            r.backward_list.append((base + int(k) + 1, int(dt[k])))
+            r.backward_list.append((int(idx[k]), int(dt[k])))
+        if self._pending is not None:
+            pdt, pidx, pbad = self._pending
+            dt = np.concatenate([[pdt], dt])
+            idx = np.concatenate([[pidx], idx])
+        else:
+            pbad = False
+        bad = dt <= 0
+        prev_bad = np.concatenate([[pbad], bad[:-1]])
+        self._pending = (int(dt[-1]), int(idx[-1]), bool(prev_bad[-1]))
+        self._classify(dt[:-1], idx[:-1], prev_bad[:-1], bad[1:])
+
+    def _classify(self, dt: np.ndarray, idx: np.ndarray, prev_bad: np.ndarray, next_bad: np.ndarray) -> None:
+        r = self.r
         period = r.nominal_period_ns
-        if not math.isfinite(period) or period <= 0:
+        if len(dt) == 0 or not math.isfinite(period) or period <= 0:
             return
-        gap = dt > self.gap_factor * period
-        gi = np.nonzero(gap)[0]
+        long = dt > self.gap_factor * period
+        gi = np.nonzero(long & ~prev_bad & ~next_bad)[0]
         if len(gi):
             miss = np.maximum(np.rint(dt[gi] / period).astype(np.int64) - 1, 1)
             r.gaps += len(gi)
             r.missing += int(miss.sum())
             room = max(0, MAX_LISTED - len(r.gap_list))
             for k, m in zip(gi[:room], miss[:room], strict=True):
-                r.gap_list.append((base + int(k) + 1, int(dt[k]), int(m)))
-        reg = dt[(dt > 0) & ~gap].astype(np.float64)
+                r.gap_list.append((int(idx[k]), int(dt[k]), int(m)))
+        reg = dt[(dt > 0) & ~long].astype(np.float64)
         self._reg_n += len(reg)
         self._reg_sum += float(reg.sum())
         self._reg_sum2 += float((reg * reg).sum())
 
+    def flush(self) -> None:
+        """Classify the held-back last step (the record has ended)."""
+        if self._pending is not None:
+            pdt, pidx, pbad = self._pending
+            self._pending = None
+            self._classify(np.array([pdt]), np.array([pidx]), np.array([pbad]), np.array([False]))
+
     def report(self) -> StampReport:
+        self.flush()
         r = self.r
         if self._reg_n:
             mean = self._reg_sum / self._reg_n
