@@ -269,7 +269,10 @@ def text_mapping(
 
     gc = triple(gyro_cols, ("gyr", "angular", "omega", "rate"), "gyro")
     if gc is None:
-        raise InputError(f"{path}: no gyro columns found (columns: {', '.join(cells)}); give --gyro-columns")
+        raise InputError(
+            f"{path}: no gyro columns found (columns: {', '.join(cells)}); give --gyro-columns"
+            " (plain rate columns without time: analyze --rate HZ)"
+        )
     ac = triple(accel_cols, ("acc", "linear"), "accel")
     try:
         rows = [_split(ln, delim) for ln in body[:100]]

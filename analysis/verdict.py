@@ -22,7 +22,9 @@ the record, except a missing or unconverged ``tau_b`` fit (-> *marginal*).
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -134,21 +136,32 @@ def channel_verdict(ch, allan, fit) -> Verdict:
     Warm-up and temperature span come from the device's temperature channel
     when ``ch`` is a run-file channel that has one (:func:`.temperature.device_temperature`).
     """
-    from imustation.analysis.temperature import detect_warmup, device_temperature
-    from imustation.errors import InputError
-
     duration = ch.n / ch.fs_hz
     tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
     warmup, span = math.nan, math.nan
     device = ch.meta.get("device") if ch.ref is not None else None
     if device:
         try:
-            t_s, temp_c = device_temperature(ch.source, device)
-        except InputError:
-            t_s = None
-        if t_s is not None and len(t_s) >= 3:
-            warmup = detect_warmup(t_s, temp_c)
-            after = temp_c[t_s >= warmup]
-            span = float(after.max() - after.min()) if len(after) else math.nan
+            mtime = os.stat(ch.source).st_mtime_ns
+        except OSError:
+            mtime = 0
+        warmup, span = _warmup_and_span(ch.source, device, mtime)
     tau_b = fit.tau_b if fit is not None and fit.converged else math.nan
     return data_verdict(duration, tau_b, tau_min, allan_min_at_end=at_end, warmup_s=warmup, temp_span_c=span)
+
+
+@functools.lru_cache(maxsize=16)
+def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float]:
+    """(end of warm-up s, temperature span after it K) of a device; NaN without a temperature channel."""
+    from imustation.analysis.temperature import detect_warmup, device_temperature
+    from imustation.errors import InputError
+
+    try:
+        t_s, temp_c = device_temperature(path, device)
+    except InputError:
+        return math.nan, math.nan
+    if len(t_s) < 3:
+        return math.nan, math.nan
+    warmup = detect_warmup(t_s, temp_c)
+    after = temp_c[t_s >= warmup]
+    return warmup, float(after.max() - after.min()) if len(after) else math.nan

@@ -50,7 +50,9 @@ def test_bag_import_exact_samples(tmp_path, fmt):
     t, g, a = record()
     src = bag_path(tmp_path, fmt, t, g, a)
     out = tmp_path / "run.h5"
-    res = import_recording(str(src), str(out))
+    calls = []
+    res = import_recording(str(src), str(out), block=1000, progress=lambda d, n: calls.append((d, n)))
+    assert calls[-1] == (len(t), len(t)) and len(calls) == 3  # streamed in blocks
     rep = res.reports["imu_data"]
     assert rep.n == len(t) and rep.gaps == 0 and rep.backwards == 0 and rep.duplicates == 0
     assert rep.true_rate_hz == pytest.approx(FS)
