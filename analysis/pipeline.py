@@ -12,6 +12,7 @@ from imustation.analysis.gmwm import fit_gmwm
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.loaders import Channel
 from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, integrate
+from imustation.analysis.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
 
 DOC_FORMAT = "imustation-analysis"
@@ -28,6 +29,7 @@ class ChannelAnalysis:
     mli: MLiResult | None
     models: tuple[MLiResult, ...] = ()
     gmwm: MLiResult | None = None
+    verdict: Verdict | None = None
 
 
 def analyze_channel(
@@ -55,7 +57,8 @@ def analyze_channel(
         models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
     if method in ("gmwm", "both"):
         gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
-    return ChannelAnalysis(ch, allan, ieee, mli, models, gmwm)
+    verdict = channel_verdict(ch, allan, mli if mli is not None else gmwm)
+    return ChannelAnalysis(ch, allan, ieee, mli, models, gmwm, verdict)
 
 
 def _num(x: float) -> float | None:
@@ -99,6 +102,7 @@ def channel_document(res: ChannelAnalysis) -> dict:
                 "alpha": res.allan.alpha,
             },
             "ieee": res.ieee.as_dict(),
+            **({"verdict": res.verdict.as_dict()} if res.verdict is not None else {}),
         }
     )
 

@@ -43,6 +43,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
       imustation capture configs/lab-example.toml --duration 12h -o run.h5
       imustation inspect run.h5
       imustation analyze run.h5 --channel 'bmx055/gyro/*'
+      imustation import field.bag -o field.h5    # ROS bag / MCAP / CSV log -> run file
       imustation demo            # simulated capture + analysis, about a minute
       imustation devices configs/lab-example.toml   # probe every configured chip
     """
@@ -59,4 +60,4 @@ def main() -> None:
 
 
 # subcommand modules register themselves on the group
-from imustation.cli import analyze, capture, demo, devices, export, inspect, report, study  # noqa: E402,F401
+from imustation.cli import analyze, capture, demo, devices, export, importcmd, inspect, report, study  # noqa: E402,F401

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 
 import click
 
+from imustation.analysis.field_import import is_field_input
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.mli import DEFAULT_COMPARISON
 from imustation.analysis.pipeline import METHODS, analysis_document, analyze_channel
 from imustation.cli import cli
+from imustation.cli.importcmd import field_options, run_import, text_options
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
 
@@ -38,6 +42,9 @@ def results_table(results) -> str:
             )
         for alt in r.models:
             lines.append(f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
+    for r in results:
+        if r.verdict is not None:
+            lines.append(f"enough data? {r.channel.id}: {r.verdict.verdict} - {'; '.join(r.verdict.reasons)}")
     lines.append(
         "units: sigma_w (unit)/s*sqrt(s) = (unit)/sqrt(Hz); sigma_b (unit)/s/sqrt(Hz); "
         "b_on, ADEV in the channel unit (rad/s or m/s^2)"
@@ -54,7 +61,7 @@ def _interp_adev(allan, tau: float) -> float:
 
 
 @cli.command()
-@click.argument("inputs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("inputs", nargs=-1, required=True, type=click.Path())
 @click.option(
     "--channel",
     "globs",
@@ -95,6 +102,7 @@ def _interp_adev(allan, tau: float) -> float:
     help="Estimator: ML_i, GMWM (wavelet variance, docs/gmwm.md) or both side by side (JSON keys 'mli', 'gmwm').",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
+@field_options
 def analyze(
     inputs: tuple[str, ...],
     globs: tuple[str, ...],
@@ -105,15 +113,40 @@ def analyze(
     compare: bool,
     method: str,
     as_json: bool,
+    topic: str | None,
+    time_column: str | None,
+    gyro_columns: str | None,
+    accel_columns: str | None,
+    time_unit: str | None,
+    gyro_unit: str,
 ) -> None:
     """Allan deviation and ML_i (and/or GMWM) noise-model fit of every channel of INPUTS.
 
-    INPUTS are run files (.h5) or plain rate samples (.npy, .csv; one column
-    per channel, SI units, with --rate). Prints a table, or with --json the
-    document described in docs/analysis-json.md.
+    INPUTS are run files (.h5), plain rate samples (.npy, .csv; one column
+    per channel, SI units, with --rate), or field recordings imported on the
+    fly (ROS .bag, ROS 2 bag folders, .mcap, .tsv; a .csv log with a time
+    column when --rate is not given; docs/import.md). Prints a table, or with
+    --json the document described in docs/analysis-json.md.
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
+    with tempfile.TemporaryDirectory(prefix="imustation-import-") as tmp:
+        paths = []
+        for k, path in enumerate(inputs):
+            timed_csv = rate_hz is None and os.path.splitext(path)[1].lower() in (".csv", ".txt")
+            if os.path.exists(path) and (is_field_input(path) or timed_csv):
+                out = os.path.join(tmp, f"{k}-{os.path.basename(path.rstrip('/'))}.h5")
+                run_import(
+                    path, out, quiet=as_json, overwrite=False, topic=topic, time_unit=time_unit,
+                    text=text_options(time_column, gyro_columns, accel_columns, gyro_unit),
+                )  # fmt: skip
+                paths.append(out)
+            else:
+                paths.append(path)
+        _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, as_json)
+
+
+def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, as_json) -> None:
     channels = load_inputs(inputs, globs, rate_hz)
     results = []
     for ch in channels:

@@ -1,0 +1,228 @@
+"""Field-recording import (docs/import.md): ROS 1/2 bags and MCAP written here with rosbags, text logs, .npy."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from bagmaker import write_imu_bag
+from click.testing import CliRunner
+from test_bad_input import assert_one_line_error
+
+from imustation.analysis.field_import import import_recording, text_mapping
+from imustation.analysis.loaders import load_inputs
+from imustation.analysis.pipeline import analyze_channel
+from imustation.analysis.timestamps import check_stamps
+from imustation.analysis.verdict import data_verdict
+from imustation.cli import cli
+from imustation.runfile import open_run
+
+FS = 200.0
+T0 = 1_700_000_000_000_000_000
+PERIOD = 5_000_000
+
+
+def record(n=3000, seed=1):
+    rng = np.random.default_rng(seed)
+    t = T0 + np.arange(n, dtype=np.int64) * PERIOD
+    gyro = 1e-3 * rng.normal(size=(n, 3)) + np.cumsum(1e-5 * rng.normal(size=(n, 3)), axis=0)
+    accel = rng.normal(size=(n, 3)) + [0, 0, 9.81]
+    return t, gyro, accel
+
+
+def run(*args):
+    return CliRunner().invoke(cli, list(args))
+
+
+def bag_path(tmp_path, fmt, t, g, a):
+    if fmt == "ros1":
+        return write_imu_bag(tmp_path / "rec.bag", t, g, a, fmt="ros1")
+    folder = write_imu_bag(tmp_path / f"rec_{fmt}", t, g, a, fmt=fmt)
+    if fmt == "mcap":
+        return next(folder.glob("*.mcap"))  # a bare .mcap file
+    return folder  # a ROS 2 bag folder (sqlite3)
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap", "sqlite3"])
+def test_bag_import_exact_samples(tmp_path, fmt):
+    t, g, a = record()
+    src = bag_path(tmp_path, fmt, t, g, a)
+    out = tmp_path / "run.h5"
+    calls = []
+    res = import_recording(str(src), str(out), block=1000, progress=lambda d, n: calls.append((d, n)))
+    assert calls[-1] == (len(t), len(t)) and len(calls) == 3  # streamed in blocks
+    rep = res.reports["imu_data"]
+    assert rep.n == len(t) and rep.gaps == 0 and rep.backwards == 0 and rep.duplicates == 0
+    assert rep.true_rate_hz == pytest.approx(FS)
+    with open_run(out) as run_:
+        dev = run_.devices["imu_data"]
+        assert dev.rate_hz == pytest.approx(FS) and dev.driver == "import"
+        np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g)
+        np.testing.assert_array_equal(run_.read("imu_data", "accel"), a)
+        np.testing.assert_array_equal(run_.read("imu_data", "t"), t - T0)
+        assert run_.attrs["source"].endswith(src.name)
+        assert run_.attrs["started_utc"].startswith("2023-11-14")
+
+
+def test_roundtrip_bag_equals_npy(tmp_path):
+    t, g, a = record(4000)
+    src = bag_path(tmp_path, "ros1", t, g, a)
+    res = run("import", str(src), "-o", str(tmp_path / "run.h5"), "--quiet")
+    assert res.exit_code == 0, res.output
+    ch_run = load_inputs([str(tmp_path / "run.h5")], ["*/gyro/y"])[0]
+    np.save(tmp_path / "gyro.npy", g)
+    ch_npy = load_inputs([str(tmp_path / "gyro.npy")], fs_hz=FS)[1]
+    r1, r2 = analyze_channel(ch_run, m=200), analyze_channel(ch_npy, m=200)
+    np.testing.assert_allclose(r1.allan.adev, r2.allan.adev, rtol=1e-12)
+    assert r1.mli.sigma_w == pytest.approx(r2.mli.sigma_w, rel=1e-9)
+    # and directly from the bag, through the CLI JSON
+    doc1 = json.loads(run("analyze", str(src), "--channel", "*/gyro/y", "-m", "200", "--json").output)
+    doc2 = json.loads(run("analyze", str(tmp_path / "gyro.npy"), "--rate", "200", "-m", "200", "--json").output)
+    assert doc2["channels"][1]["id"] == "gyro/1"  # (globs select run-file channels only)
+    assert doc1["channels"][0]["allan"]["adev"] == pytest.approx(doc2["channels"][1]["allan"]["adev"], rel=1e-12)
+    assert doc1["channels"][0]["mli"]["sigma_w"] == pytest.approx(doc2["channels"][1]["mli"]["sigma_w"], rel=1e-9)
+    assert doc1["channels"][0]["verdict"]["verdict"] in ("enough", "marginal", "not enough")
+    assert doc1["channels"][0]["verdict"]["reasons"]
+
+
+@pytest.mark.parametrize("block", [8192, 100])  # 100: the gap falls on a block boundary
+def test_broken_stamps_are_reported_kept_and_logged(tmp_path, block):
+    t, g, a = record(3000)
+    t = t.copy()
+    t[500] = t[499]  # duplicate
+    t[1000], t[1001] = t[1001], t[1000]  # swapped: one backward step
+    keep = np.r_[0:2000, 2050:3000]  # 50 samples missing
+    t, g, a = t[keep], g[keep], a[keep]
+    t[2500:] += 1234  # jitter-free offset, no gap
+    src = bag_path(tmp_path, "mcap", t, g, a)
+    out = tmp_path / "run.h5"
+    rep = import_recording(str(src), str(out), block=block).reports["imu_data"]
+    assert rep.duplicates == 1 and rep.backwards == 1
+    assert rep.gaps == 1 and rep.missing == 50
+    assert rep.n == len(t)  # nothing dropped
+    with open_run(out) as run_:
+        np.testing.assert_array_equal(run_.read("imu_data", "t"), t - T0)  # file order kept
+        np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g)
+        ev = run_.events()
+    gaps = [e for e in ev if e.kind == "gap"]
+    assert len(gaps) == 1 and gaps[0].lost == 50 and gaps[0].t_ns == t[2000] - T0
+    assert any("1 non-monotonic, 1 duplicated" in e.detail for e in ev)
+    # the analysis splits the record at the gap
+    ch = load_inputs([str(out)], ["*/gyro/x"])[0]
+    assert ch.segments == [(0, 2000), (2000, len(t))]
+
+
+def test_check_stamps_jitter_and_rate():
+    rng = np.random.default_rng(3)
+    t = np.cumsum(np.full(10000, 2_500_000) + rng.integers(-1000, 1000, 10000)).astype(np.int64)
+    rep = check_stamps(t)
+    assert rep.true_rate_hz == pytest.approx(400.0, rel=1e-3)
+    assert 400 < rep.jitter_ns < 1000
+    assert rep.gaps == 0 and rep.monotonic
+    # streaming in blocks gives the same counts
+    from imustation.analysis.timestamps import StampChecker
+
+    t2 = np.delete(t, [100, 5000, 5001])
+    c = StampChecker()
+    for i in range(0, len(t2), 777):
+        c.update(t2[i : i + 777])
+    r = c.report()
+    whole = check_stamps(t2)
+    assert (r.gaps, r.missing, r.gap_list) == (whole.gaps, whole.missing, whole.gap_list) == (2, 3, r.gap_list)
+    assert [g[0] for g in r.gap_list] == [100, 4999]
+
+
+def test_csv_log_auto_detected(tmp_path):
+    t, g, a = record(2000)
+    ts = (t - T0) / 1e9 + 100.0
+    p = tmp_path / "log.csv"
+    header = "timestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
+    np.savetxt(p, np.column_stack([ts, a, g]), delimiter=",", header=header, comments="", fmt="%.17g")
+    mp = text_mapping(str(p))
+    assert (mp.time_col, mp.gyro_cols, mp.accel_cols, mp.time_unit) == (0, (4, 5, 6), (1, 2, 3), "s")
+    res = run("import", str(p), "-o", str(tmp_path / "log.h5"))
+    assert res.exit_code == 0, res.output
+    assert "auto-detected" in res.output and "true rate 200 Hz" in res.output
+    with open_run(tmp_path / "log.h5") as run_:
+        np.testing.assert_array_equal(run_.read("imu", "gyro"), g)
+        assert run_.devices["imu"].rate_hz == pytest.approx(FS, rel=1e-6)
+    # direct analysis of the log (no --rate: a timed log)
+    res = run("analyze", str(p), "--channel", "imu/gyro/z", "-m", "100")
+    assert res.exit_code == 0, res.output
+    assert "enough data? imu/gyro/z:" in res.output
+
+
+def test_tsv_with_options_ms_and_degrees(tmp_path):
+    t, g, _ = record(1500)
+    p = tmp_path / "log.tsv"
+    rows = np.column_stack([np.degrees(g), (t - T0) / 1e6])
+    np.savetxt(p, rows, delimiter="\t", fmt="%.17g")
+    res = run("import", str(p), "-o", str(tmp_path / "o.h5"), "--time-column", "3", "--gyro-columns", "0,1,2",
+              "--time-unit", "ms", "--gyro-unit", "deg/s", "--quiet")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    with open_run(tmp_path / "o.h5") as run_:
+        np.testing.assert_allclose(run_.read("imu", "gyro"), g, rtol=1e-12)
+        assert "accel" not in run_.devices["imu"].channels
+        np.testing.assert_array_equal(run_.read("imu", "t"), t - T0)
+
+
+def test_npy_with_time_column(tmp_path):
+    t, g, a = record(1000)
+    np.save(tmp_path / "rec.npy", np.column_stack([(t - T0) * 1e-9, g, a]))
+    res = run("import", str(tmp_path / "rec.npy"), "-o", str(tmp_path / "o.h5"), "--quiet")
+    assert res.exit_code == 0, res.output
+    with open_run(tmp_path / "o.h5") as run_:
+        np.testing.assert_array_equal(run_.read("imu", "accel"), a)
+
+
+def test_bad_inputs(tmp_path):
+    (tmp_path / "x.xyz").write_text("1 2 3\n")
+    assert_one_line_error(run("import", str(tmp_path / "x.xyz"), "-o", str(tmp_path / "o.h5")), "x.xyz", "unknown")
+    t, g, a = record(100)
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    String = store.types["std_msgs/msg/String"]
+    with Writer(tmp_path / "noimu.bag") as w:
+        c = w.add_connection("/chatter", String.__msgtype__, typestore=store)
+        w.write(c, 1, store.serialize_ros1(String(data="x"), String.__msgtype__))
+    assert_one_line_error(
+        run("import", str(tmp_path / "noimu.bag"), "-o", str(tmp_path / "o.h5")), "noimu.bag", "no sensor_msgs/Imu"
+    )
+    src = bag_path(tmp_path, "ros1", t, g, a)
+    assert_one_line_error(
+        run("import", str(src), "-o", str(tmp_path / "o.h5"), "--topic", "/nope"), "rec.bag", "/nope", "/imu/data"
+    )
+    (tmp_path / "bad.csv").write_text("time,gx,gy,gz\n0.0,1,2,3\n0.005,1,x,3\n")
+    assert_one_line_error(
+        run("import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.h5"), "--gyro-columns", "gx,gy,gz"),
+        "bad.csv",
+        "line 3",
+    )
+    assert_one_line_error(
+        run("import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.h5"), "--time-column", "when"),
+        "bad.csv",
+        "no column 'when'",
+    )
+    (tmp_path / "garbage.bag").write_bytes(b"not a bag at all")
+    assert_one_line_error(run("analyze", str(tmp_path / "garbage.bag")), "garbage.bag", "not a readable")
+
+
+def test_verdict_rules():
+    ok = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, temp_span_c=0.5)
+    assert ok.verdict == "enough" and ok.enough
+    short = data_verdict(600.0, 300.0, 200.0)
+    assert short.verdict == "not enough" and "2.0 x tau_b" in short.reasons[0]
+    assert data_verdict(2000.0, 300.0, 100.0).verdict == "marginal"
+    warm = data_verdict(36000.0, 300.0, 200.0, warmup_s=1800.0, temp_span_c=0.5)
+    assert warm.verdict == "marginal" and any("warm-up" in r for r in warm.reasons)
+    hot = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, temp_span_c=5.0)
+    assert hot.verdict == "marginal" and any("drift" in r for r in hot.reasons)
+    falling = data_verdict(36000.0, 300.0, 3600.0, allan_min_at_end=True)
+    assert falling.verdict == "not enough"
+    nofit = data_verdict(36000.0, math.nan, 200.0)
+    assert nofit.verdict == "marginal"
+    assert json.dumps(nofit.as_dict())
