@@ -459,6 +459,12 @@ class Station:
             if len(st.offsets) < _MAX_CACHED_OFFSETS:
                 st.offsets[k] = offsets
         t = t_read - offsets
+        last = st.last_t_ns
+        if last is not None and t[0] <= last:
+            # the host read late last time (or early now): the block holds more samples than
+            # the ODR fits in the time since the last read; spread them evenly over that time
+            # so sample times stay strictly increasing and still end at this read
+            t = last + ((t_read - last) * np.arange(1, k + 1, dtype=np.float64) / k).astype(np.int64)
         sink.append(name, t, block.channels, counter)
         st.samples += k
         st.window_samples += k
