@@ -62,7 +62,7 @@ from imustation.units import G0
 
 FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
 RW_CONVERSIONS = ("diffusion", "tau_b")
-SOURCES = ("mli", "ieee")
+SOURCES = ("model", "mli", "ieee")
 #: a Gauss-Markov bias decorrelating faster than this (s) looks like white noise at the time
 #: scales VIO filters integrate over (camera frame intervals and longer): its random-walk
 #: figure is flagged (typically a record too short to identify the slow bias)
@@ -125,16 +125,19 @@ class SensorNoise:
         return max(a.random_walk for a in self.axes)
 
 
-def axis_noise(res: ChannelAnalysis, source: str = "mli", rw: str = "diffusion") -> AxisNoise:
+def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion") -> AxisNoise:
     """White-noise and random-walk densities of one analysed channel (SI)."""
     cid = res.channel.id
     warning = ""
-    if source == "mli":
-        nd = res.mli.sigma_w
-        rwv = random_walk_from_params(res.mli.params, rw)
-        taus = [v for k, v in res.mli.params.items() if k.startswith("tau_b") and math.isfinite(v)]
-        if res.mli.at_bound or not res.mli.converged:
-            warning = f"fit not converged or at a bound ({', '.join(res.mli.at_bound) or res.mli.message})"
+    if source in ("model", "mli"):
+        fit = res.noise_model if source == "model" else res.mli
+        if fit is None:
+            raise InputError(f"channel {cid}: no {source} fit in the analysis (source {source!r})")
+        nd = fit.sigma_w
+        rwv = random_walk_from_params(fit.params, rw)
+        taus = [v for k, v in fit.params.items() if k.startswith("tau_b") and math.isfinite(v)]
+        if fit.at_bound or not fit.converged:
+            warning = f"fit not converged or at a bound ({', '.join(fit.at_bound) or fit.message})"
         elif taus and min(taus) < WHITE_LIKE_TAU_B_S:
             warning = f"tau_b = {min(taus):.3g} s < {WHITE_LIKE_TAU_B_S:g} s: that bias acts as white noise"
     elif source == "ieee":
@@ -144,12 +147,14 @@ def axis_noise(res: ChannelAnalysis, source: str = "mli", rw: str = "diffusion")
     if not (math.isfinite(nd) and nd > 0):
         raise InputError(f"channel {cid}: white-noise density {nd} from {source} is not positive")
     if not (math.isfinite(rwv) and rwv > 0):
-        hint = " (the Allan fit needs no rate-random-walk term; try --source mli)" if source == "ieee" else ""
+        hint = " (the Allan fit needs no rate-random-walk term; try --source model)" if source == "ieee" else ""
         raise InputError(f"channel {cid}: random-walk density {rwv} from {source} is not positive{hint}")
     return AxisNoise(cid, float(nd), float(rwv), warning)
 
 
-def sensor_noise(results: list[ChannelAnalysis], kind: str, source: str = "mli", rw: str = "diffusion") -> SensorNoise:
+def sensor_noise(
+    results: list[ChannelAnalysis], kind: str, source: str = "model", rw: str = "diffusion"
+) -> SensorNoise:
     """Combine the analysed axes of one sensor (all at one rate)."""
     if not results:
         raise InputError(f"no {kind} channels to export")

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imustation.analysis.allan import AllanResult, oadev
+from imustation.analysis.composite import fit_composite
 from imustation.analysis.gmwm import fit_gmwm
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.loaders import Channel
@@ -17,8 +18,12 @@ from imustation.errors import InputError
 
 DOC_FORMAT = "imustation-analysis"
 DOC_VERSION = 1
-#: estimators of ``analyze --method``
+#: comparison blocks of ``analyze --method`` (JSON keys ``mli`` / ``gmwm``)
 METHODS = ("mli", "gmwm", "both")
+#: estimators that can fill the ``noise_model`` block (``analyze --estimator``)
+ESTIMATORS = ("mli-f", "mli", "gmwm")
+#: the default: ML_i-F won the Monte Carlo study of docs/noise-model.md
+DEFAULT_ESTIMATOR = "mli-f"
 
 
 @dataclass(frozen=True)
@@ -30,6 +35,9 @@ class ChannelAnalysis:
     models: tuple[MLiResult, ...] = ()
     gmwm: MLiResult | None = None
     verdict: Verdict | None = None
+    #: the default estimator's result (``noise_model`` block); reports and exports use it
+    noise_model: MLiResult | None = None
+    noise_method: str = ""
 
 
 def analyze_channel(
@@ -40,25 +48,37 @@ def analyze_channel(
     model: str = "wn+gm",
     compare: tuple[str, ...] = (),
     method: str = "mli",
+    estimator: str = DEFAULT_ESTIMATOR,
 ) -> ChannelAnalysis:
-    """Allan deviation, IEEE-952 coefficients and the ML_i and/or GMWM fit of one channel.
+    """Allan deviation, IEEE-952 coefficients and the noise-model fits of one channel.
 
-    ``compare``: further models fitted to the same integrated record (AIC/BIC).
-    ``method``: ``"mli"``, ``"gmwm"`` or ``"both"`` (GMWM: :mod:`.gmwm`).
+    ``estimator`` (``"mli-f"``, ``"mli"`` or ``"gmwm"``) fills ``noise_model``,
+    the result reports and exports use. ``method``: the comparison blocks
+    ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
+    ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
     """
     if method not in METHODS:
         raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
+    if estimator not in ESTIMATORS:
+        raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     ieee = ieee_coefficients(allan)
     mli, models, gmwm = None, (), None
-    if method in ("mli", "both"):
+    if method in ("mli", "both") or estimator == "mli":
         inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
         mli = fit_integrated(inc, model)
         models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
-    if method in ("gmwm", "both"):
+    if method in ("gmwm", "both") or estimator == "gmwm":
         gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
-    verdict = channel_verdict(ch, allan, mli if mli is not None else gmwm)
-    return ChannelAnalysis(ch, allan, ieee, mli, models, gmwm, verdict)
+    if estimator == "mli-f":
+        best = fit_composite(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+    else:
+        best = mli if estimator == "mli" else gmwm
+    # only the requested comparison blocks are reported
+    mli_block = mli if method in ("mli", "both") else None
+    gmwm_block = gmwm if method in ("gmwm", "both") else None
+    verdict = channel_verdict(ch, allan, best)
+    return ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
 
 
 def _num(x: float) -> float | None:
@@ -90,6 +110,11 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "duration_s": ch.n / ch.fs_hz,
             "source": ch.source,
             "gaps": ch.gaps,
+            **(
+                {"noise_model": {**res.noise_model.as_dict(), "method": res.noise_model.estimator}}
+                if res.noise_model is not None
+                else {}
+            ),
             **({"mli": res.mli.as_dict()} if res.mli is not None else {}),
             **({"gmwm": res.gmwm.as_dict()} if res.gmwm is not None else {}),
             **({"models": [r.as_dict() for r in res.models]} if res.models else {}),

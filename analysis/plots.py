@@ -78,15 +78,16 @@ def _term_label(t) -> str:
 
 
 def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = True) -> Figure:
-    """Fig. 6: ADEV with its 68 % band, the ML_i model's ADEV and terms; earth rate for gyros."""
+    """Fig. 6: ADEV with its 68 % band, the identified model's ADEV and terms; earth rate for gyros."""
     ch, al = res.channel, res.allan
     fig, ax = _new(f"Allan deviation — {ch.id}", settings)
     ax.fill_between(al.tau, al.adev_lo, al.adev_hi, color="0.8", label="68 % confidence", linewidth=0)
     ax.loglog(al.tau, al.adev, "k.", ms=3, label="measured (overlapping)")
-    model: NoiseModel | None = res.mli.noise_model
+    fit = res.noise_model
+    model: NoiseModel | None = fit.noise_model
     if model is not None:
         tau = np.logspace(np.log10(al.tau[0]), np.log10(al.tau[-1]), 200)
-        ax.loglog(tau, model.adev(tau, ch.fs_hz), "C3-", lw=1.5, label=f"identified {res.mli.model} (ML_i)")
+        ax.loglog(tau, model.adev(tau, ch.fs_hz), "C3-", lw=1.5, label=f"identified {fit.model} ({fit.estimator})")
         for i, t in enumerate(model.terms):  # continuous forms: the sampled GM form cancels badly for tau_b >> tau
             ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t))
     sensor = _sensor(ch)
@@ -109,8 +110,8 @@ def allan_multi_figure(
         al, c = res.allan, f"C{i % 10}"
         ax.fill_between(al.tau, al.adev_lo, al.adev_hi, color=c, alpha=0.15, linewidth=0)
         ax.loglog(al.tau, al.adev, ".", color=c, ms=2.5, label=res.channel.id)
-        if res.mli.noise_model is not None:
-            ax.loglog(al.tau, res.mli.noise_model.adev(al.tau, res.channel.fs_hz), "-", color=c, lw=0.9)
+        if res.noise_model.noise_model is not None:
+            ax.loglog(al.tau, res.noise_model.noise_model.adev(al.tau, res.channel.fs_hz), "-", color=c, lw=0.9)
         sensors.add(_sensor(res.channel))
     if sensors == {"gyro"}:
         ax.axhline(EARTH_RATE, color="0.4", ls=":", lw=1, label="earth rate")
@@ -131,10 +132,10 @@ def psd_figure(res: ChannelAnalysis, settings: str = "", f_min_hz: float = 1.0) 
     keep = psd.f >= min(f_min_hz, ch.fs_hz / 4)
     fig, ax = _new(f"PSD near Nyquist — {ch.id}", settings)
     ax.loglog(psd.f[keep], psd.psd[keep], color="0.6", lw=1, label=f"Welch ({psd.windows} windows of {psd.nperseg})")
-    model = res.mli.noise_model
+    model = res.noise_model.noise_model
     if model is not None:
         f = np.logspace(np.log10(psd.f[keep][0]), np.log10(ch.fs_hz / 2), 300)
-        ax.loglog(f, model.psd(f, ch.fs_hz), "k-", lw=1.2, label=f"identified {res.mli.model} (exact, sampled)")
+        ax.loglog(f, model.psd(f, ch.fs_hz), "k-", lw=1.2, label=f"identified {res.noise_model.model} (exact, sampled)")
     ax.axvline(ch.fs_hz / 2, color="0.3", ls=":", lw=0.8, label=f"Nyquist {ch.fs_hz / 2:g} Hz")
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel(f"two-sided PSD [({units_of(_sensor(ch), 'B')[0]})²/Hz]")
@@ -210,11 +211,11 @@ def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, 
     fig, ax = _new(f"Attitude-error growth — {ch.id}", settings)
     yerr = np.vstack([sp.std - sp.std_lo, sp.std_hi - sp.std])
     ax.errorbar(sp.t_s, sp.std, yerr=yerr, fmt="k.", ms=4, lw=0.8, label=f"data: std over {sp.windows} windows")
-    model = res.mli.noise_model
+    model = res.noise_model.noise_model
     if model is not None:
         t = np.logspace(np.log10(sp.t_s[0]), np.log10(sp.t_s[-1]), 200)
         rec = (b - a) / ch.fs_hz
-        lbl = f"{res.mli.model} model, bias about the record mean"
+        lbl = f"{res.noise_model.model} model, bias about the record mean"
         ax.loglog(t, angle_error_std(model, t, record_s=rec), "C3-", lw=1.4, label=lbl)
         ax.loglog(t, angle_error_std(model, t, bias_known=True), "C0--", lw=1, label="model, bias known at start")
     ax.set_xscale("log")

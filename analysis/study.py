@@ -11,8 +11,15 @@ fitted by each estimator:
     classical ML on rate samples picked with the same patterns;
 ``gmwm``, ``gmwm-single``
     GMWM on the Haar wavelet variance of all samples (:mod:`.gmwm`), with the
-    default correlation-time grid start / one heuristic start (to count how often
-    a single start ends in another local minimum).
+    default correlation-time grid start / one heuristic start;
+``mli-f``
+    ML_i-F (:mod:`.composite`): the integrated likelihood on a uniform pattern
+    plus the fine-scale Allan variance of every sample.
+
+With ``check_starts`` every multi-start estimator is also run from its single
+default start (ML_i and ML_i-F: the Allan start; GMWM: the heuristic start of
+the R package), and the study counts how often that ends in another optimum
+(sigma_w, sigma_b or tau_b more than 5 % away from the multi-start fit).
 
 The summary gives, per estimator, level and parameter: mean, median, relative bias,
 spread (std), RMSE, coverage of the 90 % intervals, and the mean time per fit.
@@ -26,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imustation.analysis.composite import DEFAULT_M as F_DEFAULT_M
+from imustation.analysis.composite import fine_scale, fit_composite_data
 from imustation.analysis.gmwm import fit_gmwm
 from imustation.analysis.ml_rate import fit_ml_rate
 from imustation.analysis.mli import fit_integrated, integrate
@@ -33,7 +42,9 @@ from imustation.analysis.models import StandardModel
 from imustation.analysis.noise_models import standard
 from imustation.errors import InputError
 
-ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single")
+ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single", "mli-f")
+#: estimators with a multi-start default whose single start the study can check
+MULTI_START = ("mli-log", "mli-uniform", "gmwm", "mli-f")
 PARAMS = ("sigma_w", "sigma_b", "tau_b")
 
 
@@ -47,6 +58,24 @@ class StudyFit:
     ci90: dict[str, tuple[float, float]]
     converged: bool
     fit_time_s: float
+    #: the single default start ended in another optimum (None: not checked)
+    other_optimum: bool | None = None
+
+
+def _other_optimum(a, b) -> bool:
+    return any(abs(getattr(b, p) / getattr(a, p) - 1.0) > 0.05 for p in PARAMS)
+
+
+def _fit(est: str, x: np.ndarray, fs_hz: float, m: int, single: bool = False):
+    kind, _, pattern = est.partition("-")
+    if kind == "gmwm":
+        return fit_gmwm(x, fs_hz, "wn+gm", starts="single" if single else (pattern or "grid"))
+    if est == "mli-f":
+        inc = integrate(x, fs_hz, m=F_DEFAULT_M, pattern="uniform")
+        return fit_composite_data(inc, fine_scale(x, fs_hz), "wn+gm", single_start=single)
+    if kind == "mli":
+        return fit_integrated(integrate(x, fs_hz, m=m, pattern=pattern), "wn+gm", single_start=single)
+    return fit_ml_rate(x, fs_hz, pattern=pattern, m=m)
 
 
 def run_study(
@@ -60,11 +89,14 @@ def run_study(
     levels: tuple[float, ...] = (1.0,),
     m: int = 1000,
     progress=None,
+    check_starts: bool = False,
 ) -> list[StudyFit]:
     """Simulate ``records`` records per level (seeds ``seed, seed+1, ...``) and fit each.
 
-    ``duration_s`` s at ``fs_hz`` Hz; ``levels`` multiply ``truth.sigma_b``.
-    ``progress(text)`` is called once per record when given.
+    ``duration_s`` s at ``fs_hz`` Hz; ``levels`` multiply ``truth.sigma_b``;
+    ``m`` pattern points of ML_i / classical ML (ML_i-F keeps its own default).
+    ``progress(text)`` is called once per record when given. ``check_starts``:
+    also fit from the single default start (see the module docstring).
     """
     bad = [e for e in estimators if e not in ESTIMATORS]
     if bad:
@@ -78,15 +110,12 @@ def run_study(
             s = seed + r
             x = model.simulate(n, fs_hz, np.random.default_rng([s, int(round(level * 1000))]))
             for est in estimators:
-                kind, _, pattern = est.partition("-")
                 t0 = time.perf_counter()
-                if kind == "gmwm":
-                    res = fit_gmwm(x, fs_hz, "wn+gm", starts=pattern or "grid")
-                elif kind == "mli":
-                    res = fit_integrated(integrate(x, fs_hz, m=m, pattern=pattern), "wn+gm")
-                else:
-                    res = fit_ml_rate(x, fs_hz, pattern=pattern, m=m)
+                res = _fit(est, x, fs_hz, m)
                 dt = time.perf_counter() - t0
+                other = None
+                if check_starts and est in MULTI_START:
+                    other = _other_optimum(res, _fit(est, x, fs_hz, m, single=True))
                 out.append(
                     StudyFit(
                         est,
@@ -97,6 +126,7 @@ def run_study(
                         {p: res.ci90.get(p, (math.nan, math.nan)) for p in PARAMS},
                         res.converged,
                         dt,
+                        other,
                     )
                 )
             if progress is not None:
@@ -119,6 +149,8 @@ class SummaryRow:
     converged: int
     count: int
     time_per_fit_s: float
+    #: records whose single default start ended in another optimum (-1: not checked)
+    other_optimum: int = -1
 
 
 def summarize(fits: list[StudyFit]) -> list[SummaryRow]:
@@ -128,6 +160,8 @@ def summarize(fits: list[StudyFit]) -> list[SummaryRow]:
     for est, level in keys:
         group = [f for f in fits if f.estimator == est and f.level == level]
         t = float(np.mean([f.fit_time_s for f in group]))
+        checked = [f.other_optimum for f in group if f.other_optimum is not None]
+        other = int(sum(checked)) if checked else -1
         for p in PARAMS:
             truth = group[0].truth[p]
             v = np.array([f.estimate[p] for f in group], dtype=float)
@@ -150,9 +184,15 @@ def summarize(fits: list[StudyFit]) -> list[SummaryRow]:
                     int(sum(f.converged for f in group)),
                     len(group),
                     t,
+                    other,
                 )
             )
     return rows
+
+
+def _pct(x: float) -> str:
+    """A relative number in %, with two decimals below 1 % (sigma_w errors are hundredths of a percent)."""
+    return f"{100 * x:.2f} %" if abs(x) < 0.01 else f"{100 * x:.1f} %"
 
 
 def markdown(rows: list[SummaryRow], header: str = "") -> str:
@@ -160,14 +200,15 @@ def markdown(rows: list[SummaryRow], header: str = "") -> str:
     lines = [header, ""] if header else []
     lines += [
         "| estimator | sigma_b level | parameter | truth | mean | median | bias | std | RMSE | 90 % CI coverage "
-        "| converged | s/fit |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| converged | s/fit | 1 start: other optimum |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r.estimator} | x{r.level:g} | {r.param} | {r.truth:.4g} | {r.mean:.4g} | {r.median:.4g} "
-            f"| {100 * r.bias_rel:+.1f} % "
-            f"| {r.std:.3g} ({100 * r.std / r.truth:.1f} %) | {100 * r.rmse_rel:.1f} % | {100 * r.coverage90:.0f} % "
-            f"| {r.converged}/{r.count} | {r.time_per_fit_s:.3f} |"
+            f"| {'+' if r.bias_rel >= 0 else ''}{_pct(r.bias_rel)} "
+            f"| {r.std:.3g} ({_pct(r.std / r.truth)}) | {_pct(r.rmse_rel)} | {100 * r.coverage90:.0f} % "
+            f"| {r.converged}/{r.count} | {r.time_per_fit_s:.3f} "
+            f"| {f'{r.other_optimum}/{r.count}' if r.other_optimum >= 0 else '-'} |"
         )
     return "\n".join(lines) + "\n"

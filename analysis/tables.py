@@ -107,15 +107,15 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
     for r in results:
         device, sensor, axis = _split_id(r.channel)
         vals = {
-            "sigma_w": r.mli.sigma_w,
-            "sigma_b": r.mli.sigma_b,
-            "tau_b": r.mli.tau_b,
+            "sigma_w": r.noise_model.sigma_w,
+            "sigma_b": r.noise_model.sigma_b,
+            "tau_b": r.noise_model.tau_b,
             "N": r.ieee.N,
             "B": r.ieee.B,
             "K": r.ieee.K,
             "adev_1s": r.ieee.adev_1s,
         }
-        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, r.mli.model, vals))
+        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, r.noise_model.model, vals))
     return rows
 
 

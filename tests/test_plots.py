@@ -35,7 +35,7 @@ def test_allan_figure(analysed, tmp_path):
     ax = fig.axes[0]
     model_line = next(ln for ln in ax.get_lines() if ln.get_label().startswith("identified"))
     tau, adev = model_line.get_data()
-    np.testing.assert_allclose(adev, res.mli.noise_model.adev(tau, res.channel.fs_hz))
+    np.testing.assert_allclose(adev, res.noise_model.noise_model.adev(tau, res.channel.fs_hz))
     labels = [ln.get_label() for ln in ax.get_lines()]
     assert any(lb.startswith("earth rate") for lb in labels)
     assert sum(lb.startswith(("WhiteRate", "GaussMarkov")) for lb in labels) == 2
@@ -49,7 +49,7 @@ def test_multi_psd_temperature(analysed, tmp_path):
     line = next(ln for ln in fig.axes[0].get_lines() if ln.get_label().startswith("identified"))
     f, p = line.get_data()
     assert f[-1] == pytest.approx(200.0)
-    np.testing.assert_allclose(p, res.mli.noise_model.psd(f, 400.0))
+    np.testing.assert_allclose(p, res.noise_model.noise_model.psd(f, 400.0))
     _files_ok(plots.save_figure(fig, tmp_path / "psd"))
     rate = res.channel.rate()
     bt, b = plots.bias_track(rate, 400.0, 60.0)
@@ -68,6 +68,6 @@ def test_attitude_figure(analysed, tmp_path):
     fig = plots.attitude_figure(res, "s")
     line = next(ln for ln in fig.axes[0].get_lines() if "record mean" in ln.get_label())
     t, s = line.get_data()
-    np.testing.assert_allclose(s, angle_error_std(res.mli.noise_model, t, record_s=1200.0))
+    np.testing.assert_allclose(s, angle_error_std(res.noise_model.noise_model, t, record_s=1200.0))
     assert t[-1] == pytest.approx(1200.0 / 10, rel=1e-6)
     _files_ok(plots.save_figure(fig, tmp_path / "att"))

@@ -1,4 +1,4 @@
-"""``imustation analyze``: Allan deviation and ML_i fit per channel."""
+"""``imustation analyze``: Allan deviation and noise-model fits per channel."""
 
 from __future__ import annotations
 
@@ -12,7 +12,13 @@ import click
 from imustation.analysis.field_import import is_field_input
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.mli import DEFAULT_COMPARISON
-from imustation.analysis.pipeline import METHODS, analysis_document, analyze_channel
+from imustation.analysis.pipeline import (
+    DEFAULT_ESTIMATOR,
+    ESTIMATORS,
+    METHODS,
+    analysis_document,
+    analyze_channel,
+)
 from imustation.cli import cli
 from imustation.cli.importcmd import field_options, run_import, text_options
 from imustation.errors import InputError
@@ -31,10 +37,11 @@ def results_table(results) -> str:
     lines = [head, "-" * len(head)]
     for r in results:
         adev1 = _interp_adev(r.allan, 1.0)
-        fits = [f for f in (r.mli, r.gmwm) if f is not None]
+        fits = [f for f in (r.noise_model, r.mli, r.gmwm) if f is not None]
+        fits = [f for k, f in enumerate(fits) if all(f is not g for g in fits[:k])]
         for m in fits:
             flag = "ok" if m.converged else f"! {m.message}"
-            name = r.channel.id if len(fits) == 1 else f"{r.channel.id} {m.estimator}"
+            name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
             lines.append(
                 f"{name:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
                 f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
@@ -95,11 +102,19 @@ def _interp_adev(allan, tau: float) -> float:
     help="Also fit wn+gm, wn+gm+rw and wn+2gm and report AIC/BIC (JSON key 'models').",
 )
 @click.option(
+    "--estimator",
+    type=click.Choice(ESTIMATORS),
+    default=DEFAULT_ESTIMATOR,
+    show_default=True,
+    help="Estimator of the noise model reported first and in the JSON 'noise_model' block: ML_i-F (ML_i's "
+    "integrated likelihood + the fine-scale Allan variance, docs/noise-model.md), ML_i or GMWM.",
+)
+@click.option(
     "--method",
     type=click.Choice(METHODS),
     default="mli",
     show_default=True,
-    help="Estimator: ML_i, GMWM (wavelet variance, docs/gmwm.md) or both side by side (JSON keys 'mli', 'gmwm').",
+    help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 @field_options
@@ -111,6 +126,7 @@ def analyze(
     m: int,
     model: str,
     compare: bool,
+    estimator: str,
     method: str,
     as_json: bool,
     topic: str | None,
@@ -120,7 +136,7 @@ def analyze(
     time_unit: str | None,
     gyro_unit: str,
 ) -> None:
-    """Allan deviation and ML_i (and/or GMWM) noise-model fit of every channel of INPUTS.
+    """Allan deviation and noise-model fit (ML_i-F; ML_i and/or GMWM beside it) of every channel of INPUTS.
 
     INPUTS are run files (.h5), plain rate samples (.npy, .csv; one column
     per channel, SI units, with --rate), or field recordings imported on the
@@ -143,10 +159,10 @@ def analyze(
                 paths.append(out)
             else:
                 paths.append(path)
-        _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, as_json)
+        _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json)
 
 
-def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, as_json) -> None:
+def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json) -> None:
     channels = load_inputs(inputs, globs, rate_hz)
     results = []
     for ch in channels:
@@ -154,7 +170,13 @@ def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, as_json
             click.echo(f"analysing {ch.id} ({ch.n} samples) ...", err=True)
         results.append(
             analyze_channel(
-                ch, pattern=pattern, m=m, model=model, compare=DEFAULT_COMPARISON if compare else (), method=method
+                ch,
+                pattern=pattern,
+                m=m,
+                model=model,
+                compare=DEFAULT_COMPARISON if compare else (),
+                method=method,
+                estimator=estimator,
             )
         )
     if as_json:

@@ -79,8 +79,8 @@ def demo(duration: str | None, output: str | None, config_file: str | None, lab:
             res = analyze_channel(ch)
             ch.release()
             for name in PARAMS:
-                sim_v, fit_v = getattr(truth, name), getattr(res.mli, name)
-                lo, hi = res.mli.ci90[name]
+                sim_v, fit_v = getattr(truth, name), getattr(res.noise_model, name)
+                lo, hi = res.noise_model.ci90[name]
                 err = 100 * (fit_v / sim_v - 1)
                 rows.append(dict(zip(TABLE_FIELDS, (ch.id, name, sim_v, fit_v, lo, hi, err), strict=True)))
                 click.echo(

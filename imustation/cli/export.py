@@ -35,9 +35,10 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 @click.option(
     "--source",
     type=click.Choice(SOURCES),
-    default="mli",
+    default="model",
     show_default=True,
-    help="mli: sigma_w and the bias model; ieee: N and K of the Allan fit.",
+    help="model: sigma_w and the bias model of the default estimator (ML_i-F); mli: the same from ML_i; "
+    "ieee: N and K of the Allan fit.",
 )
 @click.option(
     "--random-walk",

@@ -43,9 +43,22 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
     help="Comma-separated multipliers of the Table III sigma_b (Fig. 10 varies it), e.g. 1,3,10.",
 )
 @click.option("-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Pattern points.")
+@click.option(
+    "--check-starts",
+    is_flag=True,
+    help="Also fit from each estimator's single default start and count how often it ends in another optimum.",
+)
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the Markdown table to this file.")
 def study(
-    records: int, duration: str, fs_hz: float, seed: int, estimators: str, levels: str, m: int, out: str | None
+    records: int,
+    duration: str,
+    fs_hz: float,
+    seed: int,
+    estimators: str,
+    levels: str,
+    m: int,
+    check_starts: bool,
+    out: str | None,
 ) -> None:
     """Simulate BMX055-like records (Table III) and report bias, spread, RMSE and CI coverage."""
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
@@ -61,6 +74,7 @@ def study(
         levels=lv,
         m=m,
         progress=lambda t: click.echo(t, err=True),
+        check_starts=check_starts,
     )
     command = "imustation study " + " ".join(shlex.quote(a) for a in sys.argv[2:])
     header = (
