@@ -124,22 +124,29 @@ def fine_scale(
     sizes = [k for k in AUTO_SAMPLES if 8 * k < n] if samples == "auto" else [int(samples)]
     if not sizes:
         raise InputError(f"{n} samples: too short for a fine-scale Allan variance")
-    taus = sorted({k / fs_hz for k in sizes} | {4 * k / fs_hz for k in sizes})
-    res = oadev(rate, fs_hz, taus, scale=scale, segments=segments)
-    m_of = {int(round(t * fs_hz)): i for i, t in enumerate(res.tau)}
-    chosen, white = sizes[0], False
+    chosen, white, stats = sizes[0], False, {}
     for k in sizes:
-        if k not in m_of or 4 * k not in m_of:
-            continue
-        a1, e1 = _statistic(res, m_of[k], n, k)
-        a4, e4 = _statistic(res, m_of[4 * k], n, 4 * k)
+        # one oadev call per size tried: white data stop at the first (two taus, one pass each)
+        res = oadev(rate, fs_hz, [k / fs_hz, 4 * k / fs_hz], scale=scale, segments=segments)
+        got = {int(round(t * fs_hz)): i for i, t in enumerate(res.tau)}
+        if k not in got:
+            break
+        stats[k] = _statistic(res, got[k], n, k)
+        if samples != "auto":
+            break
+        if 4 * k not in got:
+            break
+        a1, e1 = stats[k]
+        a4, e4 = _statistic(res, got[4 * k], n, 4 * k)
         ratio = a1 / (4.0 * a4)
         if abs(ratio - 1.0) <= WHITE_Z * ratio * math.sqrt(2.0 / e1 + 2.0 / e4):
             chosen, white = k, True
             break
-    if chosen not in m_of:
+    if samples != "auto":
+        white = True  # the caller chose the scale
+    if chosen not in stats:
         raise InputError(f"fine scale of {chosen} sample(s): record too short")
-    avar, edf = _statistic(res, m_of[chosen], n, chosen)
+    avar, edf = stats[chosen]
     if not np.isfinite(avar) or avar <= 0:
         raise InputError("fine-scale Allan variance is zero or undefined: the channel is constant")
     return FineScale(chosen / fs_hz, avar, 2.0 * avar * avar / edf, edf, chosen, white)
