@@ -22,6 +22,7 @@ __all__ = [
     "make_thermometer_simulator",
     "simulated_truth",
     "station_device_seed",
+    "device_sources",
 ]
 
 _XYZ = ("x", "y", "z")
@@ -204,6 +205,18 @@ def simulated_truth(config) -> dict:
             for axis, model in zip(axes, src.models, strict=True):
                 out[f"{dev.name}/{channel}/{axis}"] = model
     return out
+
+
+def device_sources(dev, seed: int) -> dict[str, SignalSource]:
+    """Channel -> the signal source the device's simulator reads (noise model or replay), at its output rate.
+
+    ``dev`` is a configured device, ``seed`` its per-device seed
+    (:func:`station_device_seed`; ``sim.seed`` overrides it as in the simulators).
+    Used to synthesise a run file at the noise-model level (acquisition.synthesize).
+    """
+    factories = _with_replays(dev.driver, dev.settings, SOURCES[dev.driver](dev.sim, seed), dev.sim)
+    rate = _output_rate(dev)
+    return {channel: factory(rate) for channel, factory in factories.items()}
 
 
 def station_device_seed(station_seed: int, name: str) -> int:
