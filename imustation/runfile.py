@@ -667,6 +667,21 @@ class RunFile:
         n = min(g[TIME].shape[0], g[CELSIUS].shape[0])
         return g[TIME][:n], g[CELSIUS][:n]
 
+    def refresh(self) -> None:
+        """SWMR reader: see what the writer flushed since the file was opened (or last refreshed).
+
+        Refreshes every dataset's extent (devices, thermometers, events); a file
+        opened without SWMR is left as it is.
+        """
+        if not self.h5.swmr_mode:
+            return
+        for gname in (DEVICES, THERMOMETERS):
+            for g in self.h5.get(gname, {}).values():
+                for ds in g.values():
+                    ds.refresh()
+        if EVENTS in self.h5:
+            self.h5[EVENTS].refresh()
+
     def close(self) -> None:
         self.h5.close()
 
@@ -677,8 +692,12 @@ class RunFile:
         self.close()
 
 
-def open_run(path: str | os.PathLike) -> RunFile:
+def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
     """Open a run file read-only (also while it is being written).
+
+    ``live=True`` (a reader kept beside a running capture, e.g. the monitor):
+    SWMR read only, never the plain read-only fallback, which holds a shared
+    file lock that would keep the capture from marking the file complete.
 
     Raises :class:`RunFileError` with a one-line reason for a missing file,
     a file that is not HDF5, not an imustation run, or of an unknown version.
@@ -688,7 +707,9 @@ def open_run(path: str | os.PathLike) -> RunFile:
         raise RunFileError(f"{p}: no such file")
     try:
         h5 = h5py.File(p, "r", libver="latest", swmr=True)
-    except OSError:
+    except OSError as first:
+        if live:
+            raise RunFileError(f"{p}: not a readable SWMR run file ({first.__class__.__name__})") from None
         try:  # a file written without SWMR (e.g. by another tool) still opens
             h5 = h5py.File(p, "r")
         except OSError as exc:
