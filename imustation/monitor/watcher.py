@@ -176,7 +176,7 @@ class Monitor:
         self._stop = threading.Event()
         self._kick = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._status: dict[str, Any] = {"state": "starting", "file": self.path}
+        self._status: dict[str, Any] = {"state": "starting", "file": os.path.basename(self.path), "devices": {}}
         self._temps: dict[str, Any] = {"series": {}, "warmup": {}}
         self._allan: dict[str, Any] = {"devices": {}, "model_after_s": self.model_after_s}
         self.error: str | None = None
