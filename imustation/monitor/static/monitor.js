@@ -201,7 +201,7 @@
       if (!holder) {
         holder = el("div", null, "allan");
         holder.id = "allan-" + name;
-        holder.appendChild(el("h3", name + " gyro, overlapping Allan deviation (rad/s)"));
+        holder.appendChild(el("h3", name + ": gyro overlapping Allan deviation (rad/s)"));
         box.appendChild(holder);
       }
       if (chart) chart.destroy();
