@@ -66,6 +66,9 @@ CREATING_SUFFIX = ".creating"
 #: room kept beside a run file to finish it when the disk fills up anyway
 BALLAST_SUFFIX = ".ballast"
 DEFAULT_BALLAST_BYTES = 4 * 2**20
+#: a file locked by a reader while the writer reopens it to mark it complete: tries and pause (s)
+CLOSE_RETRIES = 50
+CLOSE_RETRY_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -451,7 +454,17 @@ class RunWriter:
             self.closed = True
             self._drop_ballast()
         # SWMR writers may not add attributes; reopen once to mark the run complete.
-        with h5py.File(self.path, "r+", libver="latest") as f:
+        # A reader opening the file at that moment holds HDF5's lock for a
+        # moment: retry for a few seconds rather than lose the mark.
+        for attempt in range(CLOSE_RETRIES + 1):
+            try:
+                f = h5py.File(self.path, "r+", libver="latest")
+                break
+            except BlockingIOError:
+                if attempt == CLOSE_RETRIES:
+                    raise
+                time.sleep(CLOSE_RETRY_S)
+        with f:
             for key, value in (attrs or {}).items():
                 f.attrs[key] = _attr_value(value)
             f.attrs["ended_utc"] = ended_utc or utc_now_iso()
@@ -667,6 +680,21 @@ class RunFile:
         n = min(g[TIME].shape[0], g[CELSIUS].shape[0])
         return g[TIME][:n], g[CELSIUS][:n]
 
+    def refresh(self) -> None:
+        """SWMR reader: see what the writer flushed since the file was opened (or last refreshed).
+
+        Refreshes every dataset's extent (devices, thermometers, events); a file
+        opened without SWMR is left as it is.
+        """
+        if not self.h5.swmr_mode:
+            return
+        for gname in (DEVICES, THERMOMETERS):
+            for g in self.h5.get(gname, {}).values():
+                for ds in g.values():
+                    ds.refresh()
+        if EVENTS in self.h5:
+            self.h5[EVENTS].refresh()
+
     def close(self) -> None:
         self.h5.close()
 
@@ -677,8 +705,12 @@ class RunFile:
         self.close()
 
 
-def open_run(path: str | os.PathLike) -> RunFile:
+def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
     """Open a run file read-only (also while it is being written).
+
+    ``live=True`` (a reader kept beside a running capture, e.g. the monitor):
+    SWMR read only, never the plain read-only fallback, which holds a shared
+    file lock that would keep the capture from marking the file complete.
 
     Raises :class:`RunFileError` with a one-line reason for a missing file,
     a file that is not HDF5, not an imustation run, or of an unknown version.
@@ -687,8 +719,12 @@ def open_run(path: str | os.PathLike) -> RunFile:
     if not os.path.exists(p):
         raise RunFileError(f"{p}: no such file")
     try:
-        h5 = h5py.File(p, "r", libver="latest", swmr=True)
-    except OSError:
+        # a live reader takes no file lock at all: even the short one HDF5 holds while
+        # opening could make the capture's final reopen (to set ended_utc) fail
+        h5 = h5py.File(p, "r", libver="latest", swmr=True, **({"locking": False} if live else {}))
+    except OSError as first:
+        if live:
+            raise RunFileError(f"{p}: not a readable SWMR run file ({first.__class__.__name__})") from None
         try:  # a file written without SWMR (e.g. by another tool) still opens
             h5 = h5py.File(p, "r")
         except OSError as exc:

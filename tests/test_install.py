@@ -18,6 +18,7 @@ SUBPACKAGES = [
     "imustation.drivers.sim",
     "imustation.drivers.sim.serial_handlers",
     "imustation.analysis",
+    "imustation.monitor",
 ]
 
 
@@ -29,7 +30,10 @@ def test_subpackage_imports(name):
 def test_imports_from_outside_the_source_tree(tmp_path):
     code = (
         "import " + ", ".join(SUBPACKAGES) + "; from imustation.configs import config_path; "
-        "import os; assert os.path.exists(config_path('demo.toml'))"
+        "import os; assert os.path.exists(config_path('demo.toml')); "
+        "from importlib import resources; from imustation.monitor.server import STATIC_FILES, INDEX; "
+        "static = resources.files('imustation.monitor') / 'static'; "
+        "assert all((static / n).is_file() for n in [*STATIC_FILES, INDEX])"
     )
     subprocess.run([sys.executable, "-c", code], cwd=tmp_path, check=True)
 

@@ -12,6 +12,7 @@ from imustation.acquisition import capture as run_capture
 from imustation.acquisition import load_config
 from imustation.cli import cli
 from imustation.errors import InputError
+from imustation.monitor.launcher import MonitorProcess
 from imustation.units import format_duration, parse_duration
 
 
@@ -89,6 +90,14 @@ def _write_status_file(path: str, status: dict) -> None:
     help="Answer every driver from a trace made with --trace instead of a bus (virtual clock; "
     "use the same config and duration): a recorded capture becomes a regression test.",
 )
+@click.option(
+    "--monitor",
+    "with_monitor",
+    is_flag=True,
+    help="Also start 'imustation monitor' on the run file, in its own process (a web page; docs/monitor.md).",
+)
+@click.option("--monitor-host", default="127.0.0.1", show_default=True, help="--monitor: address to listen on.")
+@click.option("--monitor-port", default=8765, show_default=True, type=int, help="--monitor: TCP port.")
 @click.option("--sim-speed", default=None, type=float, hidden=True, help="Simulation: max virtual s per wall s.")
 @click.option("--no-fsync", is_flag=True, hidden=True, help="Skip fsync after flushes (tests on slow disks).")
 def capture(
@@ -104,6 +113,9 @@ def capture(
     status_interval: float,
     trace_file: str | None,
     replay_file: str | None,
+    with_monitor: bool,
+    monitor_host: str,
+    monitor_port: int,
     sim_speed: float | None,
     no_fsync: bool,
 ) -> None:
@@ -122,8 +134,11 @@ def capture(
         raise InputError(f"--sim-speed {sim_speed}: must be > 0")
     tty = sys.stderr.isatty()
     live = not quiet and not json_status
+    launcher = MonitorProcess(monitor_host, monitor_port, note=lambda msg: click.echo(msg, err=True))
 
     def on_status(status: dict) -> None:
+        if with_monitor:
+            launcher.poll(status.get("file"))
         if json_status:
             click.echo(json.dumps(status))
         if status_file:
@@ -132,20 +147,23 @@ def capture(
             line = format_status(status)
             click.echo(("\r\033[K" if tty else "") + line, err=True, nl=not tty)
 
-    summary = run_capture(
-        cfg,
-        output,
-        seconds,
-        simulate=simulate,
-        overwrite=overwrite,
-        on_status=on_status,
-        status_interval_s=status_interval,
-        rotate_s=rotate_s,
-        pace=sim_speed,
-        fsync=not no_fsync,
-        trace=trace_file,
-        replay=replay_file,
-    )
+    try:
+        summary = run_capture(
+            cfg,
+            output,
+            seconds,
+            simulate=simulate,
+            overwrite=overwrite,
+            on_status=on_status,
+            status_interval_s=status_interval,
+            rotate_s=rotate_s,
+            pace=sim_speed,
+            fsync=not no_fsync,
+            trace=trace_file,
+            replay=replay_file,
+        )
+    finally:
+        launcher.stop()
     if tty and live:
         click.echo("", err=True)
     total = sum(summary.samples.values())

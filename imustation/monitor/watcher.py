@@ -1,0 +1,520 @@
+"""Read a run file while it is written and keep JSON-ready snapshots for the server.
+
+:class:`Monitor` runs two daemon threads:
+
+* the **poller** opens the file read-only in SWMR mode every ``poll_s``
+  seconds (a fresh open also sees ``ended_utc`` and the next part of a rotated
+  capture), refreshes its datasets, reads only what was added since the last
+  poll (events, temperatures, gyro counts; at most ``max_read_rows`` rows per
+  device per poll, so catching up on a 12 h file never stalls the status) and
+  closes it again;
+* the **analyser** recomputes the Allan curves from the in-memory gyro buffers
+  at most every ``allan_every_s`` seconds and the ML_i model overlay at most
+  every ``fit_every_s`` seconds once a device holds ``model_after_s`` seconds
+  of data. It never touches the file.
+
+The server's handlers only read the latest snapshots (dicts swapped whole), so
+a slow computation never blocks a page. Times are s since ``started_utc``
+(station time: virtual in simulations), temperatures degC, rates Hz, Allan
+deviations rad/s.
+"""
+
+from __future__ import annotations
+
+import collections
+import datetime as _dt
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from imustation.analysis.loaders import locate_breaks
+from imustation.analysis.models import StandardModel
+from imustation.analysis.temperature import TEMP_READ_HZ, detect_warmup
+from imustation.errors import ImustationError
+from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
+from imustation.runfile import Event, RunFile, open_run
+
+#: station seconds over which ``rate_recent_hz`` is measured
+RATE_WINDOW_S = 10.0
+#: a device whose row count has not grown for this many wall seconds is reported stalled
+STALL_S = 10.0
+#: events kept for the page (newest last)
+EVENTS_KEPT = 100
+#: window (s) and limit (degC/h) of the warm-up detection and the "steady" flag
+WARMUP_WINDOW_S = 600.0
+STEADY_C_PER_H = 1.0
+#: rows read per device and per poll (catching up on a long file is spread over polls)
+MAX_READ_ROWS = 1 << 22
+#: rows per HDF5 read
+READ_BLOCK = 1 << 20
+#: event kinds that mean lost samples
+LOSS_KINDS = ("gap", "overrun")
+
+
+def _utc() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+
+
+def _wall_since(started_utc: str) -> float | None:
+    try:
+        t0 = _dt.datetime.fromisoformat(started_utc)
+    except (TypeError, ValueError):
+        return None
+    return (_dt.datetime.now(_dt.UTC) - t0).total_seconds()
+
+
+@dataclass
+class _Series:
+    """A growing temperature series: times (s) and degC, as lists of numpy blocks."""
+
+    t: list[np.ndarray] = field(default_factory=list)
+    c: list[np.ndarray] = field(default_factory=list)
+    pos: int = 0  # rows of the file consumed
+
+    def add(self, t_s: np.ndarray, c: np.ndarray) -> None:
+        if len(t_s):
+            self.t.append(np.asarray(t_s, dtype=np.float64))
+            self.c.append(np.asarray(c, dtype=np.float64))
+            if len(self.t) > 64:  # keep few blocks: concatenation is then cheap
+                self.t, self.c = [np.concatenate(self.t)], [np.concatenate(self.c)]
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self.t:
+            return np.zeros(0), np.zeros(0)
+        return np.concatenate(self.t), np.concatenate(self.c)
+
+
+@dataclass
+class _Device:
+    name: str
+    rate_hz: float
+    rows: int = 0
+    grew_wall: float = field(default_factory=time.monotonic)
+    temp: _Series | None = None
+    gyro: GyroBuffer | None = None
+    gaps: int = 0
+    lost: int = 0
+    faults: int = 0
+    events: int = 0
+    loss_events: list[Event] = field(default_factory=list)
+    breaks_checked: int = 0
+
+
+def warmup_summary(t_s: np.ndarray, c: np.ndarray) -> dict[str, Any]:
+    """Warm-up state of one temperature series (s, degC).
+
+    ``warmup_end_s``: end of the warm-up found by the analysis's
+    :func:`detect_warmup` (``None`` while fewer than ``WARMUP_WINDOW_S`` of
+    readings exist or while still warming); ``warming``: the last window still
+    changes faster than ``STEADY_C_PER_H``; ``slope_c_per_h``: least-squares
+    slope of the last ``WARMUP_WINDOW_S`` (degC/h); ``steady``: its magnitude
+    is within the limit.
+    """
+    out: dict[str, Any] = {"warmup_end_s": None, "warming": None, "slope_c_per_h": None, "steady": None}
+    if len(t_s) < 3:
+        return out
+    last = t_s >= t_s[-1] - WARMUP_WINDOW_S
+    if np.count_nonzero(last) >= 3 and np.ptp(t_s[last]) > 0:
+        slope = float(np.polyfit(t_s[last] - t_s[-1], c[last], 1)[0]) * 3600.0
+        out["slope_c_per_h"] = slope
+        out["steady"] = abs(slope) <= STEADY_C_PER_H
+    if t_s[-1] - t_s[0] < WARMUP_WINDOW_S:
+        return out
+    end = detect_warmup(t_s, c, window_s=WARMUP_WINDOW_S, max_rate_c_per_h=STEADY_C_PER_H)
+    out["warming"] = bool(end >= t_s[-1])
+    out["warmup_end_s"] = None if out["warming"] else end
+    return out
+
+
+def decimate(t_s: np.ndarray, c: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_points`` points: block means of equal runs of readings (the last block may be shorter)."""
+    n = len(t_s)
+    if n <= max_points or max_points < 1:
+        return t_s, c
+    k = math.ceil(n / max_points)
+    edges = np.arange(0, n, k)
+    counts = np.diff(np.append(edges, n))
+    return np.add.reduceat(t_s, edges) / counts, np.add.reduceat(c, edges) / counts
+
+
+class Monitor:
+    """Watches one run file; see the module docstring.
+
+    path : the run file (must exist and be an imustation run file).
+    poll_s : wall seconds between polls of the file.
+    allan_every_s, fit_every_s : wall seconds between Allan / model recomputations.
+    model_after_s : station seconds of data a device needs before the model is fitted.
+    max_rows : gyro rows kept per device (see :class:`GyroBuffer`).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        poll_s: float = 2.0,
+        allan_every_s: float = 30.0,
+        fit_every_s: float = 120.0,
+        model_after_s: float = 600.0,
+        max_rows: int = MAX_ROWS,
+        max_read_rows: int = MAX_READ_ROWS,
+    ):
+        self.path = os.fspath(path)
+        self.poll_s = float(poll_s)
+        self.allan_every_s = float(allan_every_s)
+        self.fit_every_s = float(fit_every_s)
+        self.model_after_s = float(model_after_s)
+        self.max_rows = int(max_rows)
+        self.max_read_rows = int(max_read_rows)
+        with open_run(self.path, live=True) as run:  # fails early, with one line, on a bad file
+            self._check(run)
+        self._reset()
+        self._stop = threading.Event()
+        self._kick = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._status: dict[str, Any] = {"state": "starting", "file": os.path.basename(self.path), "devices": {}}
+        self._temps: dict[str, Any] = {"series": {}, "warmup": {}}
+        self._allan: dict[str, Any] = {"devices": {}, "model_after_s": self.model_after_s}
+        self.error: str | None = None
+
+    @staticmethod
+    def _check(run: RunFile) -> None:
+        if not run.devices and not run.thermometers:
+            raise ImustationError(f"{run.path}: run file holds no devices and no thermometers")
+
+    def _reset(self) -> None:
+        self._devices: dict[str, _Device] = {}
+        self._thermo: dict[str, _Series] = {}
+        self._events_pos = 0
+        self._events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENTS_KEPT)
+        self._station_events = 0
+        self._polls = 0
+
+    # -- threads ------------------------------------------------------------
+    def start(self) -> None:
+        """Start the poller and the analyser (daemon threads)."""
+        try:  # the analysis kernels are numba-parallel: one core is plenty beside a capture
+            import numba
+
+            numba.set_num_threads(1)
+        except (ImportError, ValueError):
+            pass
+        for target, name in ((self._poll_loop, "monitor-poll"), (self._analysis_loop, "monitor-allan")):
+            th = threading.Thread(target=target, name=name, daemon=True)
+            th.start()
+            self._threads.append(th)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._kick.set()
+        for th in self._threads:
+            th.join(timeout=5.0)
+
+    def _poll_loop(self) -> None:
+        while not self._stop.is_set():
+            t0 = time.monotonic()
+            try:
+                self.poll()
+                self.error = None
+            except (OSError, KeyError, ImustationError, ValueError) as exc:  # keep serving the last snapshot
+                self.error = f"{exc.__class__.__name__}: {exc}"
+                self._status = {**self._status, "monitor_error": self.error}
+            self._stop.wait(max(0.05, self.poll_s - (time.monotonic() - t0)))
+
+    def _analysis_loop(self) -> None:
+        last_allan = last_fit = -math.inf
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now - last_allan >= self.allan_every_s:
+                fit_due = now - last_fit >= self.fit_every_s
+                if self.analyse(fit=fit_due):
+                    last_allan = now
+                    last_fit = now if fit_due else last_fit
+            self._kick.wait(1.0)
+            self._kick.clear()
+
+    # -- polling (file access only here) ------------------------------------
+    def poll(self) -> None:
+        """Read what the writer added since the last poll and rebuild the status snapshot."""
+        run = open_run(self.path, live=True)
+        try:
+            run.refresh()
+            nxt = run.attrs.get("next_part")
+            if nxt:
+                nxt_path = os.path.join(os.path.dirname(self.path), str(nxt))
+                if os.path.exists(nxt_path):  # a rotated capture moved on: follow it
+                    self.path = nxt_path
+                    self._reset()
+                    return
+            self._poll(run)
+        finally:
+            run.close()
+        self._polls += 1
+        if self._polls == 1:
+            self._kick.set()
+
+    def _poll(self, run: RunFile) -> None:
+        infos = run.devices
+        now = time.monotonic()
+        for name, info in infos.items():
+            dev = self._devices.get(name)
+            if dev is None:
+                dev = self._devices[name] = _Device(name, info.rate_hz)
+                if "temp" in info.channels:
+                    dev.temp = _Series()
+                gyro = info.channels.get("gyro")
+                if gyro is not None and gyro.axes:
+                    dev.gyro = GyroBuffer(info.rate_hz, gyro.scale, gyro.dtype, gyro.axes, self.max_rows)
+            if info.n > dev.rows:
+                dev.rows, dev.grew_wall = info.n, now
+        for name in run.thermometers:
+            self._thermo.setdefault(name, _Series())
+        self._read_events(run)
+        for dev in self._devices.values():
+            if dev.temp is not None:
+                self._read_device_temp(run, dev, infos[dev.name])
+            if dev.gyro is not None:
+                self._read_gyro(run, dev)
+        for name, series in self._thermo.items():
+            t, c = run.temperatures(name)
+            if len(t) > series.pos:
+                series.add(np.asarray(t[series.pos :], dtype=np.int64) * 1e-9, c[series.pos :])
+                series.pos = len(t)
+        self._status = self._build_status(run, infos, now)
+        self._temps = self._build_temps()
+
+    def _read_events(self, run: RunFile) -> None:
+        ds = run.h5.get("events")
+        if ds is None or ds.shape[0] <= self._events_pos:
+            return
+        rows = ds[self._events_pos :]
+        self._events_pos += len(rows)
+        for r in rows:  # events are rare (one per gap or fault), not per sample
+            ev = Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
+            self._events.append(
+                {"t_s": ev.t_ns * 1e-9, "source": ev.source, "kind": ev.kind, "lost": ev.lost, "detail": ev.detail}
+            )
+            dev = self._devices.get(ev.source)
+            if dev is None:
+                self._station_events += 1
+                continue
+            dev.events += 1
+            if ev.kind in LOSS_KINDS:
+                dev.gaps += 1
+                dev.lost += ev.lost
+                dev.loss_events.append(ev)
+            elif ev.kind == "fault":
+                dev.faults += 1
+
+    def _read_device_temp(self, run: RunFile, dev: _Device, info) -> None:
+        """Block means of the device's temperature channel, about TEMP_READ_HZ readings per s."""
+        ch = info.channels["temp"]
+        m = max(1, int(round(info.rate_hz / TEMP_READ_HZ)))
+        series = dev.temp
+        stop = min(dev.rows, series.pos + self.max_read_rows)
+        stop -= (stop - series.pos) % m
+        while series.pos < stop:
+            b = min(stop, series.pos + READ_BLOCK - READ_BLOCK % m)
+            raw = run.read(dev.name, "temp", series.pos, b).astype(np.float64)
+            t = run.read(dev.name, "t", series.pos, b)
+            k = len(raw) // m
+            if k == 0:
+                break
+            raw = raw[: k * m].reshape(k, m, -1).mean(axis=(1, 2))
+            series.add(t[: k * m].reshape(k, m)[:, m // 2] * 1e-9, raw * ch.scale + ch.offset)
+            series.pos += k * m
+
+    def _read_gyro(self, run: RunFile, dev: _Device) -> None:
+        buf = dev.gyro
+        budget = self.max_read_rows
+        while budget > 0:
+            k = buf.wanted(dev.rows)
+            d = buf.decimation
+            step = min(k, budget, READ_BLOCK)
+            step -= step % d
+            if step <= 0:
+                break
+            start = buf.consumed
+            buf.append(run.read(dev.name, "gyro", start, start + step))
+            budget -= step
+        if len(dev.loss_events) > dev.breaks_checked:
+            dev.breaks_checked = len(dev.loss_events)
+            t_ds = run.dataset(dev.name, "t")
+            buf.breaks = [b for b in locate_breaks(t_ds, dev.loss_events, dev.rate_hz) if b < dev.rows]
+
+    def _build_status(self, run: RunFile, infos, now: float) -> dict[str, Any]:
+        started = str(run.attrs.get("started_utc", ""))
+        complete = "ended_utc" in run.attrs
+        devices: dict[str, Any] = {}
+        last_t = []
+        for name, dev in self._devices.items():
+            info = infos[name]
+            n = dev.rows
+            d: dict[str, Any] = {
+                "driver": info.driver,
+                "model": info.model,
+                "rate_cfg_hz": info.rate_hz,
+                "samples": n,
+                "rate_hz": None,
+                "rate_recent_hz": None,
+                "gaps": dev.gaps,
+                "lost": dev.lost,
+                "faults": dev.faults,
+                "events": dev.events,
+                "temp_c": None,
+                "last_t_s": None,
+                "stalled_s": now - dev.grew_wall,
+            }
+            if n > 0:
+                k = min(n, int(info.rate_hz * RATE_WINDOW_S * 2) + 16)
+                t = run.read(name, "t", n - k, n).astype(np.int64)
+                t_last = int(t[-1])
+                last_t.append(t_last)
+                d["last_t_s"] = t_last * 1e-9
+                recent = t[t >= t_last - int(RATE_WINDOW_S * 1e9)]
+                if len(recent) > 1 and recent[-1] > recent[0]:
+                    d["rate_recent_hz"] = (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
+                first = int(run.read(name, "t", 0, 1)[0])
+                if t_last > first:
+                    d["rate_hz"] = (n - 1) / ((t_last - first) * 1e-9)
+                if "temp" in info.channels:
+                    ch = info.channels["temp"]
+                    d["temp_c"] = float(np.mean(run.read(name, "temp", n - 1, n))) * ch.scale + ch.offset
+            d["state"] = "done" if complete else ("stalled" if d["stalled_s"] > max(STALL_S, 3 * self.poll_s) else "ok")
+            devices[name] = d
+        thermometers: dict[str, Any] = {}
+        for name, series in self._thermo.items():
+            t, c = series.arrays()
+            thermometers[name] = {
+                "readings": series.pos,
+                "celsius": float(c[-1]) if len(c) else None,
+                "last_t_s": float(t[-1]) if len(t) else None,
+            }
+            if len(t):
+                last_t.append(int(t[-1] * 1e9))
+        try:
+            size = os.path.getsize(self.path)
+        except OSError:
+            size = None
+        return {
+            "format": "imustation-monitor-status",
+            "version": 1,
+            "file": os.path.basename(self.path),
+            "state": "complete" if complete else "recording",
+            "station": run.attrs.get("station", ""),
+            "simulated": bool(run.attrs.get("simulated", False)),
+            "started_utc": started,
+            "ended_utc": run.attrs.get("ended_utc"),
+            "stopped": run.attrs.get("stopped"),
+            "part": run.attrs.get("part"),
+            "elapsed_s": max(last_t) * 1e-9 if last_t else 0.0,
+            "wall_elapsed_s": _wall_since(started),
+            "file_bytes": size,
+            "devices": devices,
+            "thermometers": thermometers,
+            "station_events": self._station_events,
+            "events": list(self._events),
+            "updated_utc": _utc(),
+            "poll_s": self.poll_s,
+        }
+
+    def _temperature_arrays(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        out = {}
+        for name, dev in self._devices.items():
+            if dev.temp is not None:
+                out[name] = dev.temp.arrays()
+        for name, series in self._thermo.items():
+            out[name] = series.arrays()
+        return out
+
+    def _build_temps(self) -> dict[str, Any]:
+        arrays = self._temperature_arrays()
+        return {
+            "arrays": arrays,
+            "warmup": {name: warmup_summary(t, c) for name, (t, c) in arrays.items()},
+            "kinds": {name: ("device" if name in self._devices else "thermometer") for name in arrays},
+        }
+
+    # -- analysis (no file access) ------------------------------------------
+    def analyse(self, fit: bool) -> bool:
+        """Recompute the Allan curves (and the model overlay when ``fit``); False when no device has data."""
+        out: dict[str, Any] = {}
+        previous = self._allan.get("devices", {})
+        did = False
+        for name, dev in list(self._devices.items()):
+            snap = dev.gyro.snapshot() if dev.gyro is not None else None
+            if snap is None:
+                continue
+            did = True
+            prev = previous.get(name)
+            if prev is not None and prev.get("samples") == snap.raw_rows and "error" not in prev:
+                duration = snap.raw_rows / (snap.fs_hz * snap.decimation)
+                if prev.get("model") is not None or duration < self.model_after_s:
+                    out[name] = prev  # nothing new on disk (e.g. a finished run): keep the curves
+                    continue
+            try:
+                curves = allan_curves(snap)
+            except ImustationError as exc:
+                out[name] = {"error": str(exc)}
+                continue
+            duration = snap.raw_rows / (snap.fs_hz * snap.decimation)
+            entry: dict[str, Any] = {
+                "fs_hz": snap.fs_hz * snap.decimation,
+                "decimation": snap.decimation,
+                "samples": snap.raw_rows,
+                "duration_s": duration,
+                "segments": len(snap.segments),
+                "units": "rad/s",
+                "computed_utc": _utc(),
+                **curves,
+                "model": None,
+            }
+            old = previous.get(name, {}).get("model")
+            if fit and duration >= self.model_after_s and len(curves["tau"]):
+                entry["model"] = model_curves(snap, np.asarray(curves["tau"]))
+                entry["model"]["fitted_utc"] = _utc()
+            elif old is not None and len(curves["tau"]):
+                # keep the last fit, its curve evaluated at the new taus
+                entry["model"] = {**old, "axes": dict(old["axes"])}
+                entry["model"]["stale"] = True
+                entry["model"]["axes"] = _reevaluate(old, np.asarray(curves["tau"]))
+            out[name] = entry
+        if did:
+            self._allan = {"devices": out, "model_after_s": self.model_after_s, "model": "wn+gm", "updated_utc": _utc()}
+        return did
+
+    # -- snapshots for the server -------------------------------------------
+    def status(self) -> dict[str, Any]:
+        return self._status
+
+    def allan(self) -> dict[str, Any]:
+        return self._allan
+
+    def temperatures(self, max_points: int = 1500) -> dict[str, Any]:
+        temps = self._temps
+        series = {}
+        for name, (t, c) in temps.get("arrays", {}).items():
+            td, cd = decimate(t, c, max_points)
+            series[name] = {"kind": temps["kinds"][name], "t_s": td, "celsius": cd, "readings": len(t)}
+        return {
+            "series": series,
+            "warmup": temps.get("warmup", {}),
+            "window_s": WARMUP_WINDOW_S,
+            "limit_c_per_h": STEADY_C_PER_H,
+        }
+
+
+def _reevaluate(model: dict[str, Any], tau: np.ndarray) -> dict[str, Any]:
+    """The standard model's Allan deviation at new taus from a previous fit's parameters."""
+    axes = {}
+    for axis, p in model["axes"].items():
+        if "error" in p:
+            axes[axis] = p
+            continue
+        tau_b = p["tau_b"] if p["tau_b"] is not None else math.inf
+        axes[axis] = {**p, "adev": StandardModel(p["sigma_w"], p["sigma_b"], tau_b).adev(tau)}
+    return axes
