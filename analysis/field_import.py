@@ -24,6 +24,7 @@ import json
 import math
 import os
 import re
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from itertools import islice
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imustation.analysis.rosbag1_stream import IMU_MD5
 from imustation.analysis.timestamps import StampChecker, StampReport
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
@@ -95,31 +97,66 @@ def _open_bag(path: str):
     return reader
 
 
-def bag_topics(path: str, topic: str | None = None) -> list[tuple[str, int]]:
-    """``(topic, message count)`` of the Imu topics of a bag (only ``topic`` if given)."""
-    reader = _open_bag(path)
+def _streaming(path: str, reader: str) -> bool:
+    """Read with :mod:`.rosbag1_stream` (ROS 1 ``.bag`` files unless ``reader == "old"``)."""
+    if reader not in ("new", "old"):
+        raise ValueError(f"bag reader {reader!r}: 'new' or 'old'")
+    return reader == "new" and Path(path).is_file() and path.lower().endswith(".bag")
+
+
+def _ros1_index(path: str):
+    from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag
+
     try:
-        imu = {}
-        for c in reader.connections:
-            if c.msgtype in IMU_TYPES:
-                imu[c.topic] = imu.get(c.topic, 0) + int(c.msgcount)
-        if topic is not None:
-            if topic not in imu:
-                have = ", ".join(sorted(imu)) or "none"
-                raise InputError(f"{path}: no sensor_msgs/Imu topic {topic} (Imu topics: {have})")
-            return [(topic, imu[topic])]
-        if not imu:
-            topics = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
-            raise InputError(f"{path}: no sensor_msgs/Imu topic (topics: {topics})")
-        return sorted(imu.items())
+        with Ros1Bag(path) as bag:
+            return bag.index()
+    except (BagFormatError, OSError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
+
+
+def bag_topics(path: str, topic: str | None = None, reader: str = "new") -> list[tuple[str, int]]:
+    """``(topic, message count)`` of the Imu topics of a bag (only ``topic`` if given)."""
+    if _streaming(path, reader):
+        conns, counts = _ros1_index(path)
+        return _imu_topics(path, topic, [(c.topic, c.msgtype, counts.get(c.id, 0)) for c in conns.values()])
+    bag = _open_bag(path)
+    try:
+        return _imu_topics(path, topic, [(c.topic, c.msgtype, int(c.msgcount)) for c in bag.connections])
     finally:
-        reader.close()
+        bag.close()
+
+
+def _imu_topics(path: str, topic: str | None, conns: list[tuple[str, str, int]]) -> list[tuple[str, int]]:
+    """Imu topics and their message counts from ``(topic, msgtype, count)`` of every connection."""
+    imu: dict[str, int] = {}
+    for tp, mt, n in conns:
+        if mt in IMU_TYPES:
+            imu[tp] = imu.get(tp, 0) + n
+    if topic is not None:
+        if topic not in imu:
+            have = ", ".join(sorted(imu)) or "none"
+            raise InputError(f"{path}: no sensor_msgs/Imu topic {topic} (Imu topics: {have})")
+        return [(topic, imu[topic])]
+    if not imu:
+        topics = ", ".join(sorted({c[0] for c in conns})) or "none"
+        raise InputError(f"{path}: no sensor_msgs/Imu topic (topics: {topics})")
+    return sorted(imu.items())
 
 
 def iter_bag(
-    path: str, topics: list[str], block: int = BLOCK_ROWS, limit: int | None = None
+    path: str, topics: list[str], block: int = BLOCK_ROWS, limit: int | None = None, reader: str = "new"
 ) -> Iterator[tuple[str, Block]]:
-    """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most."""
+    """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most.
+
+    ROS 1 bags are read with :mod:`.rosbag1_stream` (``reader="new"``: one chunk in memory, Imu decoded with
+    numpy); ROS 2 bags, MCAP and ``reader="old"`` with rosbags (message by message).
+    """
+    if _streaming(path, reader):
+        conns, _ = _ros1_index(path)
+        if all(c.md5sum == IMU_MD5 for c in conns.values() if c.topic in topics and c.msgtype in IMU_TYPES):
+            yield from _iter_ros1(path, topics, block, limit)
+            return
+        # an Imu definition other than sensor_msgs/Imu's: let rosbags decode it from the bag's definition
     reader = _open_bag(path)
     try:
         conns = [c for c in reader.connections if c.topic in topics and c.msgtype in IMU_TYPES]
@@ -150,6 +187,55 @@ def iter_bag(
                 yield t, (stamps[t][:k].copy(), bufs[t][:k, 1:4].copy(), bufs[t][:k, 4:7].copy())
     finally:
         reader.close()
+
+
+def _iter_ros1(path: str, topics: list[str], block: int, limit: int | None) -> Iterator[tuple[str, Block]]:
+    from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag, decode_imu
+
+    pend: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {t: [] for t in topics}
+    have = dict.fromkeys(topics, 0)
+    seen = 0
+    conns: dict = {}
+    try:
+        with Ros1Bag(path) as bag:
+            for ch in bag.chunks(conns):
+                ids = [i for i, c in conns.items() if c.topic in topics and c.msgtype in IMU_TYPES]
+                sel = np.isin(ch.conn, ids)
+                if not sel.any():
+                    continue
+                if limit is not None and seen + int(sel.sum()) > limit:
+                    sel &= np.cumsum(sel) <= limit - seen
+                seen += int(sel.sum())
+                for t in topics:
+                    tids = [i for i in ids if conns[i].topic == t]
+                    m = sel & np.isin(ch.conn, tids)
+                    if not m.any():
+                        continue
+                    try:
+                        dec = decode_imu(ch.buf, ch.start[m], ch.length[m])
+                    except ValueError as exc:
+                        raise InputError(f"{path}: topic {t}: undecodable Imu message ({exc})") from None
+                    pend[t].append(dec)
+                    have[t] += len(dec[0])
+                    if have[t] >= block:
+                        yield from _full_blocks(t, pend, have, block)
+                if limit is not None and seen >= limit:
+                    break
+    except (BagFormatError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+    for t in topics:
+        if have[t]:
+            ts, g, a = (np.concatenate(x) for x in zip(*pend[t], strict=True))
+            yield t, (ts, g, a)
+
+
+def _full_blocks(t: str, pend: dict, have: dict, block: int) -> Iterator[tuple[str, Block]]:
+    ts, g, a = (np.concatenate(x) for x in zip(*pend[t], strict=True))
+    k = (len(ts) // block) * block
+    for i in range(0, k, block):
+        yield t, (ts[i : i + block], g[i : i + block], a[i : i + block])
+    pend[t] = [(ts[k:], g[k:], a[k:])] if k < len(ts) else []
+    have[t] = len(ts) - k
 
 
 # --- text logs and arrays ----------------------------------------------------
@@ -457,6 +543,7 @@ def import_recording(
     overwrite: bool = False,
     progress: Progress | None = None,
     block: int = BLOCK_ROWS,
+    bag_reader: str = "new",
 ) -> ImportResult:
     """Convert ``source`` into the run file ``out``; returns the stamp reports.
 
@@ -467,11 +554,13 @@ def import_recording(
     kind = source_kind(source)
     fsync = False  # an import is re-run from its source; no power-cut guarantee needed
     if kind == "bag":
-        topics = bag_topics(source, topic)
+        topics = bag_topics(source, topic, reader=bag_reader)
         total = sum(n for _, n in topics)
         # first stamps of each topic: nominal rate (device rate_hz) and the common time origin
         probe: dict[str, list[np.ndarray]] = {t: [] for t, _ in topics}
-        for t, (ts, _g, _a) in iter_bag(source, list(probe), block=RATE_PROBE, limit=RATE_PROBE * len(probe)):
+        for t, (ts, _g, _a) in iter_bag(
+            source, list(probe), block=RATE_PROBE, limit=RATE_PROBE * len(probe), reader=bag_reader
+        ):
             probe[t].append(ts)
         heads = {t: np.concatenate(v) if v else np.empty(0, np.int64) for t, v in probe.items()}
         t0 = min(int(v.min()) for v in heads.values() if len(v))
@@ -486,7 +575,7 @@ def import_recording(
             sinks = {t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)}
             writer.event(0, "station", "note", f"imported from {os.path.abspath(source)} ({fmt})"[:256])
             done = 0
-            for t, blk in iter_bag(source, list(heads), block=block):
+            for t, blk in iter_bag(source, list(heads), block=block, reader=bag_reader):
                 sinks[t].write(blk)
                 done += len(blk[0])
                 if progress:

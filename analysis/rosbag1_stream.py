@@ -1,0 +1,324 @@
+"""A streaming ROS 1 bag (format 2.0) reader: one chunk in memory at a time, no per-message index.
+
+rosbags' ``rosbag1.Reader`` builds an index entry (a Python object) for every
+message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
+400 Hz). This reader instead walks the file record by record
+(http://wiki.ros.org/Bags/Format/2.0), decompresses one chunk at a time
+(none / bz2 / lz4) and hands out its messages in file order, so memory is
+O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
+with numpy, a chunk at a time (:func:`decode_imu`).
+
+Records: ``<header_len u32><header><data_len u32><data>``; the header is a list
+of ``<field_len u32>name=value`` fields, ``op`` tells the record type.
+Messages inside a chunk are in the order they were recorded (receive time);
+they are returned in that order, never sorted.
+"""
+
+from __future__ import annotations
+
+import bz2
+import os
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
+MAGIC = b"#ROSBAG V2.0\n"
+#: md5sum of sensor_msgs/Imu (ROS 1): the layout :func:`decode_imu` knows
+IMU_MD5 = "6a62c6daae103f4ff57a132d6f95cec2"
+#: Imu after the header's frame_id: orientation (4), covariance (9), angular_velocity (3), covariance (9),
+#: linear_acceleration (3), covariance (9) float64
+IMU_TAIL = 37 * 8
+_GYRO_AT, _ACCEL_AT = 13 * 8, 25 * 8
+
+_u32 = struct.Struct("<I").unpack_from
+
+
+class BagFormatError(ValueError):
+    """Not a readable ROS 1 (v2.0) bag."""
+
+
+@dataclass(frozen=True)
+class Connection:
+    id: int
+    topic: str
+    msgtype: str  # as in the bag: "sensor_msgs/Imu"
+    md5sum: str
+    msgdef: str
+
+
+@dataclass
+class ChunkMessages:
+    """The messages of one chunk, in file order: ``buf[start[i]:start[i] + length[i]]`` is message i."""
+
+    buf: bytes
+    conn: np.ndarray  # int64 connection ids
+    time: np.ndarray  # int64 record (receive) time, ns
+    start: np.ndarray  # int64 offset of the serialised message in buf
+    length: np.ndarray  # int64
+
+
+def normalize_topic(name: str) -> str:
+    """As rosbags does: no doubled or trailing slashes."""
+    return f"{'/' * (name[:1] == '/')}{'/'.join(x for x in name.split('/') if x)}"
+
+
+def _fields(buf, pos: int, end: int) -> dict[str, bytes]:
+    out = {}
+    while pos < end:
+        (n,) = _u32(buf, pos)
+        pos += 4
+        if n > end - pos:
+            raise BagFormatError("header field longer than its header")
+        name, sep, value = bytes(buf[pos : pos + n]).partition(b"=")
+        if not sep:
+            raise BagFormatError("header field without '='")
+        out[name.decode("latin-1")] = value
+        pos += n
+    return out
+
+
+def _int(fields: dict[str, bytes], name: str) -> int:
+    try:
+        return int.from_bytes(fields[name], "little")
+    except KeyError:
+        raise BagFormatError(f"record without {name!r} field") from None
+
+
+def _op(fields: dict[str, bytes]) -> int:
+    op = fields.get("op")
+    if op is None or len(op) != 1:
+        raise BagFormatError("record without op code")
+    return op[0]
+
+
+def _connection(fields: dict[str, bytes], data: bytes) -> Connection:
+    d = _fields(data, 0, len(data))
+    topic = fields.get("topic") or d.get("topic") or b""
+    return Connection(
+        _int(fields, "conn"),
+        normalize_topic(topic.decode()),
+        d.get("type", b"").decode(),
+        d.get("md5sum", b"").decode(),
+        d.get("message_definition", b"").decode(errors="replace"),
+    )
+
+
+_DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
+
+
+def _decompress(kind: str, data: bytes, size: int) -> bytes:
+    if kind == "lz4":
+        import lz4.frame
+
+        out = lz4.frame.decompress(data)
+    elif kind in _DECOMPRESS:
+        out = _DECOMPRESS[kind](data, size)
+    else:
+        raise BagFormatError(f"chunk compression {kind!r} is not supported")
+    if len(out) != size:
+        raise BagFormatError(f"chunk holds {len(out)} bytes, its header says {size}")
+    return out
+
+
+class Ros1Bag:
+    """Sequential reader of a ROS 1 bag: :meth:`index` (topics, counts) and :meth:`chunks` (messages)."""
+
+    def __init__(self, path: str):
+        self.path = str(path)
+        self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
+        try:
+            if self.fh.read(len(MAGIC)) != MAGIC:
+                raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
+            self.data_start = self.fh.tell()
+            hdr = self._header()
+            if _op(hdr) != OP_BAGHEADER:
+                raise BagFormatError("first record is not the bag header")
+            self.index_pos = _int(hdr, "index_pos")
+            self.conn_count = _int(hdr, "conn_count")
+            self.chunk_count = _int(hdr, "chunk_count")
+            if hdr.get("encryptor"):
+                raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
+            self._skip(self._u32())
+            self.first_record = self.fh.tell()
+            self.size = os.fstat(self.fh.fileno()).st_size
+        except BaseException:
+            self.fh.close()
+            raise
+
+    def __enter__(self) -> Ros1Bag:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.fh.close()
+
+    # -- low level
+    def _u32(self) -> int:
+        b = self.fh.read(4)
+        if len(b) != 4:
+            raise BagFormatError("truncated record")
+        return _u32(b, 0)[0]
+
+    def _read(self, n: int) -> bytes:
+        b = self.fh.read(n)
+        if len(b) != n:
+            raise BagFormatError(f"truncated record ({len(b)} of {n} bytes)")
+        return b
+
+    def _skip(self, n: int) -> None:
+        self.fh.seek(n, os.SEEK_CUR)
+
+    def _header(self) -> dict[str, bytes]:
+        n = self._u32()
+        b = self._read(n)
+        return _fields(b, 0, n)
+
+    # -- index
+    def index(self) -> tuple[dict[int, Connection], dict[int, int]]:
+        """Connections and message counts per connection id.
+
+        From the index section at the end of the bag (connection and chunk-info
+        records: O(chunks)); an unindexed bag (a recording that was not closed) is
+        scanned instead.
+        """
+        if self.index_pos == 0:
+            conns: dict[int, Connection] = {}
+            counts: dict[int, int] = {}
+            for ch in self.chunks(conns):
+                ids, n = np.unique(ch.conn, return_counts=True)
+                for i, k in zip(ids.tolist(), n.tolist(), strict=True):
+                    counts[i] = counts.get(i, 0) + k
+            return conns, counts
+        self.fh.seek(self.index_pos)
+        conns, counts = {}, {}
+        while self.fh.tell() < self.size:
+            hdr = self._header()
+            op = _op(hdr)
+            n = self._u32()
+            if op == OP_CONNECTION:
+                c = _connection(hdr, self._read(n))
+                conns[c.id] = c
+            elif op == OP_CHUNK_INFO:
+                data = self._read(n)
+                k = _int(hdr, "count")
+                if len(data) < 8 * k:
+                    raise BagFormatError("truncated chunk info record")
+                pairs = np.frombuffer(data, "<u4", 2 * k).reshape(k, 2)
+                for cid, m in pairs.tolist():
+                    counts[cid] = counts.get(cid, 0) + m
+            else:
+                self._skip(n)
+        return conns, counts
+
+    # -- messages
+    def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
+        """The messages of each chunk in file order; ``conns`` is filled with the connection records met."""
+        conns = {} if conns is None else conns
+        self.fh.seek(self.first_record)
+        end = self.index_pos if self.index_pos else self.size
+        while self.fh.tell() < end:
+            hdr = self._header()
+            op = _op(hdr)
+            n = self._u32()
+            if op == OP_CHUNK:
+                raw = _decompress(hdr.get("compression", b"none").decode(), self._read(n), _int(hdr, "size"))
+                yield self._split(raw, conns)
+            elif op == OP_CONNECTION:
+                c = _connection(hdr, self._read(n))
+                conns[c.id] = c
+            elif op == OP_MSGDATA:  # a message outside any chunk (not written by rosbag, but allowed)
+                data = self._read(n)
+                one = np.ones(1, np.int64)
+                yield ChunkMessages(
+                    data, one * _int(hdr, "conn"), one * _time(hdr), np.zeros(1, np.int64), one * len(data)
+                )
+            else:  # index data, chunk info
+                self._skip(n)
+
+    @staticmethod
+    def _split(raw: bytes, conns: dict[int, Connection]) -> ChunkMessages:
+        """Walk the records of a decompressed chunk (message data and connection records)."""
+        cids, times, starts, lens = [], [], [], []
+        pos, size = 0, len(raw)
+        u32 = _u32
+        while pos < size:
+            if pos + 4 > size:
+                raise BagFormatError("truncated record in chunk")
+            (hn,) = u32(raw, pos)
+            hstart = pos + 4
+            pos = hstart + hn
+            if pos + 4 > size:
+                raise BagFormatError("truncated record in chunk")
+            (dn,) = u32(raw, pos)
+            dstart = pos + 4
+            pos = dstart + dn
+            if pos > size:
+                raise BagFormatError("truncated record in chunk")
+            hdr = _fields(raw, hstart, hstart + hn)
+            op = _op(hdr)
+            if op == OP_MSGDATA:
+                cids.append(_int(hdr, "conn"))
+                times.append(_time(hdr))
+                starts.append(dstart)
+                lens.append(dn)
+            elif op == OP_CONNECTION:
+                c = _connection(hdr, raw[dstart:pos])
+                conns[c.id] = c
+        as64 = np.asarray
+        return ChunkMessages(
+            raw, as64(cids, np.int64), as64(times, np.int64), as64(starts, np.int64), as64(lens, np.int64)
+        )
+
+    def messages(self, topics=None) -> Iterator[tuple[str, str, int, bytes]]:
+        """``(topic, msgtype, record time ns, raw bytes)`` of every message (of ``topics``) in file order."""
+        conns: dict[int, Connection] = {}
+        for ch in self.chunks(conns):
+            for cid, t, s, n in zip(ch.conn.tolist(), ch.time.tolist(), ch.start.tolist(), ch.length.tolist(),
+                                    strict=True):  # fmt: skip
+                c = conns.get(cid)
+                if c is None:
+                    raise BagFormatError(f"message of unknown connection {cid}")
+                if topics is None or c.topic in topics:
+                    yield c.topic, c.msgtype, t, ch.buf[s : s + n]
+
+
+def _time(hdr: dict[str, bytes]) -> int:
+    t = hdr.get("time")
+    if t is None or len(t) != 8:
+        raise BagFormatError("message record without time")
+    sec, nsec = struct.unpack("<II", t)
+    return sec * 1_000_000_000 + nsec
+
+
+def _gather_u32(b: np.ndarray, at: np.ndarray) -> np.ndarray:
+    return b[at[:, None] + np.arange(4)].view("<u4")[:, 0].astype(np.int64)
+
+
+def decode_imu(buf: bytes, start: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(header.stamp ns int64 (k,), angular_velocity (k, 3), linear_acceleration (k, 3))`` of ROS 1 Imu messages.
+
+    Layout: header (seq u32, stamp sec u32 + nsec u32, frame_id u32 length + bytes), then 37 float64.
+    ValueError when a message's length does not fit that layout.
+    """
+    b = np.frombuffer(buf, np.uint8)
+    start = np.asarray(start, np.int64)
+    length = np.asarray(length, np.int64)
+    if len(start) == 0:
+        return np.empty(0, np.int64), np.empty((0, 3)), np.empty((0, 3))
+    if (length < 16 + IMU_TAIL).any() or (start + length > len(b)).any():
+        raise ValueError("message shorter than a sensor_msgs/Imu")
+    sec = _gather_u32(b, start + 4)
+    nsec = _gather_u32(b, start + 8)
+    flen = _gather_u32(b, start + 12)
+    tail = start + 16 + flen
+    if (length != 16 + flen + IMU_TAIL).any():
+        i = int(np.flatnonzero(length != 16 + flen + IMU_TAIL)[0])
+        raise ValueError(f"message {i} of the chunk: {length[i]} bytes, not a sensor_msgs/Imu layout")
+    cols = np.r_[np.arange(_GYRO_AT, _GYRO_AT + 24), np.arange(_ACCEL_AT, _ACCEL_AT + 24)]
+    f = b[tail[:, None] + cols].view("<f8")  # (k, 6)
+    return sec * 1_000_000_000 + nsec, f[:, :3].copy(), f[:, 3:].copy()
