@@ -40,6 +40,8 @@ from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
 Block = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 #: rows per block written (and held per topic while reading)
 BLOCK_ROWS = 8192
+#: rows queued (all devices) before the run writer flushes: 2^16 rows = 3.7 MB (its default, 2^20, is 59 MB)
+WRITE_ROWS = 1 << 16
 #: samples read ahead to estimate a topic's nominal rate (the device's rate_hz)
 RATE_PROBE = 2048
 IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
@@ -569,7 +571,7 @@ def import_recording(
         specs = [_device_spec(names[t], _probe_rate(source, heads[t]), source, t, fmt, True) for t in heads]
         writer = RunWriter(
             out, station="import", config_text="", simulated=False, devices=specs,
-            overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0,
+            overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0, max_buffer_rows=WRITE_ROWS,
         )  # fmt: skip
         try:
             sinks = {t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)}
@@ -609,7 +611,7 @@ def import_recording(
     spec = _device_spec(name, _probe_rate(source, blk[0][:RATE_PROBE]), source, ident, fmt, with_accel)
     writer = RunWriter(
         out, station="import", config_text="", simulated=False, devices=[spec],
-        overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0,
+        overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0, max_buffer_rows=WRITE_ROWS,
     )  # fmt: skip
     try:
         sink = _Sink(writer, name, t0, with_accel, 1e9 / spec.rate_hz)

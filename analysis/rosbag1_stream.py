@@ -80,6 +80,18 @@ def _fields(buf, pos: int, end: int) -> dict[str, bytes]:
     return out
 
 
+def _layout(buf, pos: int, n: int) -> dict[str, tuple[int, int]]:
+    """``name -> (value offset from the header start, value length)`` of the fields of a header."""
+    out, p, end = {}, pos, pos + n
+    while p < end:
+        (k,) = _u32(buf, p)
+        p += 4
+        name, _, value = bytes(buf[p : p + k]).partition(b"=")
+        out[name.decode("latin-1")] = (p + len(name) + 1 - pos, len(value))
+        p += k
+    return out
+
+
 def _int(fields: dict[str, bytes], name: str) -> int:
     try:
         return int.from_bytes(fields[name], "little")
@@ -242,37 +254,51 @@ class Ros1Bag:
 
     @staticmethod
     def _split(raw: bytes, conns: dict[int, Connection]) -> ChunkMessages:
-        """Walk the records of a decompressed chunk (message data and connection records)."""
-        cids, times, starts, lens = [], [], [], []
-        pos, size = 0, len(raw)
-        u32 = _u32
-        while pos < size:
-            if pos + 4 > size:
-                raise BagFormatError("truncated record in chunk")
-            (hn,) = u32(raw, pos)
-            hstart = pos + 4
-            pos = hstart + hn
-            if pos + 4 > size:
-                raise BagFormatError("truncated record in chunk")
-            (dn,) = u32(raw, pos)
-            dstart = pos + 4
-            pos = dstart + dn
-            if pos > size:
-                raise BagFormatError("truncated record in chunk")
-            hdr = _fields(raw, hstart, hstart + hn)
+        """The records of a decompressed chunk: message data (vectorised header parse) and connection records."""
+        b = np.frombuffer(raw, np.uint8)
+        rec = _record_starts(raw, b)
+        hl_a = _gather_u32(b, rec)
+        hs_a = rec + 4
+        dl_a = _gather_u32(b, hs_a + hl_a)
+        ds_a = hs_a + hl_a + 4
+        cid = np.full(len(hs_a), -1, np.int64)
+        tim = np.zeros(len(hs_a), np.int64)
+        is_msg = np.zeros(len(hs_a), bool)
+        done = np.zeros(len(hs_a), bool)
+        for n in np.unique(hl_a).tolist():
+            idx = np.flatnonzero(hl_a == n)
+            first = int(idx[0])
+            f = _fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
+            if _op(f) != OP_MSGDATA or "conn" not in f or len(f.get("time", b"")) != 8:
+                continue
+            # field layout of this header length: everything but the conn and time values must match
+            lay = _layout(raw, int(hs_a[first]), n)
+            hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
+            fixed = np.ones(n, bool)
+            fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
+            fixed[lay["time"][0] : lay["time"][0] + 8] = False
+            same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
+            if lay["conn"][1] != 4:
+                continue
+            ok = idx[same]
+            h = hdr[same]
+            c0, t0 = lay["conn"][0], lay["time"][0]
+            cid[ok] = h[:, c0 : c0 + 4].copy().view("<u4")[:, 0]
+            sec = h[:, t0 : t0 + 4].copy().view("<u4")[:, 0].astype(np.int64)
+            nsec = h[:, t0 + 4 : t0 + 8].copy().view("<u4")[:, 0].astype(np.int64)
+            tim[ok] = sec * 1_000_000_000 + nsec
+            is_msg[ok] = True
+            done[ok] = True
+        for i in np.flatnonzero(~done).tolist():  # connection records and unusual headers
+            h0 = int(hs_a[i])
+            hdr = _fields(raw, h0, h0 + int(hl_a[i]))
             op = _op(hdr)
             if op == OP_MSGDATA:
-                cids.append(_int(hdr, "conn"))
-                times.append(_time(hdr))
-                starts.append(dstart)
-                lens.append(dn)
+                cid[i], tim[i], is_msg[i] = _int(hdr, "conn"), _time(hdr), True
             elif op == OP_CONNECTION:
-                c = _connection(hdr, raw[dstart:pos])
+                c = _connection(hdr, raw[int(ds_a[i]) : int(ds_a[i] + dl_a[i])])
                 conns[c.id] = c
-        as64 = np.asarray
-        return ChunkMessages(
-            raw, as64(cids, np.int64), as64(times, np.int64), as64(starts, np.int64), as64(lens, np.int64)
-        )
+        return ChunkMessages(raw, cid[is_msg], tim[is_msg], ds_a[is_msg], dl_a[is_msg])
 
     def messages(self, topics=None) -> Iterator[tuple[str, str, int, bytes]]:
         """``(topic, msgtype, record time ns, raw bytes)`` of every message (of ``topics``) in file order."""
@@ -293,6 +319,40 @@ def _time(hdr: dict[str, bytes]) -> int:
         raise BagFormatError("message record without time")
     sec, nsec = struct.unpack("<II", t)
     return sec * 1_000_000_000 + nsec
+
+
+def _record_starts(raw: bytes, b: np.ndarray) -> np.ndarray:
+    """Offsets of the records of a chunk.
+
+    Records are walked one by one, but runs of records of one size (a topic's
+    messages of constant length, the common case) are found with numpy.
+    """
+    out: list = []
+    pos, size = 0, len(raw)
+    plain = 0  # records to walk one by one before trying a run again
+    try:
+        while pos < size:
+            (hn,) = _u32(raw, pos)
+            (dn,) = _u32(raw, pos + 4 + hn)
+            stride = 8 + hn + dn
+            if pos + stride > size:
+                raise BagFormatError("truncated record in chunk")
+            m = min((size - pos) // stride, 4096)
+            if plain or m < 4:
+                out.append(np.array([pos], np.int64))
+                pos += stride
+                plain = max(plain - 1, 0)
+                continue
+            cand = pos + stride * np.arange(m, dtype=np.int64)
+            good = (_gather_u32(b, cand) == hn) & (_gather_u32(b, cand + 4 + hn) == dn)
+            k = m if good.all() else int(np.argmin(good))
+            out.append(cand[:k])
+            pos += k * stride
+            if k < 4:
+                plain = 16
+    except struct.error:
+        raise BagFormatError("truncated record in chunk") from None
+    return np.concatenate(out) if out else np.empty(0, np.int64)
 
 
 def _gather_u32(b: np.ndarray, at: np.ndarray) -> np.ndarray:

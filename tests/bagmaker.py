@@ -87,9 +87,9 @@ def _one(store, fmt, frame_id):
     return bytes(ser(m, Imu.__msgtype__))
 
 
-def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0) -> np.ndarray:
+def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0, frame_id: str = "imu") -> np.ndarray:
     """(k, L) uint8: serialised Imu messages built with numpy from a template (fast, for big bags)."""
-    raw, st, fo = imu_template(fmt)
+    raw, st, fo = imu_template(fmt, frame_id)
     k = len(t_ns)
     out = np.tile(np.frombuffer(raw, np.uint8), (k, 1))
     t_ns = np.asarray(t_ns, dtype=np.int64)
@@ -105,11 +105,12 @@ def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0) -> np.ndarray:
 
 
 def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, block=65536, topics=("/imu/data",),
-                      extra_every=0, seed=0) -> Path:  # fmt: skip
+                      extra_every=0, seed=0, chunk_bytes=None) -> Path:  # fmt: skip
     """A bag of ``n`` Imu messages per topic at ``rate_hz`` (white noise), written in blocks with numpy templates.
 
     ``compression``: ROS1 chunk compression None | "bz2" | "lz4". ``extra_every``: a std_msgs/String message
-    on /status every that many Imu messages (0: none). Log time = header stamp.
+    on /status every that many Imu messages (0: none). Log time = header stamp (+ 1 us per further topic,
+    whose frame_id is ``imu_link<j>``: messages of another length). Returns the bag path.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -126,6 +127,8 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
         w = Writer(path)
         if compression:
             w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+        if chunk_bytes:
+            w.chunk_threshold = chunk_bytes
         ser = store.serialize_ros1
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
@@ -140,11 +143,11 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
         for i in range(0, n, block):
             k = min(block, n - i)
             t = t0 + np.arange(i, i + k, dtype=np.int64) * period
-            pays = [imu_payloads(fmt, t + j * 1000, rng.normal(0, 1e-3, (k, 3)), rng.normal(0, 1, (k, 3)), i)
-                    for j in range(len(topics))]  # fmt: skip
-            for r in range(k):
+            pays = [imu_payloads(fmt, t + j * 1000, rng.normal(0, 1e-3, (k, 3)), rng.normal(0, 1, (k, 3)), i,
+                                 "imu" if j == 0 else f"imu_link{j}") for j in range(len(topics))]  # fmt: skip
+            for r in range(k):  # in record-time order
                 for j, c in enumerate(conns):
                     w.write(c, int(t[r]) + j * 1000, pays[j][r].tobytes())
-                if s is not None and (i + r) % extra_every == 0:
-                    w.write(s, int(t[r]) + 500, sraw)
+                    if j == 0 and s is not None and (i + r) % extra_every == 0:
+                        w.write(s, int(t[r]) + 500, sraw)
     return path

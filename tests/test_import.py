@@ -226,3 +226,107 @@ def test_verdict_rules():
     nofit = data_verdict(36000.0, math.nan, 200.0)
     assert nofit.verdict == "marginal"
     assert json.dumps(nofit.as_dict())
+
+
+# --- the streaming ROS 1 reader (analysis/rosbag1_stream.py) -------------------
+
+
+def _read_all(path, reader, topics):
+    from imustation.analysis.field_import import iter_bag
+
+    got = {t: [] for t in topics}
+    for t, blk in iter_bag(str(path), topics, block=1000, reader=reader):
+        got[t].append(blk)
+    return {t: tuple(np.concatenate(x) for x in zip(*v, strict=True)) for t, v in got.items()}
+
+
+@pytest.mark.parametrize("compression", [None, "bz2", "lz4"])
+def test_ros1_stream_equals_rosbags_reader(tmp_path, compression):
+    from bagmaker import write_big_imu_bag
+    from rosbags.rosbag1 import Reader
+
+    from imustation.analysis.field_import import bag_topics
+    from imustation.analysis.rosbag1_stream import Ros1Bag
+
+    topics = ["/imu/data", "/imu2/data_raw"]  # two Imu topics (frame_ids of two lengths) and a String topic
+    src = write_big_imu_bag(tmp_path / "multi.bag", 2500, compression=compression, topics=topics, extra_every=7,
+                            chunk_bytes=200_000, block=1000)  # fmt: skip
+    assert bag_topics(str(src), reader="new") == bag_topics(str(src), reader="old") == [(t, 2500) for t in topics]
+    new, old = _read_all(src, "new", topics), _read_all(src, "old", topics)
+    for t in topics:
+        assert len(new[t][0]) == 2500
+        for a, b in zip(new[t], old[t], strict=True):
+            np.testing.assert_array_equal(a, b)
+    # raw messages, every topic (the String one too), same bytes and record times as rosbags
+    with Reader(src) as r:
+        ref = [(c.topic, t, bytes(raw)) for c, t, raw in r.messages()]
+        nchunks = len(r.chunk_infos)
+    with Ros1Bag(str(src)) as bag:
+        mine = [(tp, t, bytes(raw)) for tp, _mt, t, raw in bag.messages()]
+    assert nchunks > 5 and mine == ref
+
+
+def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
+    from rosbags.rosbag1 import Reader
+
+    t, g, a = record(3000)
+    t = t.copy()
+    t[[1000, 1001]] = t[[1001, 1000]]  # a swapped pair: rosbags would sort it by record time, we keep file order
+    from bagmaker import write_imu_bag
+
+    src = write_imu_bag(tmp_path / "rec.bag", t, g, a, fmt="ros1")
+    raw = bytearray(src.read_bytes())  # record times follow the stamps' order: swap them too
+    out = tmp_path / "run.h5"
+    rep = import_recording(str(src), str(out)).reports["imu_data"]
+    assert rep.backwards == 1 and rep.n == 3000
+    with open_run(out) as run_:
+        np.testing.assert_array_equal(run_.read("imu_data", "t"), t - T0)
+    # an unindexed bag (recording not closed): index_pos = 0; rosbags refuses it, the streaming reader scans it
+    i = raw.index(b"index_pos=") + len(b"index_pos=")
+    raw[i : i + 8] = bytes(8)
+    (tmp_path / "open.bag").write_bytes(bytes(raw))
+    with pytest.raises(Exception, match="not indexed"):
+        Reader(tmp_path / "open.bag").open()
+    rep2 = import_recording(str(tmp_path / "open.bag"), str(tmp_path / "open.h5")).reports["imu_data"]
+    assert rep2.n == 3000 and rep2.backwards == 1
+    with open_run(tmp_path / "open.h5") as run_:
+        np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g)
+
+
+def _traced_peak(path, reader):
+    import tracemalloc
+
+    from imustation.analysis.field_import import bag_topics, iter_bag
+
+    tracemalloc.start()
+    try:
+        topics = [t for t, _ in bag_topics(path, reader=reader)]
+        n = sum(len(blk[0]) for _, blk in iter_bag(path, topics, reader=reader))
+        return n, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.fixture(scope="module")
+def bag200k(tmp_path_factory):
+    from bagmaker import write_big_imu_bag
+
+    p = write_big_imu_bag(tmp_path_factory.mktemp("big") / "200k.bag", 200_000, compression="lz4")
+    yield str(p)
+    p.unlink()
+
+
+MEM_BOUND = 16 * 2**20  # bytes; the rosbags Reader's per-message index alone is ~150 B x 200k = 30 MB
+
+
+def test_ros1_stream_memory_is_per_chunk_not_per_message(bag200k):
+    n, peak = _traced_peak(bag200k, "new")
+    assert n == 200_000
+    assert peak < MEM_BOUND, f"peak {peak / 2**20:.1f} MiB"
+
+
+@pytest.mark.slow
+def test_rosbags_reader_exceeds_the_memory_bound(bag200k):
+    """The memory test can fail: the old (rosbags Reader) path goes over the bound on the same bag."""
+    n, peak = _traced_peak(bag200k, "old")
+    assert n == 200_000 and peak > MEM_BOUND
