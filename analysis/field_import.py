@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imustation.analysis.rosbag1_stream import IMU_MD5
+from imustation.analysis.imu_decode import IMU_MD5, decode_imu_cdr
 from imustation.analysis.timestamps import StampChecker, StampReport
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
@@ -150,8 +150,9 @@ def iter_bag(
 ) -> Iterator[tuple[str, Block]]:
     """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most.
 
-    ROS 1 bags are read with :mod:`.rosbag1_stream` (``reader="new"``: one chunk in memory, Imu decoded with
-    numpy); ROS 2 bags, MCAP and ``reader="old"`` with rosbags (message by message).
+    ``reader="new"``: ROS 1 bags are read with :mod:`.rosbag1_stream` (one chunk in memory, Imu decoded with
+    numpy), ROS 2 bags and MCAP with rosbags, a block of raw CDR messages decoded at once with numpy.
+    ``reader="old"``: rosbags for every format, messages deserialised one by one (the import before 0.x).
     """
     if _streaming(path, reader):
         conns, _ = _ros1_index(path)
@@ -159,27 +160,36 @@ def iter_bag(
             yield from _iter_ros1(path, topics, block, limit)
             return
         # an Imu definition other than sensor_msgs/Imu's: let rosbags decode it from the bag's definition
-    reader = _open_bag(path)
+    bag = _open_bag(path)
     try:
-        conns = [c for c in reader.connections if c.topic in topics and c.msgtype in IMU_TYPES]
+        conns = [c for c in bag.connections if c.topic in topics and c.msgtype in IMU_TYPES]
+        # ROS 2 / MCAP: the raw CDR messages of a block are decoded together with numpy (reader="new")
+        cdr = reader == "new" and all(getattr(c.ext, "serialization_format", "") == "cdr" for c in conns)
+        raws: dict[str, list] = {t: [] for t in topics}
         bufs = {t: np.empty((block, 7)) for t in topics}
         fill = dict.fromkeys(topics, 0)
         stamps = {t: np.empty(block, dtype=np.int64) for t in topics}
         seen = 0
-        for conn, _logtime, raw in reader.messages(connections=conns):
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-            except Exception as exc:
-                raise InputError(f"{path}: topic {conn.topic}: undecodable Imu message ({exc})") from None
+        for conn, _logtime, raw in bag.messages(connections=conns):
             t = conn.topic
-            i = fill[t]
-            w, a = msg.angular_velocity, msg.linear_acceleration
-            stamps[t][i] = _stamp_ns(msg)
-            bufs[t][i] = (0.0, w.x, w.y, w.z, a.x, a.y, a.z)
-            fill[t] = i + 1
-            if i + 1 == block:
-                yield t, (stamps[t].copy(), bufs[t][:, 1:4].copy(), bufs[t][:, 4:7].copy())
-                fill[t] = 0
+            if cdr:
+                raws[t].append(raw)
+                if len(raws[t]) == block:
+                    yield t, _decode_cdr(path, bag, t, raws[t])
+                    raws[t] = []
+            else:
+                try:
+                    msg = bag.deserialize(raw, conn.msgtype)
+                except Exception as exc:
+                    raise InputError(f"{path}: topic {conn.topic}: undecodable Imu message ({exc})") from None
+                i = fill[t]
+                w, a = msg.angular_velocity, msg.linear_acceleration
+                stamps[t][i] = _stamp_ns(msg)
+                bufs[t][i] = (0.0, w.x, w.y, w.z, a.x, a.y, a.z)
+                fill[t] = i + 1
+                if i + 1 == block:
+                    yield t, (stamps[t].copy(), bufs[t][:, 1:4].copy(), bufs[t][:, 4:7].copy())
+                    fill[t] = 0
             seen += 1
             if limit is not None and seen >= limit:
                 break
@@ -187,12 +197,33 @@ def iter_bag(
             k = fill[t]
             if k:
                 yield t, (stamps[t][:k].copy(), bufs[t][:k, 1:4].copy(), bufs[t][:k, 4:7].copy())
+            if raws[t]:
+                yield t, _decode_cdr(path, bag, t, raws[t])
     finally:
-        reader.close()
+        bag.close()
+
+
+def _decode_cdr(path: str, bag, topic: str, raws: list) -> Block:
+    """A block of CDR Imu messages: numpy when they have the standard layout, else rosbags' deserialiser."""
+    try:
+        return decode_imu_cdr(raws)
+    except ValueError:
+        pass
+    k = len(raws)
+    t, g, a = np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 3))
+    for i, raw in enumerate(raws):
+        try:
+            msg = bag.deserialize(raw, "sensor_msgs/msg/Imu")
+        except Exception as exc:
+            raise InputError(f"{path}: topic {topic}: undecodable Imu message ({exc})") from None
+        w, acc = msg.angular_velocity, msg.linear_acceleration
+        t[i], g[i], a[i] = _stamp_ns(msg), (w.x, w.y, w.z), (acc.x, acc.y, acc.z)
+    return t, g, a
 
 
 def _iter_ros1(path: str, topics: list[str], block: int, limit: int | None) -> Iterator[tuple[str, Block]]:
-    from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag, decode_imu
+    from imustation.analysis.imu_decode import decode_imu_ros1
+    from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag
 
     pend: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {t: [] for t in topics}
     have = dict.fromkeys(topics, 0)
@@ -214,7 +245,7 @@ def _iter_ros1(path: str, topics: list[str], block: int, limit: int | None) -> I
                     if not m.any():
                         continue
                     try:
-                        dec = decode_imu(ch.buf, ch.start[m], ch.length[m])
+                        dec = decode_imu_ros1(ch.buf, ch.start[m], ch.length[m])
                     except ValueError as exc:
                         raise InputError(f"{path}: topic {t}: undecodable Imu message ({exc})") from None
                     pend[t].append(dec)

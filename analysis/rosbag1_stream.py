@@ -6,7 +6,7 @@ message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
 (http://wiki.ros.org/Bags/Format/2.0), decompresses one chunk at a time
 (none / bz2 / lz4) and hands out its messages in file order, so memory is
 O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
-with numpy, a chunk at a time (:func:`decode_imu`).
+with numpy, a chunk at a time (:func:`.imu_decode.decode_imu_ros1`).
 
 Records: ``<header_len u32><header><data_len u32><data>``; the header is a list
 of ``<field_len u32>name=value`` fields, ``op`` tells the record type.
@@ -24,14 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imustation.analysis.imu_decode import gather_u32 as _gather_u32
+
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 MAGIC = b"#ROSBAG V2.0\n"
-#: md5sum of sensor_msgs/Imu (ROS 1): the layout :func:`decode_imu` knows
-IMU_MD5 = "6a62c6daae103f4ff57a132d6f95cec2"
-#: Imu after the header's frame_id: orientation (4), covariance (9), angular_velocity (3), covariance (9),
-#: linear_acceleration (3), covariance (9) float64
-IMU_TAIL = 37 * 8
-_GYRO_AT, _ACCEL_AT = 13 * 8, 25 * 8
 
 _u32 = struct.Struct("<I").unpack_from
 
@@ -353,32 +349,3 @@ def _record_starts(raw: bytes, b: np.ndarray) -> np.ndarray:
     except struct.error:
         raise BagFormatError("truncated record in chunk") from None
     return np.concatenate(out) if out else np.empty(0, np.int64)
-
-
-def _gather_u32(b: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return b[at[:, None] + np.arange(4)].view("<u4")[:, 0].astype(np.int64)
-
-
-def decode_imu(buf: bytes, start: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(header.stamp ns int64 (k,), angular_velocity (k, 3), linear_acceleration (k, 3))`` of ROS 1 Imu messages.
-
-    Layout: header (seq u32, stamp sec u32 + nsec u32, frame_id u32 length + bytes), then 37 float64.
-    ValueError when a message's length does not fit that layout.
-    """
-    b = np.frombuffer(buf, np.uint8)
-    start = np.asarray(start, np.int64)
-    length = np.asarray(length, np.int64)
-    if len(start) == 0:
-        return np.empty(0, np.int64), np.empty((0, 3)), np.empty((0, 3))
-    if (length < 16 + IMU_TAIL).any() or (start + length > len(b)).any():
-        raise ValueError("message shorter than a sensor_msgs/Imu")
-    sec = _gather_u32(b, start + 4)
-    nsec = _gather_u32(b, start + 8)
-    flen = _gather_u32(b, start + 12)
-    tail = start + 16 + flen
-    if (length != 16 + flen + IMU_TAIL).any():
-        i = int(np.flatnonzero(length != 16 + flen + IMU_TAIL)[0])
-        raise ValueError(f"message {i} of the chunk: {length[i]} bytes, not a sensor_msgs/Imu layout")
-    cols = np.r_[np.arange(_GYRO_AT, _GYRO_AT + 24), np.arange(_ACCEL_AT, _ACCEL_AT + 24)]
-    f = b[tail[:, None] + cols].view("<f8")  # (k, 6)
-    return sec * 1_000_000_000 + nsec, f[:, :3].copy(), f[:, 3:].copy()

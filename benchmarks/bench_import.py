@@ -23,7 +23,11 @@ sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 
 
 def measure(bag: str, reader: str) -> None:
+    from imustation.analysis import field_import
     from imustation.analysis.field_import import import_recording
+
+    if reader == "old":  # the import as it was: rosbags Reader, message-by-message decoding, 2^20-row write buffer
+        field_import.WRITE_ROWS = 1 << 20
 
     out = os.path.join(tempfile.mkdtemp(), "bench.h5")
     t0 = time.perf_counter()

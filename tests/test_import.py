@@ -330,3 +330,57 @@ def test_rosbags_reader_exceeds_the_memory_bound(bag200k):
     """The memory test can fail: the old (rosbags Reader) path goes over the bound on the same bag."""
     n, peak = _traced_peak(bag200k, "old")
     assert n == 200_000 and peak > MEM_BOUND
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "cdr"])
+def test_numpy_imu_decoders_equal_rosbags(fmt):
+    from bagmaker import _one
+    from rosbags.typesys import Stores, get_typestore
+
+    from imustation.analysis.imu_decode import decode_imu_cdr, decode_imu_ros1
+
+    store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+    de = store.deserialize_ros1 if fmt == "ros1" else store.deserialize_cdr
+    rng = np.random.default_rng(5)
+    raws = []
+    for n in range(12):  # frame_ids of 0..11 characters: every CDR padding
+        raw = bytearray(_one(store, "ros1" if fmt == "ros1" else "cdr", "f" * n))
+        tail = len(raw) - 37 * 8
+        raw[tail:] = rng.normal(size=37).tobytes()
+        raw[4:12] = np.array([1_700_000_000 + n, 999_999_999 - n], "<u4").tobytes()
+        raws.append(bytes(raw))
+    if fmt == "ros1":
+        lens = np.array([len(r) for r in raws])
+        t, g, a = decode_imu_ros1(b"".join(raws), np.r_[0, np.cumsum(lens)[:-1]], lens)
+    else:
+        t, g, a = decode_imu_cdr(raws)
+    for i, raw in enumerate(raws):
+        m = de(raw, "sensor_msgs/msg/Imu")
+        assert t[i] == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+        w, acc = m.angular_velocity, m.linear_acceleration
+        assert tuple(g[i]) == (w.x, w.y, w.z) and tuple(a[i]) == (acc.x, acc.y, acc.z)
+    longer = raws[0] + b"\0" * 8  # not the Imu layout
+    with pytest.raises(ValueError):
+        decode_imu_cdr([longer]) if fmt == "cdr" else decode_imu_ros1(longer, [0], [len(longer)])
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "sqlite3"])
+def test_ros2_numpy_path_equals_rosbags_deserialiser(tmp_path, fmt, monkeypatch):
+    from bagmaker import write_big_imu_bag
+
+    from imustation.analysis import field_import
+    from imustation.analysis.imu_decode import decode_imu_cdr
+
+    decoded = []
+    monkeypatch.setattr(field_import, "decode_imu_cdr", lambda raws: decoded.append(len(raws)) or decode_imu_cdr(raws))
+
+    topics = ["/imu/data", "/imu2/data_raw"]
+    src = write_big_imu_bag(tmp_path / "r2", 1500, fmt=fmt, topics=topics, extra_every=5, block=1000)
+    if fmt == "mcap":
+        src = next(src.glob("*.mcap"))
+    new, old = _read_all(src, "new", topics), _read_all(src, "old", topics)
+    assert sum(decoded) == 3000  # the numpy decoder, not the fallback
+    for t in topics:
+        assert len(new[t][0]) == 1500
+        for x, y in zip(new[t], old[t], strict=True):
+            np.testing.assert_array_equal(x, y)
