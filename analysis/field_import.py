@@ -2,10 +2,10 @@
 
 Sources (see docs/import.md):
 
-* ROS 1 ``.bag``, ROS 2 bag folders (sqlite3 or mcap storage) and bare ``.mcap``
-  files, read with the pure-Python ``rosbags`` library: every
-  ``sensor_msgs/Imu`` topic (or the one given) becomes a device; ``t`` is the
-  message's ``header.stamp``.
+* ROS 1 ``.bag`` (streamed by :mod:`.rosbag1_stream`), ROS 2 bag folders (sqlite3
+  or mcap storage) and bare ``.mcap`` files (the pure-Python ``rosbags`` library):
+  every ``sensor_msgs/Imu`` topic (or the one given) becomes a device; ``t`` is the
+  message's ``header.stamp``. ``sensor_msgs/Temperature`` topics become thermometers.
 * Text logs (CSV, TSV, whitespace) with a time column; columns and time unit
   from options or auto-detected from the header (:func:`text_mapping`).
 * ``.npy`` arrays of shape (n, 4) or (n, 7): time, gyro x,y,z[, accel x,y,z].
@@ -45,6 +45,7 @@ WRITE_ROWS = 1 << 16
 #: samples read ahead to estimate a topic's nominal rate (the device's rate_hz)
 RATE_PROBE = 2048
 IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
+TEMP_TYPES = ("sensor_msgs/msg/Temperature", "sensor_msgs/Temperature")
 BAG_EXTS = (".bag", ".mcap")
 TEXT_EXTS = (".csv", ".tsv", ".txt", ".dat", ".log")
 TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
@@ -116,24 +117,34 @@ def _ros1_index(path: str):
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
 
 
-def bag_topics(path: str, topic: str | None = None, reader: str = "new") -> list[tuple[str, int]]:
-    """``(topic, message count)`` of the Imu topics of a bag (only ``topic`` if given)."""
+def bag_connections(path: str, reader: str = "new") -> list[tuple[str, str, int]]:
+    """``(topic, msgtype, message count)`` of every connection of a bag."""
     if _streaming(path, reader):
         conns, counts = _ros1_index(path)
-        return _imu_topics(path, topic, [(c.topic, c.msgtype, counts.get(c.id, 0)) for c in conns.values()])
+        return [(c.topic, c.msgtype, counts.get(c.id, 0)) for c in conns.values()]
     bag = _open_bag(path)
     try:
-        return _imu_topics(path, topic, [(c.topic, c.msgtype, int(c.msgcount)) for c in bag.connections])
+        return [(c.topic, c.msgtype, int(c.msgcount)) for c in bag.connections]
     finally:
         bag.close()
 
 
+def bag_topics(path: str, topic: str | None = None, reader: str = "new") -> list[tuple[str, int]]:
+    """``(topic, message count)`` of the Imu topics of a bag (only ``topic`` if given)."""
+    return _imu_topics(path, topic, bag_connections(path, reader))
+
+
+def _count(conns: list[tuple[str, str, int]], types: tuple[str, ...]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for tp, mt, n in conns:
+        if mt in types:
+            out[tp] = out.get(tp, 0) + n
+    return out
+
+
 def _imu_topics(path: str, topic: str | None, conns: list[tuple[str, str, int]]) -> list[tuple[str, int]]:
     """Imu topics and their message counts from ``(topic, msgtype, count)`` of every connection."""
-    imu: dict[str, int] = {}
-    for tp, mt, n in conns:
-        if mt in IMU_TYPES:
-            imu[tp] = imu.get(tp, 0) + n
+    imu = _count(conns, IMU_TYPES)
     if topic is not None:
         if topic not in imu:
             have = ", ".join(sorted(imu)) or "none"
@@ -146,32 +157,51 @@ def _imu_topics(path: str, topic: str | None, conns: list[tuple[str, str, int]])
 
 
 def iter_bag(
-    path: str, topics: list[str], block: int = BLOCK_ROWS, limit: int | None = None, reader: str = "new"
+    path: str,
+    topics: list[str],
+    block: int = BLOCK_ROWS,
+    limit: int | None = None,
+    reader: str = "new",
+    temp_topics: tuple[str, ...] | list[str] = (),
 ) -> Iterator[tuple[str, Block]]:
     """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most.
 
-    ``reader="new"``: ROS 1 bags are read with :mod:`.rosbag1_stream` (one chunk in memory, Imu decoded with
-    numpy), ROS 2 bags and MCAP with rosbags, a block of raw CDR messages decoded at once with numpy.
-    ``reader="old"``: rosbags for every format, messages deserialised one by one (the import before 0.x).
+    ``temp_topics``: sensor_msgs/Temperature topics, yielded as ``(topic, (t_ns, celsius (k,), None))``.
+    ``limit``: stop after that many Imu messages.
+    ``reader="new"``: ROS 1 bags are read with :mod:`.rosbag1_stream` (one chunk in memory, messages decoded
+    with numpy), ROS 2 bags and MCAP with rosbags, a block of raw CDR messages decoded at once with numpy.
+    ``reader="old"``: rosbags for every format, messages deserialised one by one (the import as it was).
     """
     if _streaming(path, reader):
         conns, _ = _ros1_index(path)
         if all(c.md5sum == IMU_MD5 for c in conns.values() if c.topic in topics and c.msgtype in IMU_TYPES):
-            yield from _iter_ros1(path, topics, block, limit)
+            yield from _iter_ros1(path, topics, block, limit, tuple(temp_topics))
             return
         # an Imu definition other than sensor_msgs/Imu's: let rosbags decode it from the bag's definition
     bag = _open_bag(path)
     try:
         conns = [c for c in bag.connections if c.topic in topics and c.msgtype in IMU_TYPES]
+        tconns = [c for c in bag.connections if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
         # ROS 2 / MCAP: the raw CDR messages of a block are decoded together with numpy (reader="new")
         cdr = reader == "new" and all(getattr(c.ext, "serialization_format", "") == "cdr" for c in conns)
         raws: dict[str, list] = {t: [] for t in topics}
+        temps: dict[str, list] = {t: [] for t in temp_topics}
         bufs = {t: np.empty((block, 7)) for t in topics}
         fill = dict.fromkeys(topics, 0)
         stamps = {t: np.empty(block, dtype=np.int64) for t in topics}
         seen = 0
-        for conn, _logtime, raw in bag.messages(connections=conns):
+        for conn, _logtime, raw in bag.messages(connections=conns + tconns):
             t = conn.topic
+            if conn.msgtype in TEMP_TYPES:
+                try:
+                    msg = bag.deserialize(raw, conn.msgtype)
+                except Exception as exc:
+                    raise InputError(f"{path}: topic {t}: undecodable Temperature message ({exc})") from None
+                temps[t].append((_stamp_ns(msg), float(msg.temperature)))
+                if len(temps[t]) == block:
+                    yield t, _temp_block(temps[t])
+                    temps[t] = []
+                continue
             if cdr:
                 raws[t].append(raw)
                 if len(raws[t]) == block:
@@ -199,8 +229,15 @@ def iter_bag(
                 yield t, (stamps[t][:k].copy(), bufs[t][:k, 1:4].copy(), bufs[t][:k, 4:7].copy())
             if raws[t]:
                 yield t, _decode_cdr(path, bag, t, raws[t])
+        for t in temp_topics:
+            if temps[t]:
+                yield t, _temp_block(temps[t])
     finally:
         bag.close()
+
+
+def _temp_block(rows: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray, None]:
+    return np.array([r[0] for r in rows], np.int64), np.array([r[1] for r in rows], np.float64), None
 
 
 def _decode_cdr(path: str, bag, topic: str, raws: list) -> Block:
@@ -221,33 +258,37 @@ def _decode_cdr(path: str, bag, topic: str, raws: list) -> Block:
     return t, g, a
 
 
-def _iter_ros1(path: str, topics: list[str], block: int, limit: int | None) -> Iterator[tuple[str, Block]]:
-    from imustation.analysis.imu_decode import decode_imu_ros1
+def _iter_ros1(
+    path: str, topics: list[str], block: int, limit: int | None, temp_topics: tuple[str, ...] = ()
+) -> Iterator[tuple[str, Block]]:
+    from imustation.analysis.imu_decode import decode_imu_ros1, decode_temperature_ros1
     from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag
 
-    pend: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {t: [] for t in topics}
-    have = dict.fromkeys(topics, 0)
+    names = [*topics, *temp_topics]
+    pend: dict[str, list[tuple]] = {t: [] for t in names}
+    have = dict.fromkeys(names, 0)
     seen = 0
     conns: dict = {}
     try:
         with Ros1Bag(path) as bag:
             for ch in bag.chunks(conns):
                 ids = [i for i, c in conns.items() if c.topic in topics and c.msgtype in IMU_TYPES]
+                tids = [i for i, c in conns.items() if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
                 sel = np.isin(ch.conn, ids)
-                if not sel.any():
-                    continue
                 if limit is not None and seen + int(sel.sum()) > limit:
                     sel &= np.cumsum(sel) <= limit - seen
                 seen += int(sel.sum())
-                for t in topics:
-                    tids = [i for i in ids if conns[i].topic == t]
-                    m = sel & np.isin(ch.conn, tids)
+                for t in names:
+                    mine = [i for i in (ids if t in topics else tids) if conns[i].topic == t]
+                    m = np.isin(ch.conn, mine) & (sel if t in topics else True)
                     if not m.any():
                         continue
+                    what = "Imu" if t in topics else "Temperature"
+                    decode = decode_imu_ros1 if t in topics else decode_temperature_ros1
                     try:
-                        dec = decode_imu_ros1(ch.buf, ch.start[m], ch.length[m])
+                        dec = decode(ch.buf, ch.start[m], ch.length[m])
                     except ValueError as exc:
-                        raise InputError(f"{path}: topic {t}: undecodable Imu message ({exc})") from None
+                        raise InputError(f"{path}: topic {t}: undecodable {what} message ({exc})") from None
                     pend[t].append(dec)
                     have[t] += len(dec[0])
                     if have[t] >= block:
@@ -256,19 +297,21 @@ def _iter_ros1(path: str, topics: list[str], block: int, limit: int | None) -> I
                     break
     except (BagFormatError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
-    for t in topics:
+    for t in names:
         if have[t]:
-            ts, g, a = (np.concatenate(x) for x in zip(*pend[t], strict=True))
-            yield t, (ts, g, a)
+            cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
+            yield t, (cols[0], cols[1], cols[2] if len(cols) > 2 else None)
 
 
 def _full_blocks(t: str, pend: dict, have: dict, block: int) -> Iterator[tuple[str, Block]]:
-    ts, g, a = (np.concatenate(x) for x in zip(*pend[t], strict=True))
-    k = (len(ts) // block) * block
+    cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
+    n = len(cols[0])
+    k = (n // block) * block
     for i in range(0, k, block):
-        yield t, (ts[i : i + block], g[i : i + block], a[i : i + block])
-    pend[t] = [(ts[k:], g[k:], a[k:])] if k < len(ts) else []
-    have[t] = len(ts) - k
+        part = [c[i : i + block] for c in cols]
+        yield t, (part[0], part[1], part[2] if len(part) > 2 else None)
+    pend[t] = [tuple(c[k:] for c in cols)] if k < n else []
+    have[t] = n - k
 
 
 # --- text logs and arrays ----------------------------------------------------
@@ -485,6 +528,7 @@ class ImportResult:
     devices: dict[str, str]  # device name -> topic / column description
     reports: dict[str, StampReport]
     mapping: str = ""
+    thermometers: dict[str, tuple[str, int]] = field(default_factory=dict)  # name -> (topic, readings)
 
 
 def _device_name(topic: str) -> str:
@@ -587,7 +631,11 @@ def import_recording(
     kind = source_kind(source)
     fsync = False  # an import is re-run from its source; no power-cut guarantee needed
     if kind == "bag":
-        topics = bag_topics(source, topic, reader=bag_reader)
+        conns = bag_connections(source, bag_reader)
+        topics = _imu_topics(source, topic, conns)
+        temp_topics = sorted(_count(conns, TEMP_TYPES))  # sensor_msgs/Temperature -> /thermometers/<name>
+        tnames = {t: _device_name(t) for t in temp_topics}
+        treadings = dict.fromkeys(temp_topics, 0)
         total = sum(n for _, n in topics)
         # first stamps of each topic: nominal rate (device rate_hz) and the common time origin
         probe: dict[str, list[np.ndarray]] = {t: [] for t, _ in topics}
@@ -601,14 +649,18 @@ def import_recording(
         fmt = "mcap" if source.endswith(".mcap") else "rosbag1" if source.endswith(".bag") else "rosbag2"
         specs = [_device_spec(names[t], _probe_rate(source, heads[t]), source, t, fmt, True) for t in heads]
         writer = RunWriter(
-            out, station="import", config_text="", simulated=False, devices=specs,
+            out, station="import", config_text="", simulated=False, devices=specs, thermometers=list(tnames.values()),
             overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0, max_buffer_rows=WRITE_ROWS,
         )  # fmt: skip
         try:
             sinks = {t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)}
             writer.event(0, "station", "note", f"imported from {os.path.abspath(source)} ({fmt})"[:256])
             done = 0
-            for t, blk in iter_bag(source, list(heads), block=block, reader=bag_reader):
+            for t, blk in iter_bag(source, list(heads), block=block, reader=bag_reader, temp_topics=temp_topics):
+                if t in tnames:
+                    writer.append_temperature(tnames[t], blk[0] - t0, blk[1])
+                    treadings[t] += len(blk[0])
+                    continue
                 sinks[t].write(blk)
                 done += len(blk[0])
                 if progress:
@@ -618,7 +670,8 @@ def import_recording(
             writer.abort()
             raise
         writer.close(attrs={"source": os.path.abspath(source), "source_format": fmt, "import_report": _rep(reports)})
-        return ImportResult(out, source, fmt, {names[t]: t for t in heads}, reports)
+        therm = {tnames[t]: (t, treadings[t]) for t in temp_topics}
+        return ImportResult(out, source, fmt, {names[t]: t for t in heads}, reports, thermometers=therm)
 
     if kind == "text":
         mp = text_mapping(source, time_unit=time_unit, **(text or {}))

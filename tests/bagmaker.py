@@ -105,12 +105,14 @@ def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0, frame_id: str = "im
 
 
 def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, block=65536, topics=("/imu/data",),
-                      extra_every=0, seed=0, chunk_bytes=None) -> Path:  # fmt: skip
+                      extra_every=0, seed=0, chunk_bytes=None, temp_every=0) -> Path:  # fmt: skip
     """A bag of ``n`` Imu messages per topic at ``rate_hz`` (white noise), written in blocks with numpy templates.
 
     ``compression``: ROS1 chunk compression None | "bz2" | "lz4". ``extra_every``: a std_msgs/String message
     on /status every that many Imu messages (0: none). Log time = header stamp (+ 1 us per further topic,
-    whose frame_id is ``imu_link<j>``: messages of another length). Returns the bag path.
+    whose frame_id is ``imu_link<j>``: messages of another length). ``temp_every``: a sensor_msgs/Temperature
+    on /imu/temperature every that many Imu messages, stamped as that Imu message + 0.2 ms, 20 + i * 1e-4 degC
+    (i: the Imu message's index). Returns the bag path.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -118,6 +120,7 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
     store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
     imu_t = store.types["sensor_msgs/msg/Imu"].__msgtype__
     String = store.types["std_msgs/msg/String"]
+    Temperature = store.types["sensor_msgs/msg/Temperature"]
     rng = np.random.default_rng(seed)
     period = int(round(1e9 / rate_hz))
     t0 = 1_700_000_000_000_000_000
@@ -140,6 +143,15 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
         conns = [w.add_connection(tp, imu_t, typestore=store) for tp in topics]
         s = w.add_connection("/status", String.__msgtype__, typestore=store) if extra_every else None
         sraw = bytes(ser(String(data="ok"), String.__msgtype__)) if s is not None else b""
+        tc = w.add_connection("/imu/temperature", Temperature.__msgtype__, typestore=store) if temp_every else None
+        Hdr, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+
+        def temp_raw(i, t):
+            t += 200_000
+            hdr = Hdr(**({"seq": i} if fmt == "ros1" else {}), stamp=Time(sec=t // 10**9, nanosec=t % 10**9),
+                      frame_id="imu")  # fmt: skip
+            return bytes(ser(Temperature(header=hdr, temperature=20 + i * 1e-4, variance=0.0), Temperature.__msgtype__))
+
         for i in range(0, n, block):
             k = min(block, n - i)
             t = t0 + np.arange(i, i + k, dtype=np.int64) * period
@@ -150,4 +162,6 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
                     w.write(c, int(t[r]) + j * 1000, pays[j][r].tobytes())
                     if j == 0 and s is not None and (i + r) % extra_every == 0:
                         w.write(s, int(t[r]) + 500, sraw)
+                    if j == 0 and tc is not None and (i + r) % temp_every == 0:
+                        w.write(tc, int(t[r]) + 600, temp_raw(i + r, int(t[r])))
     return path

@@ -384,3 +384,26 @@ def test_ros2_numpy_path_equals_rosbags_deserialiser(tmp_path, fmt, monkeypatch)
         assert len(new[t][0]) == 1500
         for x, y in zip(new[t], old[t], strict=True):
             np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("fmt,reader", [("ros1", "new"), ("ros1", "old"), ("mcap", "new")])
+def test_temperature_topics_become_thermometers(tmp_path, fmt, reader):
+    from bagmaker import write_big_imu_bag
+
+    src = write_big_imu_bag(tmp_path / ("t.bag" if fmt == "ros1" else "t"), 3000, fmt=fmt, temp_every=100,
+                            extra_every=7, chunk_bytes=100_000)  # fmt: skip
+    if fmt == "mcap":
+        src = next(src.glob("*.mcap"))
+    out = tmp_path / "run.h5"
+    res = import_recording(str(src), str(out), block=1000, bag_reader=reader)
+    assert res.thermometers == {"imu_temperature": ("/imu/temperature", 30)}
+    assert list(res.devices) == ["imu_data"]  # not a device
+    i = np.arange(0, 3000, 100)
+    with open_run(out) as run_:
+        assert run_.thermometers == ["imu_temperature"]
+        t, c = run_.temperatures("imu_temperature")
+        t_imu = run_.read("imu_data", "t")
+        np.testing.assert_array_equal(t, t_imu[i] + 200_000)
+        np.testing.assert_allclose(c, 20 + i * 1e-4, rtol=0, atol=1e-12)
+    res = run("import", str(src), "-o", str(tmp_path / "cli.h5"))
+    assert res.exit_code == 0 and "imu_temperature (30 readings)" in res.output, res.output
