@@ -163,11 +163,13 @@ def iter_bag(
     limit: int | None = None,
     reader: str = "new",
     temp_topics: tuple[str, ...] | list[str] = (),
+    notes: list[str] | None = None,
 ) -> Iterator[tuple[str, Block]]:
     """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most.
 
     ``temp_topics``: sensor_msgs/Temperature topics, yielded as ``(topic, (t_ns, celsius (k,), None))``.
-    ``limit``: stop after that many Imu messages.
+    ``limit``: stop after that many Imu messages. ``notes``: what the reader has to say is appended (the
+    unreadable tail of an unindexed ROS 1 bag).
     ``reader="new"``: ROS 1 bags are read with :mod:`.rosbag1_stream` (one chunk in memory, messages decoded
     with numpy), ROS 2 bags and MCAP with rosbags, a block of raw CDR messages decoded at once with numpy.
     ``reader="old"``: rosbags for every format, messages deserialised one by one (the import as it was).
@@ -175,7 +177,7 @@ def iter_bag(
     if _streaming(path, reader):
         conns, _ = _ros1_index(path)
         if all(c.md5sum == IMU_MD5 for c in conns.values() if c.topic in topics and c.msgtype in IMU_TYPES):
-            yield from _iter_ros1(path, topics, block, limit, tuple(temp_topics))
+            yield from _iter_ros1(path, topics, block, limit, tuple(temp_topics), notes)
             return
         # an Imu definition other than sensor_msgs/Imu's: let rosbags decode it from the bag's definition
     bag = _open_bag(path)
@@ -259,7 +261,12 @@ def _decode_cdr(path: str, bag, topic: str, raws: list) -> Block:
 
 
 def _iter_ros1(
-    path: str, topics: list[str], block: int, limit: int | None, temp_topics: tuple[str, ...] = ()
+    path: str,
+    topics: list[str],
+    block: int,
+    limit: int | None,
+    temp_topics: tuple[str, ...] = (),
+    notes: list[str] | None = None,
 ) -> Iterator[tuple[str, Block]]:
     from imustation.analysis.imu_decode import decode_imu_ros1, decode_temperature_ros1
     from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag
@@ -295,6 +302,10 @@ def _iter_ros1(
                         yield from _full_blocks(t, pend, have, block)
                 if limit is not None and seen >= limit:
                     break
+            if bag.unread_from is not None and notes is not None:
+                notes.append(
+                    f"unindexed bag (recording not closed): bytes {bag.unread_from}-{bag.size} unreadable, not imported"
+                )
     except (BagFormatError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
     for t in names:
@@ -529,6 +540,7 @@ class ImportResult:
     reports: dict[str, StampReport]
     mapping: str = ""
     thermometers: dict[str, tuple[str, int]] = field(default_factory=dict)  # name -> (topic, readings)
+    notes: list[str] = field(default_factory=list)  # reader notes (also /events notes)
 
 
 def _device_name(topic: str) -> str:
@@ -656,7 +668,10 @@ def import_recording(
             sinks = {t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)}
             writer.event(0, "station", "note", f"imported from {os.path.abspath(source)} ({fmt})"[:256])
             done = 0
-            for t, blk in iter_bag(source, list(heads), block=block, reader=bag_reader, temp_topics=temp_topics):
+            notes: list[str] = []
+            for t, blk in iter_bag(
+                source, list(heads), block=block, reader=bag_reader, temp_topics=temp_topics, notes=notes
+            ):
                 if t in tnames:
                     writer.append_temperature(tnames[t], blk[0] - t0, blk[1])
                     treadings[t] += len(blk[0])
@@ -666,12 +681,14 @@ def import_recording(
                 if progress:
                     progress(done, total)
             reports = {names[t]: s.finish() for t, s in sinks.items()}
+            for note in notes:
+                writer.event(max(r.last_ns for r in reports.values()) - t0, "station", "note", note[:256])
         except BaseException:
             writer.abort()
             raise
         writer.close(attrs={"source": os.path.abspath(source), "source_format": fmt, "import_report": _rep(reports)})
         therm = {tnames[t]: (t, treadings[t]) for t in temp_topics}
-        return ImportResult(out, source, fmt, {names[t]: t for t in heads}, reports, thermometers=therm)
+        return ImportResult(out, source, fmt, {names[t]: t for t in heads}, reports, thermometers=therm, notes=notes)
 
     if kind == "text":
         mp = text_mapping(source, time_unit=time_unit, **(text or {}))

@@ -118,14 +118,17 @@ _DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
 
 
 def _decompress(kind: str, data: bytes, size: int) -> bytes:
-    if kind == "lz4":
-        import lz4.frame
-
-        out = lz4.frame.decompress(data)
-    elif kind in _DECOMPRESS:
-        out = _DECOMPRESS[kind](data, size)
-    else:
+    if kind not in ("lz4", *_DECOMPRESS):
         raise BagFormatError(f"chunk compression {kind!r} is not supported")
+    try:
+        if kind == "lz4":
+            import lz4.frame
+
+            out = lz4.frame.decompress(data)
+        else:
+            out = _DECOMPRESS[kind](data, size)
+    except (OSError, ValueError, RuntimeError, EOFError) as exc:
+        raise BagFormatError(f"{kind} chunk does not decompress ({exc})") from None
     if len(out) != size:
         raise BagFormatError(f"chunk holds {len(out)} bytes, its header says {size}")
     return out
@@ -152,6 +155,7 @@ class Ros1Bag:
             self._skip(self._u32())
             self.first_record = self.fh.tell()
             self.size = os.fstat(self.fh.fileno()).st_size
+            self.unread_from: int | None = None
         except BaseException:
             self.fh.close()
             raise
@@ -183,6 +187,8 @@ class Ros1Bag:
 
     def _header(self) -> dict[str, bytes]:
         n = self._u32()
+        if n > 1 << 20:
+            raise BagFormatError(f"record header of {n} bytes")
         b = self._read(n)
         return _fields(b, 0, n)
 
@@ -225,28 +231,49 @@ class Ros1Bag:
 
     # -- messages
     def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
-        """The messages of each chunk in file order; ``conns`` is filled with the connection records met."""
+        """The messages of each chunk in file order; ``conns`` is filled with the connection records met.
+
+        An unindexed bag (a recording that was not closed) may end in a record that was being
+        written: reading stops there and :attr:`unread_from` tells where (else it is None).
+        """
         conns = {} if conns is None else conns
         self.fh.seek(self.first_record)
+        self.unread_from = None
         end = self.index_pos if self.index_pos else self.size
         while self.fh.tell() < end:
-            hdr = self._header()
-            op = _op(hdr)
-            n = self._u32()
+            at = self.fh.tell()
+            try:
+                op, hdr, data = self._record()
+                if op == OP_CHUNK:
+                    msgs = self._split(_decompress(hdr.get("compression", b"none").decode(), data,
+                                                   _int(hdr, "size")), conns)  # fmt: skip
+            except BagFormatError:
+                if self.index_pos:
+                    raise
+                self.unread_from = at
+                return
             if op == OP_CHUNK:
-                raw = _decompress(hdr.get("compression", b"none").decode(), self._read(n), _int(hdr, "size"))
-                yield self._split(raw, conns)
+                yield msgs
             elif op == OP_CONNECTION:
-                c = _connection(hdr, self._read(n))
+                c = _connection(hdr, data)
                 conns[c.id] = c
             elif op == OP_MSGDATA:  # a message outside any chunk (not written by rosbag, but allowed)
-                data = self._read(n)
                 one = np.ones(1, np.int64)
                 yield ChunkMessages(
                     data, one * _int(hdr, "conn"), one * _time(hdr), np.zeros(1, np.int64), one * len(data)
                 )
-            else:  # index data, chunk info
-                self._skip(n)
+
+    def _record(self) -> tuple[int, dict[str, bytes], bytes]:
+        """The next top-level record: op, header fields and data (b"" for index records, skipped)."""
+        hdr = self._header()
+        op = _op(hdr)
+        n = self._u32()
+        if op in (OP_CHUNK, OP_CONNECTION, OP_MSGDATA):
+            return op, hdr, self._read(n)
+        if self.fh.tell() + n > self.size:
+            raise BagFormatError("truncated record")
+        self._skip(n)
+        return op, hdr, b""
 
     @staticmethod
     def _split(raw: bytes, conns: dict[int, Connection]) -> ChunkMessages:

@@ -278,6 +278,7 @@ def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
     src = tmp_path / "rec.bag"
     pay = imu_payloads("ros1", t, g, a)
     with Writer(src) as w:
+        w.chunk_threshold = 100_000  # several chunks
         c = w.add_connection("/imu/data", "sensor_msgs/msg/Imu", typestore=store)
         for i in range(len(t)):
             w.write(c, int(t[i]), pay[i].tobytes())
@@ -299,6 +300,15 @@ def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
     assert rep2.n == 2000 and rep2.backwards == 1
     with open_run(tmp_path / "open.h5") as run_:
         np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g)
+    # ... cut in the middle of a chunk (the recorder was killed): the chunks before it are imported, the rest noted
+    (tmp_path / "cut.bag").write_bytes(bytes(raw[: len(raw) // 2]))
+    res = run("import", str(tmp_path / "cut.bag"), "-o", str(tmp_path / "cut.h5"))
+    assert res.exit_code == 0 and "unreadable, not imported" in res.output, res.output
+    with open_run(tmp_path / "cut.h5") as run_:
+        k = len(run_.read("imu_data", "t"))
+        assert 500 < k < 1000
+        np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g[:k])
+        assert any("recording not closed" in e.detail for e in run_.events())
 
 
 def _traced_peak(path, reader):

@@ -73,6 +73,8 @@ def run_import(source: str, out: str, *, quiet: bool, overwrite: bool, topic, ti
             click.echo(f"{source}: columns: {res.mapping}", err=True)
         for name, rep in res.reports.items():
             click.echo(f"{source}: {res.devices[name]} -> {name}: {rep.summary()}", err=True)
+        for note in res.notes:
+            click.echo(f"{source}: {note}", err=True)
     return res
 
 
