@@ -64,6 +64,8 @@ def normalize_topic(name: str) -> str:
 def _fields(buf, pos: int, end: int) -> dict[str, bytes]:
     out = {}
     while pos < end:
+        if end - pos < 4:
+            raise BagFormatError("header field cut short")
         (n,) = _u32(buf, pos)
         pos += 4
         if n > end - pos:
@@ -292,7 +294,7 @@ class Ros1Bag:
             idx = np.flatnonzero(hl_a == n)
             first = int(idx[0])
             f = _fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
-            if _op(f) != OP_MSGDATA or "conn" not in f or len(f.get("time", b"")) != 8:
+            if _op(f) != OP_MSGDATA or len(f.get("conn", b"")) != 4 or len(f.get("time", b"")) != 8:
                 continue
             # field layout of this header length: everything but the conn and time values must match
             lay = _layout(raw, int(hs_a[first]), n)
@@ -301,8 +303,6 @@ class Ros1Bag:
             fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
             fixed[lay["time"][0] : lay["time"][0] + 8] = False
             same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
-            if lay["conn"][1] != 4:
-                continue
             ok = idx[same]
             h = hdr[same]
             c0, t0 = lay["conn"][0], lay["time"][0]
