@@ -639,6 +639,8 @@ def import_recording(
     ``topic``: the Imu topic of a bag (default: all). ``text``: keyword options of
     :func:`text_mapping` for text logs. ``progress(done, total)`` is called as
     the import advances (messages for bags, bytes for text, rows for arrays).
+    ``bag_reader``: ``"new"`` (streaming, the default) or ``"old"`` (rosbags message by message, for
+    comparison; see :func:`iter_bag`). sensor_msgs/Temperature topics of a bag become thermometers.
     """
     kind = source_kind(source)
     fsync = False  # an import is re-run from its source; no power-cut guarantee needed
