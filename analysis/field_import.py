@@ -2,10 +2,10 @@
 
 Sources (see docs/import.md):
 
-* ROS 1 ``.bag``, ROS 2 bag folders (sqlite3 or mcap storage) and bare ``.mcap``
-  files, read with the pure-Python ``rosbags`` library: every
-  ``sensor_msgs/Imu`` topic (or the one given) becomes a device; ``t`` is the
-  message's ``header.stamp``.
+* ROS 1 ``.bag`` (streamed by :mod:`.rosbag1_stream`), ROS 2 bag folders (sqlite3
+  or mcap storage) and bare ``.mcap`` files (the pure-Python ``rosbags`` library):
+  every ``sensor_msgs/Imu`` topic (or the one given) becomes a device; ``t`` is the
+  message's ``header.stamp``. ``sensor_msgs/Temperature`` topics become thermometers.
 * Text logs (CSV, TSV, whitespace) with a time column; columns and time unit
   from options or auto-detected from the header (:func:`text_mapping`).
 * ``.npy`` arrays of shape (n, 4) or (n, 7): time, gyro x,y,z[, accel x,y,z].
@@ -24,6 +24,7 @@ import json
 import math
 import os
 import re
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from itertools import islice
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imustation.analysis.imu_decode import IMU_MD5, decode_imu_cdr
 from imustation.analysis.timestamps import StampChecker, StampReport
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
@@ -38,9 +40,12 @@ from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
 Block = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 #: rows per block written (and held per topic while reading)
 BLOCK_ROWS = 8192
+#: rows queued (all devices) before the run writer flushes: 2^16 rows = 3.7 MB (its default, 2^20, is 59 MB)
+WRITE_ROWS = 1 << 16
 #: samples read ahead to estimate a topic's nominal rate (the device's rate_hz)
 RATE_PROBE = 2048
 IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
+TEMP_TYPES = ("sensor_msgs/msg/Temperature", "sensor_msgs/Temperature")
 BAG_EXTS = (".bag", ".mcap")
 TEXT_EXTS = (".csv", ".tsv", ".txt", ".dat", ".log")
 TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
@@ -95,52 +100,128 @@ def _open_bag(path: str):
     return reader
 
 
-def bag_topics(path: str, topic: str | None = None) -> list[tuple[str, int]]:
-    """``(topic, message count)`` of the Imu topics of a bag (only ``topic`` if given)."""
-    reader = _open_bag(path)
+def _streaming(path: str, reader: str) -> bool:
+    """Read with :mod:`.rosbag1_stream` (ROS 1 ``.bag`` files unless ``reader == "old"``)."""
+    if reader not in ("new", "old"):
+        raise ValueError(f"bag reader {reader!r}: 'new' or 'old'")
+    return reader == "new" and Path(path).is_file() and path.lower().endswith(".bag")
+
+
+def _ros1_index(path: str):
+    from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag
+
     try:
-        imu = {}
-        for c in reader.connections:
-            if c.msgtype in IMU_TYPES:
-                imu[c.topic] = imu.get(c.topic, 0) + int(c.msgcount)
-        if topic is not None:
-            if topic not in imu:
-                have = ", ".join(sorted(imu)) or "none"
-                raise InputError(f"{path}: no sensor_msgs/Imu topic {topic} (Imu topics: {have})")
-            return [(topic, imu[topic])]
-        if not imu:
-            topics = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
-            raise InputError(f"{path}: no sensor_msgs/Imu topic (topics: {topics})")
-        return sorted(imu.items())
+        with Ros1Bag(path) as bag:
+            return bag.index()
+    except (BagFormatError, OSError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
+
+
+def bag_connections(path: str, reader: str = "new") -> list[tuple[str, str, int]]:
+    """``(topic, msgtype, message count)`` of every connection of a bag."""
+    if _streaming(path, reader):
+        conns, counts = _ros1_index(path)
+        return [(c.topic, c.msgtype, counts.get(c.id, 0)) for c in conns.values()]
+    bag = _open_bag(path)
+    try:
+        return [(c.topic, c.msgtype, int(c.msgcount)) for c in bag.connections]
     finally:
-        reader.close()
+        bag.close()
+
+
+def bag_topics(path: str, topic: str | None = None, reader: str = "new") -> list[tuple[str, int]]:
+    """``(topic, message count)`` of the Imu topics of a bag (only ``topic`` if given)."""
+    return _imu_topics(path, topic, bag_connections(path, reader))
+
+
+def _count(conns: list[tuple[str, str, int]], types: tuple[str, ...]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for tp, mt, n in conns:
+        if mt in types:
+            out[tp] = out.get(tp, 0) + n
+    return out
+
+
+def _imu_topics(path: str, topic: str | None, conns: list[tuple[str, str, int]]) -> list[tuple[str, int]]:
+    """Imu topics and their message counts from ``(topic, msgtype, count)`` of every connection."""
+    imu = _count(conns, IMU_TYPES)
+    if topic is not None:
+        if topic not in imu:
+            have = ", ".join(sorted(imu)) or "none"
+            raise InputError(f"{path}: no sensor_msgs/Imu topic {topic} (Imu topics: {have})")
+        return [(topic, imu[topic])]
+    if not imu:
+        topics = ", ".join(sorted({c[0] for c in conns})) or "none"
+        raise InputError(f"{path}: no sensor_msgs/Imu topic (topics: {topics})")
+    return sorted(imu.items())
 
 
 def iter_bag(
-    path: str, topics: list[str], block: int = BLOCK_ROWS, limit: int | None = None
+    path: str,
+    topics: list[str],
+    block: int = BLOCK_ROWS,
+    limit: int | None = None,
+    reader: str = "new",
+    temp_topics: tuple[str, ...] | list[str] = (),
+    notes: list[str] | None = None,
 ) -> Iterator[tuple[str, Block]]:
-    """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most."""
-    reader = _open_bag(path)
+    """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most.
+
+    ``temp_topics``: sensor_msgs/Temperature topics, yielded as ``(topic, (t_ns, celsius (k,), None))``.
+    ``limit``: stop after that many Imu messages. ``notes``: what the reader has to say is appended (the
+    unreadable tail of an unindexed ROS 1 bag).
+    ``reader="new"``: ROS 1 bags are read with :mod:`.rosbag1_stream` (one chunk in memory, messages decoded
+    with numpy), ROS 2 bags and MCAP with rosbags, a block of raw CDR messages decoded at once with numpy.
+    ``reader="old"``: rosbags for every format, messages deserialised one by one (the import as it was).
+    """
+    if _streaming(path, reader):
+        conns, _ = _ros1_index(path)
+        if all(c.md5sum == IMU_MD5 for c in conns.values() if c.topic in topics and c.msgtype in IMU_TYPES):
+            yield from _iter_ros1(path, topics, block, limit, tuple(temp_topics), notes)
+            return
+        # an Imu definition other than sensor_msgs/Imu's: let rosbags decode it from the bag's definition
+    bag = _open_bag(path)
     try:
-        conns = [c for c in reader.connections if c.topic in topics and c.msgtype in IMU_TYPES]
+        conns = [c for c in bag.connections if c.topic in topics and c.msgtype in IMU_TYPES]
+        tconns = [c for c in bag.connections if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
+        # ROS 2 / MCAP: the raw CDR messages of a block are decoded together with numpy (reader="new")
+        cdr = reader == "new" and all(getattr(c.ext, "serialization_format", "") == "cdr" for c in conns)
+        raws: dict[str, list] = {t: [] for t in topics}
+        temps: dict[str, list] = {t: [] for t in temp_topics}
         bufs = {t: np.empty((block, 7)) for t in topics}
         fill = dict.fromkeys(topics, 0)
         stamps = {t: np.empty(block, dtype=np.int64) for t in topics}
         seen = 0
-        for conn, _logtime, raw in reader.messages(connections=conns):
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-            except Exception as exc:
-                raise InputError(f"{path}: topic {conn.topic}: undecodable Imu message ({exc})") from None
+        for conn, _logtime, raw in bag.messages(connections=conns + tconns):
             t = conn.topic
-            i = fill[t]
-            w, a = msg.angular_velocity, msg.linear_acceleration
-            stamps[t][i] = _stamp_ns(msg)
-            bufs[t][i] = (0.0, w.x, w.y, w.z, a.x, a.y, a.z)
-            fill[t] = i + 1
-            if i + 1 == block:
-                yield t, (stamps[t].copy(), bufs[t][:, 1:4].copy(), bufs[t][:, 4:7].copy())
-                fill[t] = 0
+            if conn.msgtype in TEMP_TYPES:
+                try:
+                    msg = bag.deserialize(raw, conn.msgtype)
+                except Exception as exc:
+                    raise InputError(f"{path}: topic {t}: undecodable Temperature message ({exc})") from None
+                temps[t].append((_stamp_ns(msg), float(msg.temperature)))
+                if len(temps[t]) == block:
+                    yield t, _temp_block(temps[t])
+                    temps[t] = []
+                continue
+            if cdr:
+                raws[t].append(raw)
+                if len(raws[t]) == block:
+                    yield t, _decode_cdr(path, bag, t, raws[t])
+                    raws[t] = []
+            else:
+                try:
+                    msg = bag.deserialize(raw, conn.msgtype)
+                except Exception as exc:
+                    raise InputError(f"{path}: topic {conn.topic}: undecodable Imu message ({exc})") from None
+                i = fill[t]
+                w, a = msg.angular_velocity, msg.linear_acceleration
+                stamps[t][i] = _stamp_ns(msg)
+                bufs[t][i] = (0.0, w.x, w.y, w.z, a.x, a.y, a.z)
+                fill[t] = i + 1
+                if i + 1 == block:
+                    yield t, (stamps[t].copy(), bufs[t][:, 1:4].copy(), bufs[t][:, 4:7].copy())
+                    fill[t] = 0
             seen += 1
             if limit is not None and seen >= limit:
                 break
@@ -148,8 +229,100 @@ def iter_bag(
             k = fill[t]
             if k:
                 yield t, (stamps[t][:k].copy(), bufs[t][:k, 1:4].copy(), bufs[t][:k, 4:7].copy())
+            if raws[t]:
+                yield t, _decode_cdr(path, bag, t, raws[t])
+        for t in temp_topics:
+            if temps[t]:
+                yield t, _temp_block(temps[t])
     finally:
-        reader.close()
+        bag.close()
+
+
+def _temp_block(rows: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray, None]:
+    return np.array([r[0] for r in rows], np.int64), np.array([r[1] for r in rows], np.float64), None
+
+
+def _decode_cdr(path: str, bag, topic: str, raws: list) -> Block:
+    """A block of CDR Imu messages: numpy when they have the standard layout, else rosbags' deserialiser."""
+    try:
+        return decode_imu_cdr(raws)
+    except ValueError:
+        pass
+    k = len(raws)
+    t, g, a = np.empty(k, np.int64), np.empty((k, 3)), np.empty((k, 3))
+    for i, raw in enumerate(raws):
+        try:
+            msg = bag.deserialize(raw, "sensor_msgs/msg/Imu")
+        except Exception as exc:
+            raise InputError(f"{path}: topic {topic}: undecodable Imu message ({exc})") from None
+        w, acc = msg.angular_velocity, msg.linear_acceleration
+        t[i], g[i], a[i] = _stamp_ns(msg), (w.x, w.y, w.z), (acc.x, acc.y, acc.z)
+    return t, g, a
+
+
+def _iter_ros1(
+    path: str,
+    topics: list[str],
+    block: int,
+    limit: int | None,
+    temp_topics: tuple[str, ...] = (),
+    notes: list[str] | None = None,
+) -> Iterator[tuple[str, Block]]:
+    from imustation.analysis.imu_decode import decode_imu_ros1, decode_temperature_ros1
+    from imustation.analysis.rosbag1_stream import BagFormatError, Ros1Bag
+
+    names = [*topics, *temp_topics]
+    pend: dict[str, list[tuple]] = {t: [] for t in names}
+    have = dict.fromkeys(names, 0)
+    seen = 0
+    conns: dict = {}
+    try:
+        with Ros1Bag(path) as bag:
+            for ch in bag.chunks(conns):
+                ids = [i for i, c in conns.items() if c.topic in topics and c.msgtype in IMU_TYPES]
+                tids = [i for i, c in conns.items() if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
+                sel = np.isin(ch.conn, ids)
+                if limit is not None and seen + int(sel.sum()) > limit:
+                    sel &= np.cumsum(sel) <= limit - seen
+                seen += int(sel.sum())
+                for t in names:
+                    mine = [i for i in (ids if t in topics else tids) if conns[i].topic == t]
+                    m = np.isin(ch.conn, mine) & (sel if t in topics else True)
+                    if not m.any():
+                        continue
+                    what = "Imu" if t in topics else "Temperature"
+                    decode = decode_imu_ros1 if t in topics else decode_temperature_ros1
+                    try:
+                        dec = decode(ch.buf, ch.start[m], ch.length[m])
+                    except ValueError as exc:
+                        raise InputError(f"{path}: topic {t}: undecodable {what} message ({exc})") from None
+                    pend[t].append(dec)
+                    have[t] += len(dec[0])
+                    if have[t] >= block:
+                        yield from _full_blocks(t, pend, have, block)
+                if limit is not None and seen >= limit:
+                    break
+            if bag.unread_from is not None and notes is not None:
+                notes.append(
+                    f"unindexed bag (recording not closed): bytes {bag.unread_from}-{bag.size} unreadable, not imported"
+                )
+    except (BagFormatError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+    for t in names:
+        if have[t]:
+            cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
+            yield t, (cols[0], cols[1], cols[2] if len(cols) > 2 else None)
+
+
+def _full_blocks(t: str, pend: dict, have: dict, block: int) -> Iterator[tuple[str, Block]]:
+    cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
+    n = len(cols[0])
+    k = (n // block) * block
+    for i in range(0, k, block):
+        part = [c[i : i + block] for c in cols]
+        yield t, (part[0], part[1], part[2] if len(part) > 2 else None)
+    pend[t] = [tuple(c[k:] for c in cols)] if k < n else []
+    have[t] = n - k
 
 
 # --- text logs and arrays ----------------------------------------------------
@@ -366,6 +539,8 @@ class ImportResult:
     devices: dict[str, str]  # device name -> topic / column description
     reports: dict[str, StampReport]
     mapping: str = ""
+    thermometers: dict[str, tuple[str, int]] = field(default_factory=dict)  # name -> (topic, readings)
+    notes: list[str] = field(default_factory=list)  # reader notes (also /events notes)
 
 
 def _device_name(topic: str) -> str:
@@ -457,21 +632,30 @@ def import_recording(
     overwrite: bool = False,
     progress: Progress | None = None,
     block: int = BLOCK_ROWS,
+    bag_reader: str = "new",
 ) -> ImportResult:
     """Convert ``source`` into the run file ``out``; returns the stamp reports.
 
     ``topic``: the Imu topic of a bag (default: all). ``text``: keyword options of
     :func:`text_mapping` for text logs. ``progress(done, total)`` is called as
     the import advances (messages for bags, bytes for text, rows for arrays).
+    ``bag_reader``: ``"new"`` (streaming, the default) or ``"old"`` (rosbags message by message, for
+    comparison; see :func:`iter_bag`). sensor_msgs/Temperature topics of a bag become thermometers.
     """
     kind = source_kind(source)
     fsync = False  # an import is re-run from its source; no power-cut guarantee needed
     if kind == "bag":
-        topics = bag_topics(source, topic)
+        conns = bag_connections(source, bag_reader)
+        topics = _imu_topics(source, topic, conns)
+        temp_topics = sorted(_count(conns, TEMP_TYPES))  # sensor_msgs/Temperature -> /thermometers/<name>
+        tnames = {t: _device_name(t) for t in temp_topics}
+        treadings = dict.fromkeys(temp_topics, 0)
         total = sum(n for _, n in topics)
         # first stamps of each topic: nominal rate (device rate_hz) and the common time origin
         probe: dict[str, list[np.ndarray]] = {t: [] for t, _ in topics}
-        for t, (ts, _g, _a) in iter_bag(source, list(probe), block=RATE_PROBE, limit=RATE_PROBE * len(probe)):
+        for t, (ts, _g, _a) in iter_bag(
+            source, list(probe), block=RATE_PROBE, limit=RATE_PROBE * len(probe), reader=bag_reader
+        ):
             probe[t].append(ts)
         heads = {t: np.concatenate(v) if v else np.empty(0, np.int64) for t, v in probe.items()}
         t0 = min(int(v.min()) for v in heads.values() if len(v))
@@ -479,24 +663,34 @@ def import_recording(
         fmt = "mcap" if source.endswith(".mcap") else "rosbag1" if source.endswith(".bag") else "rosbag2"
         specs = [_device_spec(names[t], _probe_rate(source, heads[t]), source, t, fmt, True) for t in heads]
         writer = RunWriter(
-            out, station="import", config_text="", simulated=False, devices=specs,
-            overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0,
+            out, station="import", config_text="", simulated=False, devices=specs, thermometers=list(tnames.values()),
+            overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0, max_buffer_rows=WRITE_ROWS,
         )  # fmt: skip
         try:
             sinks = {t: _Sink(writer, names[t], t0, True, 1e9 / s.rate_hz) for t, s in zip(heads, specs, strict=True)}
             writer.event(0, "station", "note", f"imported from {os.path.abspath(source)} ({fmt})"[:256])
             done = 0
-            for t, blk in iter_bag(source, list(heads), block=block):
+            notes: list[str] = []
+            for t, blk in iter_bag(
+                source, list(heads), block=block, reader=bag_reader, temp_topics=temp_topics, notes=notes
+            ):
+                if t in tnames:
+                    writer.append_temperature(tnames[t], blk[0] - t0, blk[1])
+                    treadings[t] += len(blk[0])
+                    continue
                 sinks[t].write(blk)
                 done += len(blk[0])
                 if progress:
                     progress(done, total)
             reports = {names[t]: s.finish() for t, s in sinks.items()}
+            for note in notes:
+                writer.event(max(r.last_ns for r in reports.values()) - t0, "station", "note", note[:256])
         except BaseException:
             writer.abort()
             raise
         writer.close(attrs={"source": os.path.abspath(source), "source_format": fmt, "import_report": _rep(reports)})
-        return ImportResult(out, source, fmt, {names[t]: t for t in heads}, reports)
+        therm = {tnames[t]: (t, treadings[t]) for t in temp_topics}
+        return ImportResult(out, source, fmt, {names[t]: t for t in heads}, reports, thermometers=therm, notes=notes)
 
     if kind == "text":
         mp = text_mapping(source, time_unit=time_unit, **(text or {}))
@@ -520,7 +714,7 @@ def import_recording(
     spec = _device_spec(name, _probe_rate(source, blk[0][:RATE_PROBE]), source, ident, fmt, with_accel)
     writer = RunWriter(
         out, station="import", config_text="", simulated=False, devices=[spec],
-        overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0,
+        overwrite=overwrite, started_utc=_iso(t0), fsync=fsync, ballast_bytes=0, max_buffer_rows=WRITE_ROWS,
     )  # fmt: skip
     try:
         sink = _Sink(writer, name, t0, with_accel, 1e9 / spec.rate_hz)

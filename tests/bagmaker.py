@@ -57,3 +57,111 @@ def write_imu_bag(path, t_ns, gyro, accel, *, fmt="ros1", topic="/imu/data", ext
             if s is not None:
                 w.write(s, t0, store.serialize_cdr(String(data="hello"), String.__msgtype__))
     return path
+
+
+def imu_template(fmt: str = "ros1", frame_id: str = "imu") -> tuple[bytes, int, int]:
+    """A serialised Imu message and the offsets of (sec, nsec) and the 37 float64 after the header."""
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+    raw = _one(store, fmt, frame_id)
+    stamp_at = 4  # ROS1: after uint32 seq; CDR: after the 4-byte encapsulation header
+    return raw, stamp_at, len(raw) - 37 * 8
+
+
+def _one(store, fmt, frame_id):
+    Imu = store.types["sensor_msgs/msg/Imu"]
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    V3 = store.types["geometry_msgs/msg/Vector3"]
+    Q = store.types["geometry_msgs/msg/Quaternion"]
+    cov = np.zeros(9)
+    kw = {"seq": 0} if fmt == "ros1" else {}
+    m = Imu(
+        header=Header(**kw, stamp=Time(sec=0, nanosec=0), frame_id=frame_id),
+        orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=cov,
+        angular_velocity=V3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=cov,
+        linear_acceleration=V3(x=0.0, y=0.0, z=0.0), linear_acceleration_covariance=cov,
+    )  # fmt: skip
+    ser = store.serialize_ros1 if fmt == "ros1" else store.serialize_cdr
+    return bytes(ser(m, Imu.__msgtype__))
+
+
+def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0, frame_id: str = "imu") -> np.ndarray:
+    """(k, L) uint8: serialised Imu messages built with numpy from a template (fast, for big bags)."""
+    raw, st, fo = imu_template(fmt, frame_id)
+    k = len(t_ns)
+    out = np.tile(np.frombuffer(raw, np.uint8), (k, 1))
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    if fmt == "ros1":
+        out[:, 0:4] = (np.arange(seq0, seq0 + k, dtype="<u4")).view(np.uint8).reshape(k, 4)
+    out[:, st : st + 4] = (t_ns // 10**9).astype("<u4").view(np.uint8).reshape(k, 4)
+    out[:, st + 4 : st + 8] = (t_ns % 10**9).astype("<u4").view(np.uint8).reshape(k, 4)
+    f = out[:, fo:].copy().view("<f8")  # (k, 37)
+    f[:, 13:16] = gyro
+    f[:, 25:28] = accel
+    out[:, fo:] = f.view(np.uint8)
+    return out
+
+
+def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, block=65536, topics=("/imu/data",),
+                      extra_every=0, seed=0, chunk_bytes=None, temp_every=0) -> Path:  # fmt: skip
+    """A bag of ``n`` Imu messages per topic at ``rate_hz`` (white noise), written in blocks with numpy templates.
+
+    ``compression``: ROS1 chunk compression None | "bz2" | "lz4". ``extra_every``: a std_msgs/String message
+    on /status every that many Imu messages (0: none). Log time = header stamp (+ 1 us per further topic,
+    whose frame_id is ``imu_link<j>``: messages of another length). ``temp_every``: a sensor_msgs/Temperature
+    on /imu/temperature every that many Imu messages, stamped as that Imu message + 0.2 ms, 20 + i * 1e-4 degC
+    (i: the Imu message's index). Returns the bag path.
+    """
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+    imu_t = store.types["sensor_msgs/msg/Imu"].__msgtype__
+    String = store.types["std_msgs/msg/String"]
+    Temperature = store.types["sensor_msgs/msg/Temperature"]
+    rng = np.random.default_rng(seed)
+    period = int(round(1e9 / rate_hz))
+    t0 = 1_700_000_000_000_000_000
+    if fmt == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        w = Writer(path)
+        if compression:
+            w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+        if chunk_bytes:
+            w.chunk_threshold = chunk_bytes
+        ser = store.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3
+        w = Writer(path, version=9, storage_plugin=plugin)
+        ser = store.serialize_cdr
+    with w:
+        conns = [w.add_connection(tp, imu_t, typestore=store) for tp in topics]
+        s = w.add_connection("/status", String.__msgtype__, typestore=store) if extra_every else None
+        sraw = bytes(ser(String(data="ok"), String.__msgtype__)) if s is not None else b""
+        tc = w.add_connection("/imu/temperature", Temperature.__msgtype__, typestore=store) if temp_every else None
+        Hdr, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+
+        def temp_raw(i, t):
+            t += 200_000
+            hdr = Hdr(**({"seq": i} if fmt == "ros1" else {}), stamp=Time(sec=t // 10**9, nanosec=t % 10**9),
+                      frame_id="imu")  # fmt: skip
+            return bytes(ser(Temperature(header=hdr, temperature=20 + i * 1e-4, variance=0.0), Temperature.__msgtype__))
+
+        for i in range(0, n, block):
+            k = min(block, n - i)
+            t = t0 + np.arange(i, i + k, dtype=np.int64) * period
+            pays = [imu_payloads(fmt, t + j * 1000, rng.normal(0, 1e-3, (k, 3)), rng.normal(0, 1, (k, 3)), i,
+                                 "imu" if j == 0 else f"imu_link{j}") for j in range(len(topics))]  # fmt: skip
+            for r in range(k):  # in record-time order
+                for j, c in enumerate(conns):
+                    w.write(c, int(t[r]) + j * 1000, pays[j][r].tobytes())
+                    if j == 0 and s is not None and (i + r) % extra_every == 0:
+                        w.write(s, int(t[r]) + 500, sraw)
+                    if j == 0 and tc is not None and (i + r) % temp_every == 0:
+                        w.write(tc, int(t[r]) + 600, temp_raw(i + r, int(t[r])))
+    return path

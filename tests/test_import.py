@@ -226,3 +226,203 @@ def test_verdict_rules():
     nofit = data_verdict(36000.0, math.nan, 200.0)
     assert nofit.verdict == "marginal"
     assert json.dumps(nofit.as_dict())
+
+
+# --- the streaming ROS 1 reader (analysis/rosbag1_stream.py) -------------------
+
+
+def _read_all(path, reader, topics):
+    from imustation.analysis.field_import import iter_bag
+
+    got = {t: [] for t in topics}
+    for t, blk in iter_bag(str(path), topics, block=1000, reader=reader):
+        got[t].append(blk)
+    return {t: tuple(np.concatenate(x) for x in zip(*v, strict=True)) for t, v in got.items()}
+
+
+@pytest.mark.parametrize("compression", [None, "bz2", "lz4"])
+def test_ros1_stream_equals_rosbags_reader(tmp_path, compression):
+    from bagmaker import write_big_imu_bag
+    from rosbags.rosbag1 import Reader
+
+    from imustation.analysis.field_import import bag_topics
+    from imustation.analysis.rosbag1_stream import Ros1Bag
+
+    topics = ["/imu/data", "/imu2/data_raw"]  # two Imu topics (frame_ids of two lengths) and a String topic
+    src = write_big_imu_bag(tmp_path / "multi.bag", 1500, compression=compression, topics=topics, extra_every=7,
+                            chunk_bytes=100_000, block=1000)  # fmt: skip
+    assert bag_topics(str(src), reader="new") == bag_topics(str(src), reader="old") == [(t, 1500) for t in topics]
+    new, old = _read_all(src, "new", topics), _read_all(src, "old", topics)
+    for t in topics:
+        assert len(new[t][0]) == 1500
+        for a, b in zip(new[t], old[t], strict=True):
+            np.testing.assert_array_equal(a, b)
+    # raw messages, every topic (the String one too), same bytes and record times as rosbags
+    with Reader(src) as r:
+        ref = [(c.topic, t, bytes(raw)) for c, t, raw in r.messages()]
+        nchunks = len(r.chunk_infos)
+    with Ros1Bag(str(src)) as bag:
+        mine = [(tp, t, bytes(raw)) for tp, _mt, t, raw in bag.messages()]
+    assert nchunks > 5 and mine == ref
+
+
+def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
+    from bagmaker import imu_payloads
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    t, g, a = record(2000)
+    t = t.copy()
+    t[[1000, 1001]] = t[[1001, 1000]]  # a swapped pair, in the stamps and in the record (receive) times
+    store = get_typestore(Stores.ROS1_NOETIC)
+    src = tmp_path / "rec.bag"
+    pay = imu_payloads("ros1", t, g, a)
+    with Writer(src) as w:
+        w.chunk_threshold = 100_000  # several chunks
+        c = w.add_connection("/imu/data", "sensor_msgs/msg/Imu", typestore=store)
+        for i in range(len(t)):
+            w.write(c, int(t[i]), pay[i].tobytes())
+    out = tmp_path / "run.h5"
+    rep = import_recording(str(src), str(out)).reports["imu_data"]
+    assert rep.backwards == 1 and rep.n == 2000  # reported, not sorted away
+    with open_run(out) as run_:
+        np.testing.assert_array_equal(run_.read("imu_data", "t"), t - T0)
+    old = import_recording(str(src), str(tmp_path / "old.h5"), bag_reader="old").reports["imu_data"]
+    assert old.backwards == 0  # the rosbags Reader hands out messages sorted by record time
+    raw = bytearray(src.read_bytes())
+    # an unindexed bag (recording not closed): index_pos = 0; rosbags refuses it, the streaming reader scans it
+    i = raw.index(b"index_pos=") + len(b"index_pos=")
+    raw[i : i + 8] = bytes(8)
+    (tmp_path / "open.bag").write_bytes(bytes(raw))
+    with pytest.raises(Exception, match="not indexed"):
+        Reader(tmp_path / "open.bag").open()
+    rep2 = import_recording(str(tmp_path / "open.bag"), str(tmp_path / "open.h5")).reports["imu_data"]
+    assert rep2.n == 2000 and rep2.backwards == 1
+    with open_run(tmp_path / "open.h5") as run_:
+        np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g)
+    # ... cut in the middle of a chunk (the recorder was killed): the chunks before it are imported, the rest noted
+    (tmp_path / "cut.bag").write_bytes(bytes(raw[: len(raw) // 2]))
+    res = run("import", str(tmp_path / "cut.bag"), "-o", str(tmp_path / "cut.h5"))
+    assert res.exit_code == 0 and "unreadable, not imported" in res.output, res.output
+    with open_run(tmp_path / "cut.h5") as run_:
+        k = len(run_.read("imu_data", "t"))
+        assert 500 < k < 1000
+        np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g[:k])
+        assert any("recording not closed" in e.detail for e in run_.events())
+
+
+def _traced_peak(path, reader):
+    import tracemalloc
+
+    from imustation.analysis.field_import import bag_topics, iter_bag
+
+    tracemalloc.start()
+    try:
+        topics = [t for t, _ in bag_topics(path, reader=reader)]
+        n = sum(len(blk[0]) for _, blk in iter_bag(path, topics, reader=reader))
+        return n, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.fixture(scope="module")
+def bag200k(tmp_path_factory):
+    from bagmaker import write_big_imu_bag
+
+    p = write_big_imu_bag(tmp_path_factory.mktemp("big") / "200k.bag", 200_000)
+    yield str(p)
+    p.unlink()
+
+
+# bytes; measured on this bag: streaming reader 4 MiB, rosbags Reader 37 MiB (its per-message index)
+MEM_BOUND = 16 * 2**20
+
+
+def test_ros1_stream_memory_is_per_chunk_not_per_message(bag200k):
+    n, peak = _traced_peak(bag200k, "new")
+    assert n == 200_000
+    assert peak < MEM_BOUND, f"peak {peak / 2**20:.1f} MiB"
+
+
+@pytest.mark.slow
+def test_rosbags_reader_exceeds_the_memory_bound(bag200k):
+    """The memory test can fail: the old (rosbags Reader) path goes over the bound on the same bag."""
+    n, peak = _traced_peak(bag200k, "old")
+    assert n == 200_000 and peak > MEM_BOUND
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "cdr"])
+def test_numpy_imu_decoders_equal_rosbags(fmt):
+    from bagmaker import _one
+    from rosbags.typesys import Stores, get_typestore
+
+    from imustation.analysis.imu_decode import decode_imu_cdr, decode_imu_ros1
+
+    store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+    de = store.deserialize_ros1 if fmt == "ros1" else store.deserialize_cdr
+    rng = np.random.default_rng(5)
+    raws = []
+    for n in range(12):  # frame_ids of 0..11 characters: every CDR padding
+        raw = bytearray(_one(store, "ros1" if fmt == "ros1" else "cdr", "f" * n))
+        tail = len(raw) - 37 * 8
+        raw[tail:] = rng.normal(size=37).tobytes()
+        raw[4:12] = np.array([1_700_000_000 + n, 999_999_999 - n], "<u4").tobytes()
+        raws.append(bytes(raw))
+    if fmt == "ros1":
+        lens = np.array([len(r) for r in raws])
+        t, g, a = decode_imu_ros1(b"".join(raws), np.r_[0, np.cumsum(lens)[:-1]], lens)
+    else:
+        t, g, a = decode_imu_cdr(raws)
+    for i, raw in enumerate(raws):
+        m = de(raw, "sensor_msgs/msg/Imu")
+        assert t[i] == m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+        w, acc = m.angular_velocity, m.linear_acceleration
+        assert tuple(g[i]) == (w.x, w.y, w.z) and tuple(a[i]) == (acc.x, acc.y, acc.z)
+    longer = raws[0] + b"\0" * 8  # not the Imu layout
+    with pytest.raises(ValueError):
+        decode_imu_cdr([longer]) if fmt == "cdr" else decode_imu_ros1(longer, [0], [len(longer)])
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "sqlite3"])
+def test_ros2_numpy_path_equals_rosbags_deserialiser(tmp_path, fmt, monkeypatch):
+    from bagmaker import write_big_imu_bag
+
+    from imustation.analysis import field_import
+    from imustation.analysis.imu_decode import decode_imu_cdr
+
+    decoded = []
+    monkeypatch.setattr(field_import, "decode_imu_cdr", lambda raws: decoded.append(len(raws)) or decode_imu_cdr(raws))
+
+    topics = ["/imu/data", "/imu2/data_raw"]
+    src = write_big_imu_bag(tmp_path / "r2", 1500, fmt=fmt, topics=topics, extra_every=5, block=1000)
+    if fmt == "mcap":
+        src = next(src.glob("*.mcap"))
+    new, old = _read_all(src, "new", topics), _read_all(src, "old", topics)
+    assert sum(decoded) == 3000  # the numpy decoder, not the fallback
+    for t in topics:
+        assert len(new[t][0]) == 1500
+        for x, y in zip(new[t], old[t], strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("fmt,reader", [("ros1", "new"), ("ros1", "old"), ("mcap", "new")])
+def test_temperature_topics_become_thermometers(tmp_path, fmt, reader):
+    from bagmaker import write_big_imu_bag
+
+    src = write_big_imu_bag(tmp_path / ("t.bag" if fmt == "ros1" else "t"), 1500, fmt=fmt, temp_every=50,
+                            extra_every=7, chunk_bytes=100_000)  # fmt: skip
+    if fmt == "mcap":
+        src = next(src.glob("*.mcap"))
+    out = tmp_path / "run.h5"
+    res = import_recording(str(src), str(out), block=1000, bag_reader=reader)
+    assert res.thermometers == {"imu_temperature": ("/imu/temperature", 30)}
+    assert list(res.devices) == ["imu_data"]  # not a device
+    i = np.arange(0, 1500, 50)
+    with open_run(out) as run_:
+        assert run_.thermometers == ["imu_temperature"]
+        t, c = run_.temperatures("imu_temperature")
+        t_imu = run_.read("imu_data", "t")
+        np.testing.assert_array_equal(t, t_imu[i] + 200_000)
+        np.testing.assert_allclose(c, 20 + i * 1e-4, rtol=0, atol=1e-12)
+    res = run("import", str(src), "-o", str(tmp_path / "cli.h5"))
+    assert res.exit_code == 0 and "imu_temperature (30 readings)" in res.output, res.output

@@ -73,6 +73,8 @@ def run_import(source: str, out: str, *, quiet: bool, overwrite: bool, topic, ti
             click.echo(f"{source}: columns: {res.mapping}", err=True)
         for name, rep in res.reports.items():
             click.echo(f"{source}: {res.devices[name]} -> {name}: {rep.summary()}", err=True)
+        for note in res.notes:
+            click.echo(f"{source}: {note}", err=True)
     return res
 
 
@@ -94,4 +96,6 @@ def import_(source, out, overwrite, quiet, topic, time_column, gyro_columns, acc
         source, out, quiet=quiet, overwrite=overwrite, topic=topic, time_unit=time_unit,
         text=text_options(time_column, gyro_columns, accel_columns, gyro_unit),
     )  # fmt: skip
-    click.echo(f"wrote {res.path}: {', '.join(f'{n} ({r.n} samples)' for n, r in res.reports.items())}")
+    parts = [f"{n} ({r.n} samples)" for n, r in res.reports.items()]
+    parts += [f"thermometer {n} ({k} readings)" for n, (_topic, k) in res.thermometers.items()]
+    click.echo(f"wrote {res.path}: {', '.join(parts)}")

@@ -1,0 +1,378 @@
+"""A streaming ROS 1 bag (format 2.0) reader: one chunk in memory at a time, no per-message index.
+
+rosbags' ``rosbag1.Reader`` builds an index entry (a Python object) for every
+message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
+400 Hz). This reader instead walks the file record by record
+(http://wiki.ros.org/Bags/Format/2.0), decompresses one chunk at a time
+(none / bz2 / lz4) and hands out its messages in file order, so memory is
+O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
+with numpy, a chunk at a time (:func:`.imu_decode.decode_imu_ros1`).
+
+Records: ``<header_len u32><header><data_len u32><data>``; the header is a list
+of ``<field_len u32>name=value`` fields, ``op`` tells the record type.
+Messages inside a chunk are in the order they were recorded (receive time);
+they are returned in that order, never sorted.
+"""
+
+from __future__ import annotations
+
+import bz2
+import os
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from imustation.analysis.imu_decode import gather_u32 as _gather_u32
+
+OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
+MAGIC = b"#ROSBAG V2.0\n"
+
+_u32 = struct.Struct("<I").unpack_from
+
+
+class BagFormatError(ValueError):
+    """Not a readable ROS 1 (v2.0) bag."""
+
+
+@dataclass(frozen=True)
+class Connection:
+    id: int
+    topic: str
+    msgtype: str  # as in the bag: "sensor_msgs/Imu"
+    md5sum: str
+    msgdef: str
+
+
+@dataclass
+class ChunkMessages:
+    """The messages of one chunk, in file order: ``buf[start[i]:start[i] + length[i]]`` is message i."""
+
+    buf: bytes
+    conn: np.ndarray  # int64 connection ids
+    time: np.ndarray  # int64 record (receive) time, ns
+    start: np.ndarray  # int64 offset of the serialised message in buf
+    length: np.ndarray  # int64
+
+
+def normalize_topic(name: str) -> str:
+    """As rosbags does: no doubled or trailing slashes."""
+    return f"{'/' * (name[:1] == '/')}{'/'.join(x for x in name.split('/') if x)}"
+
+
+def _fields(buf, pos: int, end: int) -> dict[str, bytes]:
+    out = {}
+    while pos < end:
+        if end - pos < 4:
+            raise BagFormatError("header field cut short")
+        (n,) = _u32(buf, pos)
+        pos += 4
+        if n > end - pos:
+            raise BagFormatError("header field longer than its header")
+        name, sep, value = bytes(buf[pos : pos + n]).partition(b"=")
+        if not sep:
+            raise BagFormatError("header field without '='")
+        out[name.decode("latin-1")] = value
+        pos += n
+    return out
+
+
+def _layout(buf, pos: int, n: int) -> dict[str, tuple[int, int]]:
+    """``name -> (value offset from the header start, value length)`` of the fields of a header."""
+    out, p, end = {}, pos, pos + n
+    while p < end:
+        (k,) = _u32(buf, p)
+        p += 4
+        name, _, value = bytes(buf[p : p + k]).partition(b"=")
+        out[name.decode("latin-1")] = (p + len(name) + 1 - pos, len(value))
+        p += k
+    return out
+
+
+def _int(fields: dict[str, bytes], name: str) -> int:
+    try:
+        return int.from_bytes(fields[name], "little")
+    except KeyError:
+        raise BagFormatError(f"record without {name!r} field") from None
+
+
+def _op(fields: dict[str, bytes]) -> int:
+    op = fields.get("op")
+    if op is None or len(op) != 1:
+        raise BagFormatError("record without op code")
+    return op[0]
+
+
+def _connection(fields: dict[str, bytes], data: bytes) -> Connection:
+    d = _fields(data, 0, len(data))
+    topic = fields.get("topic") or d.get("topic") or b""
+    return Connection(
+        _int(fields, "conn"),
+        normalize_topic(topic.decode()),
+        d.get("type", b"").decode(),
+        d.get("md5sum", b"").decode(),
+        d.get("message_definition", b"").decode(errors="replace"),
+    )
+
+
+_DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
+
+
+def _decompress(kind: str, data: bytes, size: int) -> bytes:
+    if kind not in ("lz4", *_DECOMPRESS):
+        raise BagFormatError(f"chunk compression {kind!r} is not supported")
+    try:
+        if kind == "lz4":
+            import lz4.frame
+
+            out = lz4.frame.decompress(data)
+        else:
+            out = _DECOMPRESS[kind](data, size)
+    except (OSError, ValueError, RuntimeError, EOFError) as exc:
+        raise BagFormatError(f"{kind} chunk does not decompress ({exc})") from None
+    if len(out) != size:
+        raise BagFormatError(f"chunk holds {len(out)} bytes, its header says {size}")
+    return out
+
+
+class Ros1Bag:
+    """Sequential reader of a ROS 1 bag: :meth:`index` (topics, counts) and :meth:`chunks` (messages)."""
+
+    def __init__(self, path: str):
+        self.path = str(path)
+        self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
+        try:
+            if self.fh.read(len(MAGIC)) != MAGIC:
+                raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
+            self.data_start = self.fh.tell()
+            hdr = self._header()
+            if _op(hdr) != OP_BAGHEADER:
+                raise BagFormatError("first record is not the bag header")
+            self.index_pos = _int(hdr, "index_pos")
+            self.conn_count = _int(hdr, "conn_count")
+            self.chunk_count = _int(hdr, "chunk_count")
+            if hdr.get("encryptor"):
+                raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
+            self._skip(self._u32())
+            self.first_record = self.fh.tell()
+            self.size = os.fstat(self.fh.fileno()).st_size
+            self.unread_from: int | None = None
+        except BaseException:
+            self.fh.close()
+            raise
+
+    def __enter__(self) -> Ros1Bag:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.fh.close()
+
+    # -- low level
+    def _u32(self) -> int:
+        b = self.fh.read(4)
+        if len(b) != 4:
+            raise BagFormatError("truncated record")
+        return _u32(b, 0)[0]
+
+    def _read(self, n: int) -> bytes:
+        b = self.fh.read(n)
+        if len(b) != n:
+            raise BagFormatError(f"truncated record ({len(b)} of {n} bytes)")
+        return b
+
+    def _skip(self, n: int) -> None:
+        self.fh.seek(n, os.SEEK_CUR)
+
+    def _header(self) -> dict[str, bytes]:
+        n = self._u32()
+        if n > 1 << 20:
+            raise BagFormatError(f"record header of {n} bytes")
+        b = self._read(n)
+        return _fields(b, 0, n)
+
+    # -- index
+    def index(self) -> tuple[dict[int, Connection], dict[int, int]]:
+        """Connections and message counts per connection id.
+
+        From the index section at the end of the bag (connection and chunk-info
+        records: O(chunks)); an unindexed bag (a recording that was not closed) is
+        scanned instead.
+        """
+        if self.index_pos == 0:
+            conns: dict[int, Connection] = {}
+            counts: dict[int, int] = {}
+            for ch in self.chunks(conns):
+                ids, n = np.unique(ch.conn, return_counts=True)
+                for i, k in zip(ids.tolist(), n.tolist(), strict=True):
+                    counts[i] = counts.get(i, 0) + k
+            return conns, counts
+        self.fh.seek(self.index_pos)
+        conns, counts = {}, {}
+        while self.fh.tell() < self.size:
+            hdr = self._header()
+            op = _op(hdr)
+            n = self._u32()
+            if op == OP_CONNECTION:
+                c = _connection(hdr, self._read(n))
+                conns[c.id] = c
+            elif op == OP_CHUNK_INFO:
+                data = self._read(n)
+                k = _int(hdr, "count")
+                if len(data) < 8 * k:
+                    raise BagFormatError("truncated chunk info record")
+                pairs = np.frombuffer(data, "<u4", 2 * k).reshape(k, 2)
+                for cid, m in pairs.tolist():
+                    counts[cid] = counts.get(cid, 0) + m
+            else:
+                self._skip(n)
+        return conns, counts
+
+    # -- messages
+    def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
+        """The messages of each chunk in file order; ``conns`` is filled with the connection records met.
+
+        An unindexed bag (a recording that was not closed) may end in a record that was being
+        written: reading stops there and :attr:`unread_from` tells where (else it is None).
+        """
+        conns = {} if conns is None else conns
+        self.fh.seek(self.first_record)
+        self.unread_from = None
+        end = self.index_pos if self.index_pos else self.size
+        while self.fh.tell() < end:
+            at = self.fh.tell()
+            try:
+                op, hdr, data = self._record()
+                if op == OP_CHUNK:
+                    msgs = self._split(_decompress(hdr.get("compression", b"none").decode(), data,
+                                                   _int(hdr, "size")), conns)  # fmt: skip
+            except BagFormatError:
+                if self.index_pos:
+                    raise
+                self.unread_from = at
+                return
+            if op == OP_CHUNK:
+                yield msgs
+            elif op == OP_CONNECTION:
+                c = _connection(hdr, data)
+                conns[c.id] = c
+            elif op == OP_MSGDATA:  # a message outside any chunk (not written by rosbag, but allowed)
+                one = np.ones(1, np.int64)
+                yield ChunkMessages(
+                    data, one * _int(hdr, "conn"), one * _time(hdr), np.zeros(1, np.int64), one * len(data)
+                )
+
+    def _record(self) -> tuple[int, dict[str, bytes], bytes]:
+        """The next top-level record: op, header fields and data (b"" for index records, skipped)."""
+        hdr = self._header()
+        op = _op(hdr)
+        n = self._u32()
+        if op in (OP_CHUNK, OP_CONNECTION, OP_MSGDATA):
+            return op, hdr, self._read(n)
+        if self.fh.tell() + n > self.size:
+            raise BagFormatError("truncated record")
+        self._skip(n)
+        return op, hdr, b""
+
+    @staticmethod
+    def _split(raw: bytes, conns: dict[int, Connection]) -> ChunkMessages:
+        """The records of a decompressed chunk: message data (vectorised header parse) and connection records."""
+        b = np.frombuffer(raw, np.uint8)
+        rec = _record_starts(raw, b)
+        hl_a = _gather_u32(b, rec)
+        hs_a = rec + 4
+        dl_a = _gather_u32(b, hs_a + hl_a)
+        ds_a = hs_a + hl_a + 4
+        cid = np.full(len(hs_a), -1, np.int64)
+        tim = np.zeros(len(hs_a), np.int64)
+        is_msg = np.zeros(len(hs_a), bool)
+        done = np.zeros(len(hs_a), bool)
+        for n in np.unique(hl_a).tolist():
+            idx = np.flatnonzero(hl_a == n)
+            first = int(idx[0])
+            f = _fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
+            if _op(f) != OP_MSGDATA or len(f.get("conn", b"")) != 4 or len(f.get("time", b"")) != 8:
+                continue
+            # field layout of this header length: everything but the conn and time values must match
+            lay = _layout(raw, int(hs_a[first]), n)
+            hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
+            fixed = np.ones(n, bool)
+            fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
+            fixed[lay["time"][0] : lay["time"][0] + 8] = False
+            same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
+            ok = idx[same]
+            h = hdr[same]
+            c0, t0 = lay["conn"][0], lay["time"][0]
+            cid[ok] = h[:, c0 : c0 + 4].copy().view("<u4")[:, 0]
+            sec = h[:, t0 : t0 + 4].copy().view("<u4")[:, 0].astype(np.int64)
+            nsec = h[:, t0 + 4 : t0 + 8].copy().view("<u4")[:, 0].astype(np.int64)
+            tim[ok] = sec * 1_000_000_000 + nsec
+            is_msg[ok] = True
+            done[ok] = True
+        for i in np.flatnonzero(~done).tolist():  # connection records and unusual headers
+            h0 = int(hs_a[i])
+            hdr = _fields(raw, h0, h0 + int(hl_a[i]))
+            op = _op(hdr)
+            if op == OP_MSGDATA:
+                cid[i], tim[i], is_msg[i] = _int(hdr, "conn"), _time(hdr), True
+            elif op == OP_CONNECTION:
+                c = _connection(hdr, raw[int(ds_a[i]) : int(ds_a[i] + dl_a[i])])
+                conns[c.id] = c
+        return ChunkMessages(raw, cid[is_msg], tim[is_msg], ds_a[is_msg], dl_a[is_msg])
+
+    def messages(self, topics=None) -> Iterator[tuple[str, str, int, bytes]]:
+        """``(topic, msgtype, record time ns, raw bytes)`` of every message (of ``topics``) in file order."""
+        conns: dict[int, Connection] = {}
+        for ch in self.chunks(conns):
+            for cid, t, s, n in zip(ch.conn.tolist(), ch.time.tolist(), ch.start.tolist(), ch.length.tolist(),
+                                    strict=True):  # fmt: skip
+                c = conns.get(cid)
+                if c is None:
+                    raise BagFormatError(f"message of unknown connection {cid}")
+                if topics is None or c.topic in topics:
+                    yield c.topic, c.msgtype, t, ch.buf[s : s + n]
+
+
+def _time(hdr: dict[str, bytes]) -> int:
+    t = hdr.get("time")
+    if t is None or len(t) != 8:
+        raise BagFormatError("message record without time")
+    sec, nsec = struct.unpack("<II", t)
+    return sec * 1_000_000_000 + nsec
+
+
+def _record_starts(raw: bytes, b: np.ndarray) -> np.ndarray:
+    """Offsets of the records of a chunk.
+
+    Records are walked one by one, but runs of records of one size (a topic's
+    messages of constant length, the common case) are found with numpy.
+    """
+    out: list = []
+    pos, size = 0, len(raw)
+    plain = 0  # records to walk one by one before trying a run again
+    try:
+        while pos < size:
+            (hn,) = _u32(raw, pos)
+            (dn,) = _u32(raw, pos + 4 + hn)
+            stride = 8 + hn + dn
+            if pos + stride > size:
+                raise BagFormatError("truncated record in chunk")
+            m = min((size - pos) // stride, 4096)
+            if plain or m < 4:
+                out.append(np.array([pos], np.int64))
+                pos += stride
+                plain = max(plain - 1, 0)
+                continue
+            cand = pos + stride * np.arange(m, dtype=np.int64)
+            good = (_gather_u32(b, cand) == hn) & (_gather_u32(b, cand + 4 + hn) == dn)
+            k = m if good.all() else int(np.argmin(good))
+            out.append(cand[:k])
+            pos += k * stride
+            if k < 4:
+                plain = 16
+    except struct.error:
+        raise BagFormatError("truncated record in chunk") from None
+    return np.concatenate(out) if out else np.empty(0, np.int64)

@@ -1,0 +1,94 @@
+"""Time and peak memory of `imustation import` on a big bag: rosbags Reader (old) vs streaming reader (new).
+
+Writes a bag of N sensor_msgs/Imu messages at 400 Hz (numpy-built payloads), then imports
+it in a fresh process per reader and prints time, messages/s and peak RSS:
+
+    python benchmarks/bench_import.py [-n 2000000] [--format ros1|mcap|sqlite3] [--compression lz4]
+                                      [--reader old|new|both] [--keep BAG]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, "..", "tests"))
+
+
+def measure(bag: str, reader: str) -> None:
+    from imustation.analysis import field_import
+    from imustation.analysis.field_import import import_recording
+
+    if reader == "old":  # the import as it was: rosbags Reader, message-by-message decoding, 2^20-row write buffer
+        field_import.WRITE_ROWS = 1 << 20
+
+    out = os.path.join(tempfile.mkdtemp(), "bench.h5")
+    t0 = time.perf_counter()
+    res = import_recording(bag, out, overwrite=True, bag_reader=reader)
+    dt = time.perf_counter() - t0
+    n = sum(r.n for r in res.reports.values())
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rate = n / dt
+    print(f"{reader:4s} {res.source_format}: {n} messages in {dt:.1f} s ({rate:,.0f} msg/s), peak RSS {peak_mb:.0f} MB")
+    shutil.rmtree(os.path.dirname(out))
+
+
+def baseline() -> None:
+    import rosbags.highlevel  # noqa: F401  (the imports the import process pays for)
+
+    import imustation.analysis.field_import  # noqa: F401
+
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"baseline (python, numpy, h5py, rosbags imported): {peak_mb:.0f} MB")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("-n", type=int, default=2_000_000, help="Imu messages (default 2M = 83 min at 400 Hz)")
+    ap.add_argument("--format", default="ros1", choices=["ros1", "mcap", "sqlite3"])
+    ap.add_argument("--compression", default=None, choices=["bz2", "lz4"], help="ROS1 chunk compression")
+    ap.add_argument("--reader", default="both", choices=["old", "new", "both"])
+    ap.add_argument("--keep", default=None, help="bag path: reuse it if it exists, else write and keep it")
+    ap.add_argument("--measure", nargs=2, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--baseline", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.baseline:
+        baseline()
+        return
+    if args.measure:
+        measure(*args.measure)
+        return
+    from bagmaker import write_big_imu_bag
+
+    tmp = None
+    if args.keep:
+        bag = args.keep
+    else:
+        tmp = tempfile.mkdtemp()
+        bag = os.path.join(tmp, "big.bag" if args.format == "ros1" else "big")
+    if not os.path.exists(bag):
+        t0 = time.perf_counter()
+        write_big_imu_bag(bag, args.n, fmt=args.format, compression=args.compression)
+        print(f"wrote {args.n} Imu messages to {bag} in {time.perf_counter() - t0:.0f} s")
+    src = bag
+    if args.format == "mcap" and os.path.isdir(bag):
+        src = next(os.path.join(bag, f) for f in os.listdir(bag) if f.endswith(".mcap"))
+    size = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(bag) for f in fs) if os.path.isdir(bag) \
+        else os.path.getsize(bag)  # fmt: skip
+    print(f"{src}: {size / 1e6:.0f} MB")
+    subprocess.run([sys.executable, __file__, "--baseline"], check=True)
+    for reader in ("old", "new") if args.reader == "both" else (args.reader,):
+        subprocess.run([sys.executable, __file__, "--measure", src, reader], check=True)
+    if tmp:
+        shutil.rmtree(tmp)
+
+
+if __name__ == "__main__":
+    main()
