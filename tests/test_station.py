@@ -62,8 +62,9 @@ def test_threaded_readers_on_a_real_clock_lose_nothing(tmp_path, monkeypatch):
                 # the oracle: every sample produced is written, logged as lost, or still in the FIFO
                 assert n + lost + in_fifo == chip.produced - produced0[name]
                 # 1.5 s at 400 Hz, less at most one poll interval (0.1 s) at the end; a loaded
-                # machine may delay a reader into a FIFO overrun, which must then be logged
-                assert 1.5 * 400 - 45 <= n + lost <= 1.5 * 400 + 1
+                # machine may delay a reader into a FIFO overrun, which must then be logged, or
+                # the last read past 1.5 s (it then holds what the chip made until that read)
+                assert 1.5 * 400 - 45 <= n + lost <= summary.duration_s * 400 + 1
                 t = run.read(name, "t")
                 assert (np.diff(t) > 0).all()
             t, c = run.temperatures("amb")
