@@ -179,6 +179,7 @@ class Monitor:
         self._status: dict[str, Any] = {"state": "starting", "file": os.path.basename(self.path), "devices": {}}
         self._temps: dict[str, Any] = {"series": {}, "warmup": {}}
         self._allan: dict[str, Any] = {"devices": {}, "model_after_s": self.model_after_s}
+        self._fitted = False  # the last analyse() fitted a model
         self.error: str | None = None
 
     @staticmethod
@@ -233,7 +234,8 @@ class Monitor:
                 fit_due = now - last_fit >= self.fit_every_s
                 if self.analyse(fit=fit_due):
                     last_allan = now
-                    last_fit = now if fit_due else last_fit
+                    # the refit clock starts at a fit, not at a due time with too little data
+                    last_fit = now if self._fitted else last_fit
             self._kick.wait(1.0)
             self._kick.clear()
 
@@ -445,6 +447,7 @@ class Monitor:
         out: dict[str, Any] = {}
         previous = self._allan.get("devices", {})
         did = False
+        self._fitted = False
         for name, dev in list(self._devices.items()):
             snap = dev.gyro.snapshot() if dev.gyro is not None else None
             if snap is None:
@@ -477,6 +480,7 @@ class Monitor:
             if fit and duration >= self.model_after_s and len(curves["tau"]):
                 entry["model"] = model_curves(snap, np.asarray(curves["tau"]))
                 entry["model"]["fitted_utc"] = _utc()
+                self._fitted = True
             elif old is not None and len(curves["tau"]):
                 # keep the last fit, its curve evaluated at the new taus
                 entry["model"] = {**old, "axes": dict(old["axes"])}
