@@ -179,7 +179,14 @@ def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
                             ch.scale,
                             source=path,
                             gaps=len(dev_events),
-                            meta={"device": dev.name, "driver": dev.driver, "settings": dev.settings},
+                            meta={
+                                "device": dev.name,
+                                "driver": dev.driver,
+                                "model": dev.model,
+                                "identity": dev.identity,
+                                "station": str(run.attrs.get("station", "")),
+                                "settings": dev.settings,
+                            },
                             segments=list(segments),
                             ref=(path, dev.name, cname, j, ch.n),
                         )
