@@ -60,4 +60,15 @@ def main() -> None:
 
 
 # subcommand modules register themselves on the group
-from imustation.cli import analyze, capture, demo, devices, export, importcmd, inspect, report, study  # noqa: E402,F401
+from imustation.cli import (  # noqa: E402,F401
+    analyze,
+    capture,
+    demo,
+    devices,
+    export,
+    fleet,
+    importcmd,
+    inspect,
+    report,
+    study,
+)
