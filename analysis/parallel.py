@@ -193,6 +193,8 @@ def dask_client(
         return
     from distributed import Client, LocalCluster
 
+    # one core per worker: numba's parallel kernels run single-threaded in a worker process
+    extra = {"env": {"NUMBA_NUM_THREADS": "1"}} if processes else {}
     cluster = LocalCluster(
         n_workers=int(workers),
         threads_per_worker=1,
@@ -200,6 +202,7 @@ def dask_client(
         memory_limit=memory_limit,
         dashboard_address=dashboard_address,
         silence_logs=logging.ERROR,
+        **extra,
     )
     client = Client(cluster, set_as_default=False)
     try:

@@ -1,0 +1,146 @@
+"""Fleet analysis on dask.distributed: twenty simulated 12 h runs, 1 worker vs 2 workers.
+
+The run files are synthesised directly (not captured): a BMX055-like gyroscope,
+400 Hz, three axes drawn from the standard noise model (paper Table III mean
+parameters) with :meth:`NoiseModel.simulate`, quantised to int16 counts and
+written with the project's :class:`~imustation.runfile.RunWriter` (capture would
+cost 20 x 12 h / 200 of wall time for the same files). Then every channel is
+analysed (Allan, IEEE-952, ML_i, verdict: ``imustation analyze``'s per-channel
+task) on a local cluster of 1 and of 2 single-threaded worker processes; the
+JSON of both is checked identical. Prints the per-channel cost, the memory of
+one task (peak RSS growth of a fresh process analysing one channel) and the
+speed-up.
+
+    python benchmarks/bench_fleet.py [--runs 20] [--hours 12] [--dir /tmp/imustation-fleet-bench] [--keep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from imustation.analysis.noise_models import standard
+from imustation.analysis.parallel import AnalysisOptions, dask_client, plan_tasks, run_tasks
+from imustation.analysis.pipeline import analysis_document
+from imustation.analysis.reference import TABLE_III_MEAN
+from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
+
+FS_HZ = 400.0
+SCALE = 6.651407e-05  # rad/s per count, BMX055 at 125 deg/s
+BLOCK = 1 << 21
+
+
+def synth_run(path: str, hours: float, seed: int) -> int:
+    """Write one run file of a simulated 3-axis gyro; returns its size in bytes."""
+    n = int(hours * 3600 * FS_HZ)
+    p = TABLE_III_MEAN
+    model = standard(p.sigma_w, p.sigma_b, p.tau_b, 0.01)
+    counts = np.empty((n, 3), dtype=np.int16)
+    for j in range(3):
+        counts[:, j] = np.rint(model.simulate(n, FS_HZ, seed * 3 + j) / SCALE).astype(np.int16)
+    t_ns = np.rint(np.arange(n) * (1e9 / FS_HZ)).astype(np.int64)
+    dev = DeviceSpec(
+        name="gyro",
+        driver="bmx055",
+        model="BMX055 gyro (BMG160), synthesised",
+        bus="sim:",
+        identity=f"chip_id=0x0F serial=bench{seed:04d}",
+        rate_hz=FS_HZ,
+        settings={"bandwidth_hz": 47.0, "gyro_range_dps": 125},
+        channels=(ChannelSpec("gyro", "<i2", "rad/s", SCALE, axes=("x", "y", "z")),),
+    )
+    with RunWriter(
+        path, station="bench", config_text="", simulated=True, devices=[dev], fsync=False, ballast_bytes=0,
+        max_buffer_rows=BLOCK * 2,
+    ) as w:  # fmt: skip
+        for a in range(0, n, BLOCK):
+            w.append("gyro", t_ns[a : a + BLOCK], {"gyro": counts[a : a + BLOCK]})
+            w.flush()
+    return os.path.getsize(path)
+
+
+_ONE_TASK = """
+import resource, sys, time
+from imustation.analysis.parallel import AnalysisOptions, analyze_task
+r0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t0 = time.perf_counter()
+analyze_task(sys.argv[1], sys.argv[2], AnalysisOptions())
+dt = time.perf_counter() - t0
+r1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(r0 * 1024, r1 * 1024, dt)
+"""
+
+
+def task_memory(path: str, channel: str) -> tuple[float, float, float]:
+    """(RSS after imports, peak RSS, seconds) of a fresh single-threaded process analysing one channel."""
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    out = subprocess.run(
+        [sys.executable, "-c", _ONE_TASK, path, channel], capture_output=True, text=True, env=env, check=True
+    )
+    a, b, dt = out.stdout.split()
+    return float(a), float(b), float(dt)
+
+
+def _warm_up() -> None:
+    """Load the numba kernels and scipy in a worker (part of the cluster start, not of the tasks)."""
+    from imustation.analysis.loaders import Channel
+    from imustation.analysis.pipeline import analyze_channel
+
+    x = standard(1e-4, 1e-6, 100.0, 0.0).simulate(40000, FS_HZ, 0)
+    analyze_channel(Channel("warm", FS_HZ, "rad/s", np.rint(x / SCALE).astype(np.int16), SCALE))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--hours", type=float, default=12.0)
+    ap.add_argument("--dir", default="/tmp/imustation-fleet-bench")
+    ap.add_argument("--keep", action="store_true", help="keep the run files (and reuse them next time)")
+    args = ap.parse_args()
+    os.makedirs(args.dir, exist_ok=True)
+    paths, size, t0 = [], 0, time.perf_counter()
+    for k in range(args.runs):
+        p = os.path.join(args.dir, f"run{k:02d}_{args.hours:g}h.h5")
+        if not os.path.exists(p):
+            synth_run(p, args.hours, k + 1)
+        size += os.path.getsize(p)
+        paths.append(p)
+    n = int(args.hours * 3600 * FS_HZ)
+    print(f"{args.runs} runs x 3 axes of {args.hours:g} h at {FS_HZ:g} Hz ({n} samples/axis): "
+          f"{size / 2**30:.2f} GiB on disk ({size / args.runs / 2**20:.0f} MiB/run), "
+          f"made in {time.perf_counter() - t0:.0f} s")  # fmt: skip
+    tasks, failures = plan_tasks(paths)
+    assert not failures, failures
+    rss0, rss1, one = task_memory(paths[0], tasks[0].channel)
+    print(f"one task in a fresh process: {one:.2f} s, RSS {rss0 / 2**20:.0f} MiB after imports, "
+          f"peak {rss1 / 2**20:.0f} MiB (+{(rss1 - rss0) / 2**20:.0f} MiB for the channel)")  # fmt: skip
+    opts = AnalysisOptions()
+    times, docs = {}, {}
+    for workers in (1, 2):
+        t0 = time.perf_counter()
+        with dask_client(workers, dashboard_address=None) as client:
+            client.run(_warm_up)  # every worker up, kernels loaded
+            t_start = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            results, failed = run_tasks(tasks, opts, client)
+            times[workers] = time.perf_counter() - t1
+        assert not failed, failed
+        docs[workers] = json.dumps(analysis_document(results))
+        print(f"{workers} worker(s): {times[workers]:.1f} s for {len(tasks)} channels "
+              f"({times[workers] / len(tasks):.2f} s/channel wall, start+warm-up {t_start:.1f} s)")  # fmt: skip
+    print(f"speed-up 2 vs 1 worker: {times[1] / times[2]:.2f}")
+    print(f"JSON identical: {docs[1] == docs[2]}")
+    print(f"core-seconds per channel: {times[1] / len(tasks):.2f} (1 worker)")
+    if not args.keep:
+        shutil.rmtree(args.dir, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
