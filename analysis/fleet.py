@@ -160,7 +160,7 @@ def robust_z(x: np.ndarray) -> np.ndarray:
     if mean_ad > 0:
         z[ok] = (x[ok] - med) / (1.253314 * mean_ad)
         return z
-    z[ok] = np.where(dev == 0, 0.0, np.inf * np.sign(x[ok] - med))
+    z[ok] = 0.0  # every value equal
     return z
 
 
