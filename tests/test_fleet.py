@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from imustation.acquisition import capture, load_config
 from imustation.analysis import parallel
-from imustation.analysis.fleet import device_key, fleet_rows, flag_outliers, repeatability, robust_z
+from imustation.analysis.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
 from imustation.analysis.parallel import AnalysisOptions, plan_tasks, run_tasks
 from imustation.analysis.pipeline import channel_document
 from imustation.cli import cli
