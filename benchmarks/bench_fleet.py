@@ -67,14 +67,18 @@ def synth_run(path: str, hours: float, seed: int) -> int:
 
 
 _ONE_TASK = """
-import resource, sys, time
+import sys, time
 from imustation.analysis.parallel import AnalysisOptions, analyze_task
-r0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+def hwm():  # peak RSS of this process image, bytes (VmHWM starts afresh at exec, unlike ru_maxrss)
+    with open("/proc/self/status") as fh:
+        return next(int(l.split()[1]) * 1024 for l in fh if l.startswith("VmHWM"))
+
+r0 = hwm()
 t0 = time.perf_counter()
 analyze_task(sys.argv[1], sys.argv[2], AnalysisOptions())
 dt = time.perf_counter() - t0
-r1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(r0 * 1024, r1 * 1024, dt)
+print(r0, hwm(), dt)
 """
 
 
