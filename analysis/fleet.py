@@ -269,7 +269,7 @@ def fleet_markdown(
         for q in FLEET_QUANTITIES:
             head.append(f"{TITLES[q][0]} [{_sensor_units(sensor, q)[0]}]")
         head.append("flags")
-        lines = [f"**{sensor}: every run** (value ± standard error)", "", "| " + " | ".join(head) + " |"]
+        lines = [f"**{sensor}: every run (value ± standard error)**", "", "| " + " | ".join(head) + " |"]
         lines.append("|" + "---|" * len(head))
         for r in (r for r in rows if r.sensor == sensor):
             cells = [r.run, r.key, r.identity or "–", f"{r.axis}-{sensor}"]
@@ -285,7 +285,7 @@ def fleet_markdown(
         for q in MODEL_QUANTITIES:
             u = _sensor_units(sensor, q)[0]
             head += [f"{TITLES[q][0]} mean [{u}]", f"{TITLES[q][0]} std [{u}]"]
-        lines = [f"**{sensor}: repeatability per device** (Table III layout, std over runs, ddof=1)", ""]
+        lines = [f"**{sensor}: repeatability per device (Table III layout: mean and std over runs, ddof=1)**", ""]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for rr in (rr for rr in repeat if rr.sensor == sensor):
             cells = [rr.key, f"{rr.axis}-{sensor}", str(rr.runs)]
@@ -295,7 +295,7 @@ def fleet_markdown(
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     out = [r for r in rows if r.outliers]
-    lines = [f"**Outliers** (robust z of log10 value vs. the same driver/sensor/axis, |z| > {Z_LIMIT:g})", ""]
+    lines = [f"**Outliers (robust z of log10 value vs. the same driver/sensor/axis, |z| > {Z_LIMIT:g})**", ""]
     if out:
         lines += ["| run | device | axis | quantity | z |", "|---|---|---|---|---|"]
         for r in out:

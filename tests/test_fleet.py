@@ -203,7 +203,8 @@ def test_outputs_written(fleet_out):
     png = (out / "fleet_allan.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     md = (out / "fleet.md").read_text()
-    assert "°/h/√Hz" in md and "**Outliers**" in md
+    assert "°/h/√Hz" in md and "**Outliers (robust z" in md
+    assert "<h3>Outliers (robust z" in page
 
 
 def test_robust_z_and_device_key():
