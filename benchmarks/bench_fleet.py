@@ -92,6 +92,12 @@ def task_memory(path: str, channel: str) -> tuple[float, float, float]:
     return float(a), float(b), float(dt)
 
 
+def _cpu_s() -> float:
+    """CPU seconds (user + system) of this worker process."""
+    t = os.times()
+    return t.user + t.system
+
+
 def _warm_up() -> None:
     """Load the numba kernels and scipy in a worker (part of the cluster start, not of the tasks)."""
     from imustation.analysis.loaders import Channel
@@ -126,22 +132,28 @@ def main() -> None:
     print(f"one task in a fresh process: {one:.2f} s, RSS {rss0 / 2**20:.0f} MiB after imports, "
           f"peak {rss1 / 2**20:.0f} MiB (+{(rss1 - rss0) / 2**20:.0f} MiB for the channel)")  # fmt: skip
     opts = AnalysisOptions()
-    times, docs = {}, {}
+    times, docs, cpu = {}, {}, {}
     for workers in (1, 2):
         t0 = time.perf_counter()
         with dask_client(workers, dashboard_address=None) as client:
             client.run(_warm_up)  # every worker up, kernels loaded
             t_start = time.perf_counter() - t0
+            cpu0 = sum(client.run(_cpu_s).values())
             t1 = time.perf_counter()
             results, failed = run_tasks(tasks, opts, client)
             times[workers] = time.perf_counter() - t1
+            cpu[workers] = sum(client.run(_cpu_s).values()) - cpu0
         assert not failed, failed
         docs[workers] = json.dumps(analysis_document(results))
         print(f"{workers} worker(s): {times[workers]:.1f} s for {len(tasks)} channels "
-              f"({times[workers] / len(tasks):.2f} s/channel wall, start+warm-up {t_start:.1f} s)")  # fmt: skip
+              f"({times[workers] / len(tasks):.2f} s/channel wall, start+warm-up {t_start:.1f} s); "
+              f"worker CPU {cpu[workers]:.1f} s = {cpu[workers] / len(tasks):.2f} CPU-s/channel, "
+              f"{cpu[workers] / (times[workers] * workers):.0%} of {workers} core(s)")  # fmt: skip
     print(f"speed-up 2 vs 1 worker: {times[1] / times[2]:.2f}")
     print(f"JSON identical: {docs[1] == docs[2]}")
-    print(f"core-seconds per channel: {times[1] / len(tasks):.2f} (1 worker)")
+    print(f"core-seconds per channel: {times[1] / len(tasks):.2f} (1 worker wall), "
+          f"{cpu[1] / len(tasks):.2f} (CPU)")  # fmt: skip
+    print("a worker that got less than 100 % of its core shared the machine with other jobs")
     if not args.keep:
         shutil.rmtree(args.dir, ignore_errors=True)
 
