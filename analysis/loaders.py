@@ -17,6 +17,11 @@ import numpy as np
 from imustation.errors import InputError
 from imustation.runfile import open_run
 
+
+class NoChannelsError(InputError):
+    """No channel of the inputs matches the ``--channel`` globs (or the inputs hold none)."""
+
+
 #: run-file channels the analysis treats as rate signals
 RATE_CHANNELS = ("gyro", "accel")
 
@@ -255,5 +260,5 @@ def load_inputs(paths: Sequence[str], globs: Sequence[str] = (), fs_hz: float | 
             raise InputError(f"{path}: unknown input type {ext!r} (run file .h5, .npy or .csv)")
     if not channels:
         sel = f" matching {', '.join(globs)}" if globs else ""
-        raise InputError(f"no channels{sel} in {', '.join(paths)}")
+        raise NoChannelsError(f"no channels{sel} in {', '.join(paths)}")
     return channels

@@ -25,7 +25,7 @@ import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from imustation.analysis.loaders import load_inputs
+from imustation.analysis.loaders import NoChannelsError, load_inputs
 from imustation.analysis.pipeline import ChannelAnalysis, analyze_channel
 from imustation.errors import ImustationError, InputError
 
@@ -75,16 +75,27 @@ def _message(path: str, channel: str | None, exc: BaseException) -> str:
 def plan_tasks(
     paths: Sequence[str], globs: Sequence[str] = (), rate_hz: float | None = None
 ) -> tuple[list[ChannelTask], list[TaskFailure]]:
-    """One task per selected channel of every input (metadata only); inputs that cannot be listed fail."""
+    """One task per selected channel of every input (metadata only); inputs that cannot be listed fail.
+
+    As in the serial path, an input with no channel matching ``globs`` adds no
+    task and no failure; :class:`NoChannelsError` when no input has any.
+    """
     tasks: list[ChannelTask] = []
     failures: list[TaskFailure] = []
     for path in paths:
         try:
             channels = load_inputs([path], globs, rate_hz)
+        except NoChannelsError:
+            if not globs:
+                failures.append(TaskFailure(path, None, f"{path}: no gyro/accel channels"))
+            continue
         except Exception as exc:  # noqa: BLE001 - any unreadable run is reported, the rest go on
             failures.append(TaskFailure(path, None, _message(path, None, exc)))
             continue
         tasks += [ChannelTask(path, ch.id) for ch in channels]
+    if not tasks and not failures:
+        sel = f" matching {', '.join(globs)}" if globs else ""
+        raise NoChannelsError(f"no channels{sel} in {', '.join(paths)}")
     return tasks, failures
 
 

@@ -236,3 +236,13 @@ def test_bad_scheduler_one_line_exit_2(fleet_runs, monkeypatch):
 def test_workers_and_scheduler_exclusive(fleet_runs):
     r = CliRunner().invoke(cli, ["analyze", fleet_runs[0][0], "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"])
     assert r.exit_code == 2 and "not both" in r.stderr
+
+
+def test_glob_matching_nothing_in_one_run_is_not_a_failure(fleet_runs, tmp_path):
+    runs = fleet_runs[0]
+    tasks, failures = plan_tasks(runs, ["gyro_a/gyro/z"])
+    assert [t.path for t in tasks] == runs and not failures
+    with pytest.raises(parallel.NoChannelsError):
+        plan_tasks(runs, ["nothing/*"])
+    r = CliRunner().invoke(cli, ["fleet", *runs, "-o", str(tmp_path), "--channel", "nothing/*"])
+    assert r.exit_code == 2 and "no channels matching nothing/*" in r.stderr
