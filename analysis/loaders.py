@@ -17,6 +17,11 @@ import numpy as np
 from imustation.errors import InputError
 from imustation.runfile import open_run
 
+
+class NoChannelsError(InputError):
+    """No channel of the inputs matches the ``--channel`` globs (or the inputs hold none)."""
+
+
 #: run-file channels the analysis treats as rate signals
 RATE_CHANNELS = ("gyro", "accel")
 
@@ -179,7 +184,14 @@ def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
                             ch.scale,
                             source=path,
                             gaps=len(dev_events),
-                            meta={"device": dev.name, "driver": dev.driver, "settings": dev.settings},
+                            meta={
+                                "device": dev.name,
+                                "driver": dev.driver,
+                                "model": dev.model,
+                                "identity": dev.identity,
+                                "station": str(run.attrs.get("station", "")),
+                                "settings": dev.settings,
+                            },
                             segments=list(segments),
                             ref=(path, dev.name, cname, j, ch.n),
                         )
@@ -248,5 +260,5 @@ def load_inputs(paths: Sequence[str], globs: Sequence[str] = (), fs_hz: float | 
             raise InputError(f"{path}: unknown input type {ext!r} (run file .h5, .npy or .csv)")
     if not channels:
         sel = f" matching {', '.join(globs)}" if globs else ""
-        raise InputError(f"no channels{sel} in {', '.join(paths)}")
+        raise NoChannelsError(f"no channels{sel} in {', '.join(paths)}")
     return channels

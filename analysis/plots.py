@@ -225,3 +225,43 @@ def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, 
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     ax.legend(fontsize=7, loc="best")
     return fig
+
+
+def fleet_allan_figure(
+    curves: Sequence[tuple[str, str, str, np.ndarray, np.ndarray, bool]],
+    title: str = "Allan deviation — fleet",
+    ncols: int = 3,
+) -> Figure:
+    """Every run's measured Allan deviation, one panel per axis group.
+
+    ``curves``: ``(group, sensor, label, tau [s], adev [SI], outlier)``; panels
+    in first-appearance order of ``group`` (e.g. ``"bmx055 gyro z"``). Runs in
+    grey, outliers in colour with their label.
+    """
+    groups: dict[str, list] = {}
+    for c in curves:
+        groups.setdefault(c[0], []).append(c)
+    n = max(1, len(groups))
+    ncols = max(1, min(ncols, n))
+    nrows = math.ceil(n / ncols)
+    fig = Figure(figsize=(4.2 * ncols, 3.3 * nrows + 0.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    fig.suptitle(title, fontsize=11)
+    for k, (group, cs) in enumerate(groups.items()):
+        ax = fig.add_subplot(nrows, ncols, k + 1)
+        n_out = 0
+        for _, _, label, tau, adev, outlier in cs:
+            if outlier:
+                ax.loglog(tau, adev, "-", color=f"C{3 + n_out % 7}", lw=1.2, label=f"outlier: {label}")
+                n_out += 1
+            else:
+                ax.loglog(tau, adev, "-", color="0.45", lw=0.6, alpha=0.6)
+        ax.plot([], [], "-", color="0.45", lw=0.6, label=f"{len(cs) - n_out} runs")
+        sensor = cs[0][1]
+        ax.set_title(group, fontsize=9)
+        ax.set_xlabel("τ [s]", fontsize=8)
+        ax.set_ylabel(f"ADEV [{units_of(sensor, 'B')[0]}]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+        ax.legend(fontsize=6, loc="best")
+    return fig

@@ -46,6 +46,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
       imustation import field.bag -o field.h5    # ROS bag / MCAP / CSV log -> run file
       imustation demo            # simulated capture + analysis, about a minute
       imustation devices configs/lab-example.toml   # probe every configured chip
+      imustation fleet night*.h5 -o fleet/ --workers 2   # fleet table, repeatability, outliers
     """
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
@@ -66,6 +67,7 @@ from imustation.cli import (  # noqa: E402,F401
     demo,
     devices,
     export,
+    fleet,
     importcmd,
     inspect,
     monitor,

@@ -12,6 +12,7 @@ import click
 from imustation.analysis.field_import import is_field_input
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.mli import DEFAULT_COMPARISON
+from imustation.analysis.parallel import AnalysisOptions, plan_tasks
 from imustation.analysis.pipeline import (
     DEFAULT_ESTIMATOR,
     ESTIMATORS,
@@ -20,6 +21,7 @@ from imustation.analysis.pipeline import (
     analyze_channel,
 )
 from imustation.cli import cli
+from imustation.cli._parallel import cluster_options, execute, report_failures
 from imustation.cli.importcmd import field_options, run_import, text_options
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
@@ -117,6 +119,7 @@ def _interp_adev(allan, tau: float) -> float:
     help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
+@cluster_options
 @field_options
 def analyze(
     inputs: tuple[str, ...],
@@ -129,6 +132,9 @@ def analyze(
     estimator: str,
     method: str,
     as_json: bool,
+    workers: int | None,
+    scheduler: str | None,
+    memory_limit: str,
     topic: str | None,
     time_column: str | None,
     gyro_columns: str | None,
@@ -143,6 +149,13 @@ def analyze(
     fly (ROS .bag, ROS 2 bag folders, .mcap, .tsv; a .csv log with a time
     column when --rate is not given; docs/import.md). Prints a table, or with
     --json the document described in docs/analysis-json.md.
+
+    With --workers N (a local dask cluster) or --scheduler ADDR (an existing
+    one) every channel is one task that reads its channel from the file
+    itself; the results are identical to the serial ones. A run or channel
+    that fails is reported on stderr (and under 'failures' in the JSON) and
+    the others finish; the exit status is 2 only when every one failed
+    (docs/fleet.md).
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
@@ -159,7 +172,31 @@ def analyze(
                 paths.append(out)
             else:
                 paths.append(path)
-        _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json)
+        if workers or scheduler:
+            opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
+            _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit)
+        else:
+            _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json)
+
+
+def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
+    tasks, failures = plan_tasks(paths, globs, opts.rate_hz)
+    report_failures(failures)
+    results, failed = execute(tasks, opts, workers=workers, scheduler=scheduler, memory_limit=memory_limit)
+    failures += failed
+    done = [r for r in results if r is not None]
+    if not done:
+        first = failures[0].error if failures else "no channels"
+        raise InputError(f"every input failed ({len(failures)} failures; first: {first})")
+    if as_json:
+        doc = analysis_document(done)
+        if failures:
+            doc["failures"] = [f.as_dict() for f in failures]
+        click.echo(json.dumps(doc))
+    else:
+        click.echo(results_table(done))
+        if failures:
+            click.echo(f"{len(failures)} failed (see above); {len(done)} channels analysed", err=True)
 
 
 def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json) -> None:

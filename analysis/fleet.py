@@ -1,0 +1,314 @@
+"""Fleet characterisation: one table over many runs and devices, repeatability, outliers.
+
+* :func:`fleet_rows` — one :class:`FleetRow` per analysed axis of every run: device
+  identity, ML_i ``sigma_w``, ``sigma_b``, ``tau_b`` and IEEE-952 ``N``, ``B``, ``K`` (SI),
+  each with its standard error and a 90 % interval.
+* :func:`device_key` — which physical device a run's device is: its serial number
+  where the chip reports one (ADIS16448 ``serial=``, Xsens ``device_id=``, or a
+  ``serial`` device setting in the config), otherwise ``station/device name`` (chips
+  such as the BMX055 or MPU-6500 only report a chip id, the same on every part).
+* :func:`repeatability` — per device and axis, mean and standard deviation
+  (``ddof=1``) of ``sigma_w``, ``sigma_b``, ``tau_b`` over its runs (the paper's Table III).
+* :func:`flag_outliers` — robust z-score of ``log10`` of each of ``sigma_w``,
+  ``sigma_b``, ``tau_b`` against the fleet of the same driver, sensor and axis:
+  ``z = 0.6745 (x - median) / MAD`` (Iglewicz & Hoaglin); ``|z| > 3.5`` is an outlier.
+  Groups of fewer than :data:`MIN_GROUP` values are not judged (``z`` NaN).
+
+Builders return text (CSV, Markdown); writing files is the caller's business.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from imustation.analysis.parallel import TaskFailure
+from imustation.analysis.pipeline import ChannelAnalysis
+from imustation.analysis.tables import TITLES, noise_rows, units_of
+
+#: quantities of the fleet table (SI): ML_i standard model, then IEEE-952
+FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")
+#: quantities judged for outliers and summarised for repeatability
+MODEL_QUANTITIES = ("sigma_w", "sigma_b", "tau_b")
+#: robust |z| above which a run is flagged
+Z_LIMIT = 3.5
+#: fewest runs of a driver/sensor/axis group for outlier flags
+MIN_GROUP = 3
+#: consistency constant of the MAD for a normal distribution (Iglewicz & Hoaglin)
+_MAD_K = 0.6745
+#: two-sided 90 % normal quantile for intervals built from a standard error
+_Z90 = 1.6448536269514722
+#: identity fields that name one physical part
+_UNIQUE_FIELDS = ("serial", "device_id", "lot", "uid")
+
+
+def device_key(driver: str, identity: str, station: str, device: str, settings: dict | None = None) -> str:
+    """A name for the physical device: ``driver:serial=...`` when the identity has a serial, else ``station/device``."""
+    if settings and str(settings.get("serial", "")).strip():
+        return f"{driver}:serial={str(settings['serial']).strip()}"
+    fields = dict(re.findall(r"(\w+)=(\S+)", identity or ""))
+    unique = [f"{k}={fields[k]}" for k in _UNIQUE_FIELDS if k in fields]
+    if unique:
+        return f"{driver}:" + ",".join(unique)
+    return f"{station}/{device}" if station else device
+
+
+@dataclass(frozen=True)
+class FleetRow:
+    """One axis of one run; ``values``, ``stderr``, ``lo``, ``hi`` in SI keyed by :data:`FLEET_QUANTITIES`.
+
+    ``z``: robust z-scores of :data:`MODEL_QUANTITIES` (NaN when not judged);
+    ``outliers``: the quantities with ``|z| > Z_LIMIT``.
+    """
+
+    run: str
+    station: str
+    device: str
+    driver: str
+    identity: str
+    key: str
+    sensor: str
+    axis: str
+    n: int
+    fs_hz: float
+    model: str
+    converged: bool
+    values: dict[str, float]
+    stderr: dict[str, float]
+    lo: dict[str, float]
+    hi: dict[str, float]
+    z: dict[str, float] = field(default_factory=dict)
+    outliers: tuple[str, ...] = ()
+
+    @property
+    def group(self) -> tuple[str, str, str]:
+        """(driver, sensor, axis): the population an outlier is judged against."""
+        return (self.driver, self.sensor, self.axis)
+
+
+def _f(x) -> float:
+    return float("nan") if x is None else float(x)
+
+
+def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
+    """Rows of analysed channels (noise_model fits; run-file ``device/gyro|accel/axis`` ids), in the order given."""
+    rows = []
+    for res, nr in zip(results, noise_rows(list(results)), strict=True):
+        meta = res.channel.meta
+        mli, ieee = res.noise_model, res.ieee  # the default estimator, as in the noise table
+        stderr = {q: _f(mli.stderr.get(q)) for q in MODEL_QUANTITIES}
+        stderr |= {q: _f(getattr(ieee, f"{q}_stderr", None)) for q in ("N", "B", "K")}
+        lo, hi = {}, {}
+        for q in FLEET_QUANTITIES:
+            ci = mli.ci90.get(q) if q in MODEL_QUANTITIES else None
+            if ci is not None:
+                lo[q], hi[q] = _f(ci[0]), _f(ci[1])
+            else:
+                lo[q], hi[q] = nr.values[q] - _Z90 * stderr[q], nr.values[q] + _Z90 * stderr[q]
+        driver = str(meta.get("driver", ""))
+        identity = str(meta.get("identity", ""))
+        station = str(meta.get("station", ""))
+        device = str(meta.get("device", nr.device))
+        rows.append(
+            FleetRow(
+                run=res.channel.source,
+                station=station,
+                device=device,
+                driver=driver,
+                identity=identity,
+                key=device_key(driver, identity, station, device, meta.get("settings")),
+                sensor=nr.sensor,
+                axis=nr.axis,
+                n=nr.n,
+                fs_hz=nr.fs_hz,
+                model=nr.model,
+                converged=bool(mli.converged),
+                values={q: _f(nr.values[q]) for q in FLEET_QUANTITIES},
+                stderr=stderr,
+                lo=lo,
+                hi=hi,
+            )
+        )
+    return rows
+
+
+def robust_z(x: np.ndarray) -> np.ndarray:
+    """Modified z-scores ``0.6745 (x - median) / MAD`` of finite ``x`` (NaN stays NaN).
+
+    With MAD = 0 (over half the values equal) the mean absolute deviation
+    scaled by 1.2533 (its normal consistency factor, 0.7979) stands in; with
+    that 0 too, equal values get 0 and others infinity.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    z = np.full(x.shape, np.nan)
+    ok = np.isfinite(x)
+    if not ok.any():
+        return z
+    med = np.median(x[ok])
+    dev = np.abs(x[ok] - med)
+    mad = np.median(dev)
+    if mad > 0:
+        z[ok] = _MAD_K * (x[ok] - med) / mad
+        return z
+    mean_ad = dev.mean()
+    if mean_ad > 0:
+        z[ok] = (x[ok] - med) / (1.253314 * mean_ad)
+        return z
+    z[ok] = 0.0  # every value equal
+    return z
+
+
+def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group: int = MIN_GROUP) -> list[FleetRow]:
+    """Rows with ``z`` and ``outliers`` set: robust z of log10 of each model quantity within its group."""
+    groups: dict[tuple[str, str, str], list[int]] = {}
+    for i, r in enumerate(rows):
+        groups.setdefault(r.group, []).append(i)
+    zs: list[dict[str, float]] = [{q: math.nan for q in MODEL_QUANTITIES} for _ in rows]
+    for idx in groups.values():
+        if len(idx) < min_group:
+            continue
+        for q in MODEL_QUANTITIES:
+            v = np.array([rows[i].values[q] for i in idx])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                logv = np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), np.nan)
+            logv[~np.isfinite(v)] = np.nan
+            for i, z in zip(idx, robust_z(logv), strict=True):
+                zs[i][q] = float(z)
+    out = []
+    for r, z in zip(rows, zs, strict=True):
+        flags = tuple(q for q in MODEL_QUANTITIES if math.isfinite(z[q]) and abs(z[q]) > z_limit)
+        flags += tuple(q for q in MODEL_QUANTITIES if math.isinf(z[q]))
+        out.append(replace(r, z=z, outliers=flags))
+    return out
+
+
+@dataclass(frozen=True)
+class RepeatRow:
+    """Repeatability of one device axis over its runs: mean and std (ddof=1) per model quantity (SI)."""
+
+    key: str
+    driver: str
+    sensor: str
+    axis: str
+    runs: int
+    mean: dict[str, float]
+    std: dict[str, float]
+
+
+def repeatability(rows: Sequence[FleetRow]) -> list[RepeatRow]:
+    """Table III: per device key and axis, in first-appearance order; std NaN for a single run."""
+    groups: dict[tuple[str, str, str], list[FleetRow]] = {}
+    for r in rows:
+        groups.setdefault((r.key, r.sensor, r.axis), []).append(r)
+    out = []
+    for (key, sensor, axis), rs in groups.items():
+        mean, std = {}, {}
+        for q in MODEL_QUANTITIES:
+            v = np.array([r.values[q] for r in rs])
+            mean[q] = float(np.mean(v))
+            std[q] = float(np.std(v, ddof=1)) if len(v) > 1 else math.nan
+        out.append(RepeatRow(key, rs[0].driver, sensor, axis, len(rs), mean, std))
+    return out
+
+
+def _fmt(x: float, digits: int = 3) -> str:
+    if x is None or math.isnan(x):
+        return "–"
+    if math.isinf(x):
+        return "∞"
+    return f"{x:.{digits}g}"
+
+
+def fleet_csv(rows: Sequence[FleetRow], failures: Sequence[TaskFailure] = ()) -> str:
+    """CSV, one line per run axis (SI; ``status`` ok/outlier) and one ``failed`` line per failure."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    head = ["status", "run", "station", "device", "driver", "identity", "device_key", "sensor", "axis"]
+    head += ["n", "fs_hz", "model", "converged"]
+    for q in FLEET_QUANTITIES:
+        head += [q, f"{q}_stderr", f"{q}_lo90", f"{q}_hi90", f"{q}_unit"]
+    head += [f"z_{q}" for q in MODEL_QUANTITIES] + ["outliers", "error"]
+    w.writerow(head)
+    for r in rows:
+        line = ["outlier" if r.outliers else "ok", r.run, r.station, r.device, r.driver, r.identity, r.key]
+        line += [r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model, r.converged]
+        for q in FLEET_QUANTITIES:
+            line += [repr(r.values[q]), repr(r.stderr[q]), repr(r.lo[q]), repr(r.hi[q]), units_of(r.sensor, q)[0]]
+        line += [repr(r.z.get(q, math.nan)) for q in MODEL_QUANTITIES] + [" ".join(r.outliers), ""]
+        w.writerow(line)
+    for f in failures:
+        cells = dict.fromkeys(head, "")
+        parts = (f.channel or "").split("/")
+        cells |= {"status": "failed", "run": f.path, "error": f.error}
+        if len(parts) >= 3:
+            cells |= {"device": "/".join(parts[:-2]), "sensor": parts[-2], "axis": parts[-1]}
+        w.writerow(cells.values())
+    return buf.getvalue()
+
+
+def _sensor_units(sensor: str, q: str) -> tuple[str, float]:
+    _, disp, factor = units_of(sensor, q)
+    return disp, factor
+
+
+def fleet_markdown(
+    rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failures: Sequence[TaskFailure] = ()
+) -> str:
+    """Markdown: the fleet table and the repeatability table per sensor kind (display units), outliers, failures."""
+    parts = [f"# Fleet noise table\n\n{len({r.run for r in rows})} runs, {len(rows)} axes, "
+             f"{len({r.key for r in rows})} devices, {len(failures)} failures."]  # fmt: skip
+    sensors = list(dict.fromkeys(r.sensor for r in rows))
+    for sensor in sensors:
+        head = ["run", "device", "identity", "axis"]
+        for q in FLEET_QUANTITIES:
+            head.append(f"{TITLES[q][0]} [{_sensor_units(sensor, q)[0]}]")
+        head.append("flags")
+        lines = [f"**{sensor}: every run (value ± standard error)**", "", "| " + " | ".join(head) + " |"]
+        lines.append("|" + "---|" * len(head))
+        for r in (r for r in rows if r.sensor == sensor):
+            cells = [r.run, r.key, r.identity or "–", f"{r.axis}-{sensor}"]
+            for q in FLEET_QUANTITIES:
+                _, k = _sensor_units(sensor, q)
+                cells.append(f"{_fmt(r.values[q] * k)} ± {_fmt(r.stderr[q] * k, 2)}")
+            flags = [f"outlier {q} (z {r.z[q]:+.1f})" for q in r.outliers]
+            cells.append("; ".join(flags + ([] if r.converged else ["not converged"])) or "ok")
+            lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+        parts.append("\n".join(lines))
+    for sensor in sensors:
+        head = ["device", "axis", "runs"]
+        for q in MODEL_QUANTITIES:
+            u = _sensor_units(sensor, q)[0]
+            head += [f"{TITLES[q][0]} mean [{u}]", f"{TITLES[q][0]} std [{u}]"]
+        lines = [f"**{sensor}: repeatability per device (Table III layout: mean and std over runs, ddof=1)**", ""]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for rr in (rr for rr in repeat if rr.sensor == sensor):
+            cells = [rr.key, f"{rr.axis}-{sensor}", str(rr.runs)]
+            for q in MODEL_QUANTITIES:
+                _, k = _sensor_units(sensor, q)
+                cells += [_fmt(rr.mean[q] * k), _fmt(rr.std[q] * k, 2)]
+            lines.append("| " + " | ".join(cells) + " |")
+        parts.append("\n".join(lines))
+    out = [r for r in rows if r.outliers]
+    lines = [f"**Outliers (robust z of log10 value vs. the same driver/sensor/axis, |z| > {Z_LIMIT:g})**", ""]
+    if out:
+        lines += ["| run | device | axis | quantity | z |", "|---|---|---|---|---|"]
+        for r in out:
+            for q in r.outliers:
+                lines.append(f"| {r.run} | {r.key} | {r.axis}-{r.sensor} | {TITLES[q][0]} | {r.z[q]:+.1f} |")
+    else:
+        lines.append("none")
+    parts.append("\n".join(lines))
+    lines = ["**Failures**", ""]
+    if failures:
+        lines += ["| run | channel | error |", "|---|---|---|"]
+        lines += [f"| {f.path} | {f.channel or '(whole run)'} | {f.error.replace('|', '/')} |" for f in failures]
+    else:
+        lines.append("none")
+    parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"

@@ -1,0 +1,248 @@
+"""Fleet characterisation: parallel analysis on dask.distributed, the fleet table, repeatability, outliers."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from imustation.acquisition import capture, load_config
+from imustation.analysis import parallel
+from imustation.analysis.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
+from imustation.analysis.parallel import AnalysisOptions, plan_tasks, run_tasks
+from imustation.analysis.pipeline import channel_document
+from imustation.cli import cli
+
+GLOB = "*/gyro/z"
+SIGMA_W = 9.97e-5  # rad/s/sqrt(Hz): the BMX055's Table IV value, given explicitly
+_DEVICE = """
+[[device]]
+name = "{name}"
+driver = "bmx055"
+bus = "i2c:{bus}"
+address = {addr}
+rate_hz = 400
+bandwidth_hz = 47
+gyro_range_dps = 125
+  [device.sim]
+  sigma_w = {sigma_w}
+"""
+
+
+def _config(tmp_path, seed: int):
+    """Four BMX055 gyros on one station; gyro_d has 3x the white noise of the others."""
+    text = f'[station]\nname = "fleet"\nseed = {seed}\n'
+    for name, bus, addr, k in (("gyro_a", 1, "0x68", 1), ("gyro_b", 1, "0x69", 1), ("gyro_c", 2, "0x68", 1),
+                               ("gyro_d", 2, "0x69", 3)):  # fmt: skip
+        text += _DEVICE.format(name=name, bus=bus, addr=addr, sigma_w=k * SIGMA_W)
+    p = tmp_path / f"fleet{seed}.toml"
+    p.write_text(text)
+    return load_config(p)
+
+
+@pytest.fixture(scope="module")
+def fleet_runs(tmp_path_factory):
+    """Two 5-minute simulated captures of the same four devices, a corrupt file and a missing one."""
+    d = tmp_path_factory.mktemp("fleet")
+    runs = []
+    for seed in (3, 4):
+        path = d / f"night{seed}.h5"
+        capture(_config(d, seed), path, 300.0, simulate=True)
+        runs.append(str(path))
+    bad = d / "corrupt.h5"
+    bad.write_bytes(b"not an HDF5 file at all")
+    return runs, str(bad), str(d / "missing.h5")
+
+
+@pytest.fixture(scope="module")
+def fleet_out(fleet_runs, tmp_path_factory):
+    runs, bad, missing = fleet_runs
+    out = tmp_path_factory.mktemp("fleet_out")
+    r = CliRunner().invoke(cli, ["fleet", runs[0], bad, runs[1], missing, "-o", str(out), "--channel", GLOB])
+    return r, out
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A small in-process dask cluster (threads, no dashboard)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as lc:  # fmt: skip
+        yield lc
+
+
+def _rows(out):
+    with open(out / "fleet.csv", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_scheduler_json_identical_to_serial(fleet_runs, cluster):
+    runs = fleet_runs[0]
+    serial = CliRunner().invoke(cli, ["analyze", *runs, "--channel", GLOB, "--json"])
+    assert serial.exit_code == 0, serial.output
+    dist = CliRunner().invoke(
+        cli, ["analyze", *runs, "--channel", GLOB, "--json", "--scheduler", cluster.scheduler_address]
+    )
+    assert dist.exit_code == 0, dist.stderr
+    assert dist.stdout == serial.stdout  # byte for byte, same channel order
+    assert "dask dashboard" in dist.stderr
+    assert [c["id"] for c in json.loads(dist.stdout)["channels"]] == [
+        f"gyro_{x}/gyro/z" for x in "abcd"
+    ] * 2  # fmt: skip
+
+
+def test_local_workers_identical_to_serial(fleet_runs):
+    """The real --workers path: a local cluster of worker processes."""
+    run = fleet_runs[0][0]
+    args = ["analyze", run, "--channel", "gyro_a/gyro/z", "--json"]
+    serial = CliRunner().invoke(cli, args)
+    dist = CliRunner().invoke(cli, [*args, "--workers", "1"])
+    assert dist.exit_code == 0, dist.stderr
+    assert dist.stdout == serial.stdout
+
+
+def test_run_tasks_client_matches_serial_and_orders_results(fleet_runs, cluster):
+    from distributed import Client
+
+    tasks, failures = plan_tasks([*fleet_runs[0], fleet_runs[2]], [GLOB])
+    assert [f.path for f in failures] == [fleet_runs[2]] and failures[0].channel is None
+    seen = []
+    with Client(cluster, set_as_default=False) as client:
+        res_d, fail_d = run_tasks(tasks, AnalysisOptions(), client, on_done=lambda d, n, f: seen.append((d, n)))
+    res_s, fail_s = run_tasks(tasks, AnalysisOptions())
+    assert not fail_d and not fail_s
+    assert seen[-1] == (len(tasks), len(tasks))
+    assert [r.channel.id for r in res_d] == [t.channel for t in tasks]
+    for a, b in zip(res_d, res_s, strict=True):
+        assert json.dumps(channel_document(a)) == json.dumps(channel_document(b))
+        assert a.channel._data is None  # no samples came back through the scheduler
+
+
+def test_failed_runs_reported_others_finish(fleet_runs, fleet_out):
+    runs, bad, missing = fleet_runs
+    r, out = fleet_out
+    assert r.exit_code == 0, r.stderr
+    assert f"failed: {bad}" in r.stderr and f"failed: {missing}" in r.stderr
+    rows = _rows(out)
+    failed = [x for x in rows if x["status"] == "failed"]
+    assert [x["run"] for x in failed] == [bad, missing]
+    assert all(x["error"] for x in failed)
+    assert len([x for x in rows if x["status"] != "failed"]) == 8
+    md = (out / "fleet.md").read_text()
+    assert "**Failures**" in md and "corrupt.h5" in md and "missing.h5" in md
+
+
+def test_every_run_failed_exits_2(fleet_runs, tmp_path):
+    _, bad, missing = fleet_runs
+    r = CliRunner().invoke(cli, ["fleet", bad, missing, "-o", str(tmp_path / "o")])
+    assert r.exit_code == 2
+    assert "every run failed" in r.stderr
+
+
+def test_bad_channel_fails_only_its_task(fleet_runs):
+    tasks, _ = plan_tasks(fleet_runs[0][:1], [GLOB])
+    tasks.insert(1, parallel.ChannelTask(fleet_runs[0][0], "nodevice/gyro/z"))
+    res, failures = run_tasks(tasks, AnalysisOptions())
+    assert res[1] is None and all(r is not None for i, r in enumerate(res) if i != 1)
+    assert len(failures) == 1 and "nodevice/gyro/z" in failures[0].error
+
+
+def test_fleet_table_identity_and_intervals(fleet_runs, fleet_out):
+    _, out = fleet_out
+    rows = [x for x in _rows(out) if x["status"] != "failed"]
+    assert {x["device_key"] for x in rows} == {f"fleet/gyro_{c}" for c in "abcd"}
+    assert {x["identity"] for x in rows} == {"chip_id=0x0F"}
+    for x in rows:
+        for q in ("sigma_w", "sigma_b", "tau_b", "N"):
+            lo, v, hi = float(x[f"{q}_lo90"]), float(x[q]), float(x[f"{q}_hi90"])
+            assert math.isnan(lo) or lo <= v <= hi
+        assert x["sigma_w_unit"] == "rad/s/√Hz"
+        # sigma_w recovered within 10 % of what each device simulates
+        k = 3 if x["device"] == "gyro_d" else 1
+        assert float(x["sigma_w"]) == pytest.approx(k * SIGMA_W, rel=0.1)
+
+
+def test_repeatability_matches_numpy(fleet_runs, fleet_out):
+    _, out = fleet_out
+    rows = [x for x in _rows(out) if x["status"] != "failed"]
+    res, _ = run_tasks(plan_tasks(fleet_runs[0], [GLOB])[0], AnalysisOptions())
+    rep = {r.key: r for r in repeatability(flag_outliers(fleet_rows(res)))}
+    assert set(rep) == {x["device_key"] for x in rows}
+    for key, rr in rep.items():
+        assert rr.runs == 2
+        for q in ("sigma_w", "sigma_b", "tau_b"):
+            v = np.array([float(x[q]) for x in rows if x["device_key"] == key])
+            assert rr.mean[q] == pytest.approx(np.mean(v), rel=1e-12)
+            assert rr.std[q] == pytest.approx(np.std(v, ddof=1), rel=1e-12)
+    md = (out / "fleet.md").read_text()
+    assert "repeatability per device" in md
+
+
+def test_outlier_device_flagged(fleet_out):
+    r, out = fleet_out
+    rows = [x for x in _rows(out) if x["status"] != "failed"]
+    for x in rows:
+        if x["device"] == "gyro_d":
+            assert x["status"] == "outlier" and "sigma_w" in x["outliers"].split()
+            assert float(x["z_sigma_w"]) > 3.5
+        else:
+            assert "sigma_w" not in x["outliers"].split()
+            assert abs(float(x["z_sigma_w"])) <= 3.5
+    assert "outlier:" in r.stderr and "gyro_d" in r.stderr
+
+
+def test_outputs_written(fleet_out):
+    _, out = fleet_out
+    page = (out / "fleet.html").read_text()
+    assert "data:image/png;base64," in page and "<table>" in page
+    png = (out / "fleet_allan.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    md = (out / "fleet.md").read_text()
+    assert "°/h/√Hz" in md and "**Outliers (robust z" in md
+    assert "<h3>Outliers (robust z" in page
+
+
+def test_robust_z_and_device_key():
+    z = robust_z(np.array([1.0, 1.1, 0.9, 1.05, 0.95, 5.0, np.nan]))
+    assert math.isnan(z[-1]) and z[5] > 3.5 and np.all(np.abs(z[:5]) <= 3.5)
+    assert np.all(robust_z(np.array([2.0, 2.0, 2.0])) == 0)
+    adis = "prod_id=0x4040 lot=0x12345678 serial=0x0042"
+    assert device_key("adis16448", adis, "lab", "adis") == "adis16448:serial=0x0042,lot=0x12345678"
+    assert device_key("bmx055", "chip_id=0x0F", "lab", "gyro") == "lab/gyro"
+    assert device_key("bmx055", "chip_id=0x0F", "lab", "gyro", {"serial": "SN7"}) == "bmx055:serial=SN7"
+
+
+def test_help():
+    for cmd in ("fleet", "analyze"):
+        r = CliRunner().invoke(cli, [cmd, "--help"])
+        assert r.exit_code == 0
+        assert "--workers" in r.output and "--scheduler" in r.output
+
+
+def test_bad_scheduler_one_line_exit_2(fleet_runs, monkeypatch):
+    monkeypatch.setattr(parallel, "CONNECT_TIMEOUT_S", 1.0)
+    for cmd in (["analyze", fleet_runs[0][0]], ["fleet", fleet_runs[0][0], "-o", "unused"]):
+        r = CliRunner().invoke(cli, [*cmd, "--scheduler", "tcp://127.0.0.1:1"])
+        assert r.exit_code == 2, r.output
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("imustation: error: scheduler tcp://127.0.0.1:1")
+
+
+def test_workers_and_scheduler_exclusive(fleet_runs):
+    r = CliRunner().invoke(cli, ["analyze", fleet_runs[0][0], "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"])
+    assert r.exit_code == 2 and "not both" in r.stderr
+
+
+def test_glob_matching_nothing_in_one_run_is_not_a_failure(fleet_runs, tmp_path):
+    runs = fleet_runs[0]
+    tasks, failures = plan_tasks(runs, ["gyro_a/gyro/z"])
+    assert [t.path for t in tasks] == runs and not failures
+    with pytest.raises(parallel.NoChannelsError):
+        plan_tasks(runs, ["nothing/*"])
+    r = CliRunner().invoke(cli, ["fleet", *runs, "-o", str(tmp_path), "--channel", "nothing/*"])
+    assert r.exit_code == 2 and "no channels matching nothing/*" in r.stderr
