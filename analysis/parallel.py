@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import glob
 import logging
+import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
@@ -29,6 +30,13 @@ from imustation.analysis.loaders import NoChannelsError, load_inputs
 from imustation.analysis.pipeline import DEFAULT_ESTIMATOR, ChannelAnalysis, analyze_channel
 from imustation.errors import ImustationError, InputError
 
+#: environment of local worker processes: one compute thread each (numba, OpenMP, BLAS)
+SINGLE_THREAD_ENV = {
+    "NUMBA_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
 #: seconds to wait for an existing scheduler to answer
 CONNECT_TIMEOUT_S = 10.0
 
@@ -100,8 +108,22 @@ def plan_tasks(
     return tasks, failures
 
 
+def _limit_numba_threads() -> None:
+    """Honour NUMBA_NUM_THREADS in this thread: a dask worker imports numba before the worker's
+    environment is applied (it then runs the parallel Allan kernels on every core: 2 workers
+    oversubscribe 2 cores, measured), and numba's thread count is per calling thread."""
+    want = os.environ.get("NUMBA_NUM_THREADS")
+    if not want:
+        return
+    import numba
+
+    if numba.get_num_threads() > int(want):
+        numba.set_num_threads(min(int(want), numba.config.NUMBA_NUM_THREADS))
+
+
 def analyze_task(path: str, channel: str, options: AnalysisOptions) -> ChannelAnalysis:
     """Read channel ``channel`` of ``path`` and analyse it; the result holds no samples."""
+    _limit_numba_threads()
     picked = [ch for ch in load_inputs([path], [glob.escape(channel)], options.rate_hz) if ch.id == channel]
     if not picked:
         raise InputError(f"{path}: no channel {channel}")
@@ -211,8 +233,9 @@ def dask_client(
         return
     from distributed import Client, LocalCluster
 
-    # one core per worker: numba's parallel kernels run single-threaded in a worker process
-    extra = {"env": {"NUMBA_NUM_THREADS": "1"}} if processes else {}
+    # one core per worker: numba's parallel kernels and the BLAS run single-threaded in a worker
+    # process (an idle OpenBLAS thread spin-waits after each call: +20 % CPU per task, measured)
+    extra = {"env": dict(SINGLE_THREAD_ENV)} if processes else {}
     cluster = LocalCluster(
         n_workers=int(workers),
         threads_per_worker=1,
