@@ -1,9 +1,9 @@
 """A virtual capture at the noise-model level: the run file a simulated capture would write, fast.
 
 Why: the byte-level simulated capture runs every sample through the driver, the bus
-and the chip simulator (``capture --simulate``: about 37x real time for the whole lab
+and the chip simulator (``capture --simulate``: about 14x real time for the whole lab
 of the paper, because the ADIS16448 has no FIFO and costs one USB round trip per
-sample). A 12 h demo of the whole lab would take 20 minutes that way. This module
+sample). A 12 h demo of the whole lab would take 50 minutes that way. This module
 draws the same signals from the same sources (:mod:`imustation.drivers.sim`: the
 standard noise model with the device's Table IV parameters, the same per-device
 seeds, the same die and room temperatures) and writes them in run-file format v1

@@ -21,7 +21,7 @@ from imustation.drivers.sim import simulated_truth
 from imustation.units import format_duration, parse_duration
 
 #: virtual durations: the quick demo (byte-level capture), and the full lab (synthesised at the
-#: noise-model level by default: the byte-level lab capture runs ~37x real time, its ADIS16448
+#: noise-model level by default: the byte-level lab capture runs ~14x real time, its ADIS16448
 #: simulator making one USB round trip per sample)
 QUICK_DURATION = "6h"
 LAB_DURATION = "12h"
@@ -45,8 +45,8 @@ TABLE_FIELDS = ("channel", "param", "simulated", "identified", "ci90_lo", "ci90_
 @click.option(
     "--through-drivers",
     is_flag=True,
-    help="With --lab: run the byte-level simulated capture (drivers, buses, chip simulators; ~37x real "
-    "time) instead of synthesising the run file from the same noise sources (~400x).",
+    help="With --lab: run the byte-level simulated capture (drivers, buses, chip simulators; ~14x real "
+    "time) instead of synthesising the run file from the same noise sources (~300x).",
 )
 @click.option(
     "--table",
