@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -51,9 +51,9 @@ from imustation.analysis.mli import (
     _check_rate,
     _fd_derivatives,
     _full_nll,
-    _intervals,
     _optimise,
     _Problem,
+    _result,
     _Spec,
     _stencil,
     allan_start,
@@ -127,7 +127,8 @@ def fine_scale(
     chosen, white, stats = sizes[0], False, {}
     for k in sizes:
         # one oadev call per size tried: white data stop at the first (two taus, one pass each)
-        res = oadev(rate, fs_hz, [k / fs_hz, 4 * k / fs_hz], scale=scale, segments=segments)
+        taus = [k / fs_hz, 4 * k / fs_hz] if samples == "auto" else [k / fs_hz]
+        res = oadev(rate, fs_hz, taus, scale=scale, segments=segments)
         got = {int(round(t * fs_hz)): i for i, t in enumerate(res.tau)}
         if k not in got:
             break
@@ -272,12 +273,8 @@ def fit_composite_data(
     prof = problem.profile(theta[None, :])
     A = problem.unit_avar(theta[None, :])
     s = float(problem.sigma_w2(prof, A)[0])
-    phi = spec.phi_of_theta(theta, math.sqrt(s))
-    nll = float(problem.full_nll(phi[None, :])[0])
-    names = spec.phi_names()
-    D = len(phi)
-    H = _fd_derivatives(problem.full_nll(phi[None, :] + _stencil(D) * 1e-2), D, 1e-2)[2]
-    stderr, ci90 = _intervals(names, phi, H)
+    res = _result(problem, theta, best, n_starts, t0, ESTIMATOR, len(inc.y), inc.pattern, inc.n, inc.fs_hz, s)
+    ci90 = dict(res.ci90)
     if spec.fast:
         # profile-likelihood intervals for the bias parameters: the likelihood in
         # log tau_b is skewed, the symmetric (Wald) interval under-covers (docs/noise-model.md)
@@ -287,17 +284,12 @@ def fit_composite_data(
             ci90["sigma_b"] = (sw * math.exp(0.5 * lo_r), sw * math.exp(0.5 * hi_r))
         if math.isfinite(lo_t) or math.isfinite(hi_t):
             ci90["tau_b"] = (math.exp(lo_t), math.exp(hi_t))
-    params = dict(zip(names, np.exp(phi).tolist(), strict=True))
-    b_on = float(prof.b_on[0])
-    params["b_on"] = b_on
-    lo, hi = problem.lo, problem.hi
-    at_bound = tuple(sorted({names[1 + j] for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3}))
     # the integrated likelihood's own sigma_w and its standard error (chi-square, M - 1 dof)
     s_int = float(prof.s_tilde[0] / (prof.m - 1))
     se_int = s_int * math.sqrt(2.0 / (prof.m - 1))
     s_fine = fine.avar / float(A[0])
     z = (s_fine - s_int) / math.hypot(se_int, math.sqrt(fine.var) / float(A[0]))
-    message = best.message if not at_bound else f"at search bound: {', '.join(at_bound)}"
+    message = res.message
     if not fine.white:
         message += (
             f"; noise not white at any fine scale up to {4 * fine.samples} samples (device filter?): "
@@ -310,40 +302,15 @@ def fit_composite_data(
             f"; fine-scale AVAR disagrees with the integrated signal (z = {z:+.1f}): noise not white at "
             f"{fine.tau:.3g} s (device low-pass filter?) - raise fine_samples"
         )
-    if "gm" in spec.codes:
-        ngm = spec.codes.count("gm")
-        sfx = "" if ngm == 1 else str(ngm)
-        sigma_b, tau_b = params[f"sigma_b{sfx}"], params[f"tau_b{sfx}"]
-    elif "rw" in spec.codes:
-        sigma_b, tau_b = params["sigma_k"], math.inf
-    else:
-        sigma_b = tau_b = math.nan
-    k = len(names) + 1
+    base = {f.name: getattr(res, f.name) for f in fields(MLiResult)}
+    base |= {
+        "ci90": ci90,
+        "message": message,
+        "converged": res.converged and abs(z) <= FINE_SCALE_Z_LIMIT and fine.white,
+        "fit_time_s": time.perf_counter() - t0,
+    }
     return CompositeResult(
-        model=spec.name,
-        sigma_w=math.sqrt(s),
-        sigma_b=sigma_b,
-        tau_b=tau_b,
-        b_on=b_on,
-        stderr=stderr,
-        ci90=ci90,
-        nll=nll,
-        pattern=inc.pattern,
-        m=len(inc.y),
-        n=inc.n,
-        fs_hz=inc.fs_hz,
-        converged=best.converged and not at_bound and abs(z) <= FINE_SCALE_Z_LIMIT and fine.white,
-        message=message,
-        n_eval=problem.n_eval,
-        fit_time_s=time.perf_counter() - t0,
-        starts=n_starts,
-        at_bound=at_bound,
-        params=params,
-        k=k,
-        aic=2.0 * nll + 2.0 * k,
-        bic=2.0 * nll + k * math.log(len(inc.y)),
-        estimator=ESTIMATOR,
-        noise_model=spec.model(phi, b_on),
+        **base,
         fine_scale_tau=fine.tau,
         fine_scale_avar=fine.avar,
         integrated_sigma_w=math.sqrt(s_int),

@@ -857,13 +857,23 @@ def _result(
     pattern: str,
     n: int,
     fs_hz: float,
+    sigma_w2: float | None = None,
 ) -> MLiResult:
+    """The result at search point ``theta``: physical parameters, intervals, criteria.
+
+    ``sigma_w2`` (rate unit^2/Hz): given by estimators whose likelihood does not
+    profile it in closed form (ML_i-F); the nll is then ``problem.full_nll``'s.
+    """
     spec = problem.spec
     prof = problem.profile(theta[None, :])
     M = prof.m
-    sigma_w2 = float(prof.s_tilde[0] / (M - 1))
-    phi = spec.phi_of_theta(theta, math.sqrt(sigma_w2))
-    nll = float(_full_nll(prof, np.array([sigma_w2]))[0])
+    if sigma_w2 is None:
+        sigma_w2 = float(prof.s_tilde[0] / (M - 1))
+        phi = spec.phi_of_theta(theta, math.sqrt(sigma_w2))
+        nll = float(_full_nll(prof, np.array([sigma_w2]))[0])
+    else:
+        phi = spec.phi_of_theta(theta, math.sqrt(sigma_w2))
+        nll = float(problem.full_nll(phi[None, :])[0])
     b_on = float(prof.b_on[0])
     names = spec.phi_names()
     H = _observed_information(problem, phi)
