@@ -13,19 +13,9 @@ import argparse
 import time
 
 import numpy as np
+from _common import best_of, table_iii_record
 
 import imustation.analysis.mli as mli
-from imustation.analysis.noise_models import standard
-from imustation.analysis.reference import TABLE_III_MEAN
-
-
-def _best(fn, repeat):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def main() -> None:
@@ -34,14 +24,11 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     fs = 400.0
-    n = int(args.hours * 3600 * fs)
-    t = TABLE_III_MEAN
-    x = standard(t.sigma_w, t.sigma_b, t.tau_b, 0.01).simulate(n, fs, 1)
-    counts = np.rint(x / 6.1e-5).astype(np.int16)
+    n, x, counts = table_iii_record(args.hours, fs)
     print(f"record: {n} samples ({args.hours:g} h at {fs:g} Hz)")
     for label, data in (("float64", x), ("int16 counts", counts)):
-        t_sum, _ = _best(lambda d=data: np.sum(d, dtype=np.int64 if d.dtype.kind == "i" else None), args.repeat)
-        t_int, _ = _best(lambda d=data: mli.integrate(d, fs), args.repeat)
+        t_sum, _ = best_of(lambda d=data: np.sum(d, dtype=np.int64 if d.dtype.kind == "i" else None), args.repeat)
+        t_int, _ = best_of(lambda d=data: mli.integrate(d, fs), args.repeat)
         print(f"integration ({label}): {t_int * 1e3:7.1f} ms  np.sum: {t_sum * 1e3:7.1f} ms  ratio {t_int / t_sum:.2f}")
     inc = mli.integrate(x, fs)
 
@@ -70,7 +57,7 @@ def main() -> None:
     print("  split (last run): " + ", ".join(f"{k.strip('_')} {v * 1e3:.0f} ms" for k, v in split.items()))
     print(f"  sigma_w {res.sigma_w:.4g}  sigma_b {res.sigma_b:.4g}  tau_b {res.tau_b:.4g}")
     for model in ("wn+rw", "wn+gm+rw", "wn+2gm", "wa+wn+gm"):
-        tm, r = _best(lambda mm=model: mli.fit_integrated(inc, mm), 1)
+        tm, r = best_of(lambda mm=model: mli.fit_integrated(inc, mm), 1)
         print(f"fit {model:<9}: {tm:.3f} s  nll {r.nll:.2f}  BIC {r.bic:.2f}  converged {r.converged}")
 
 

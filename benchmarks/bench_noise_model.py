@@ -10,24 +10,12 @@ the fine-scale Allan variance with the whiteness test) and the fit, against ML_i
 from __future__ import annotations
 
 import argparse
-import time
 
-import numpy as np
+from _common import COUNT_SCALE, best_of, table_iii_record
 
 from imustation.analysis.composite import DEFAULT_M, fine_scale, fit_composite_data
 from imustation.analysis.gmwm import fit_gmwm
 from imustation.analysis.mli import fit_integrated, integrate
-from imustation.analysis.noise_models import standard
-from imustation.analysis.reference import TABLE_III_MEAN
-
-
-def _best(fn, repeat: int):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def main() -> None:
@@ -36,26 +24,23 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     fs = 400.0
-    n = int(args.hours * 3600 * fs)
-    t = TABLE_III_MEAN
-    x = standard(t.sigma_w, t.sigma_b, t.tau_b, 0.01).simulate(n, fs, 1)
-    counts = np.rint(x / 6.1e-5).astype(np.int16)
+    n, x, counts = table_iii_record(args.hours, fs)
     print(f"record: {n} samples ({args.hours:g} h at {fs:g} Hz)")
-    for label, data, scale in (("float64", x, 1.0), ("int16 counts", counts, 6.1e-5)):
-        t_int, inc = _best(
+    for label, data, scale in (("float64", x, 1.0), ("int16 counts", counts, COUNT_SCALE)):
+        t_int, inc = best_of(
             lambda d=data, s=scale: integrate(d, fs, m=DEFAULT_M, pattern="uniform", scale=s), args.repeat
         )
-        t_fine, fine = _best(lambda d=data, s=scale: fine_scale(d, fs, samples="auto", scale=s), args.repeat)
-        t_fit, res = _best(lambda i=inc, f=fine: fit_composite_data(i, f), args.repeat)
+        t_fine, fine = best_of(lambda d=data, s=scale: fine_scale(d, fs, samples="auto", scale=s), args.repeat)
+        t_fit, res = best_of(lambda i=inc, f=fine: fit_composite_data(i, f), args.repeat)
         total = t_int + t_fine + t_fit
         print(
             f"ML_i-F ({label}): integration {t_int * 1e3:6.1f} ms, fine scale {t_fine * 1e3:6.1f} ms, "
             f"fit {t_fit * 1e3:6.1f} ms; total {total:.3f} s (budget 0.5 s, ratio {total / 0.5:.2f})"
         )
     print(f"  sigma_w {res.sigma_w:.5g}  sigma_b {res.sigma_b:.4g}  tau_b {res.tau_b:.4g}  {res.message}")
-    t_mli_int, inc_log = _best(lambda: integrate(x, fs), args.repeat)
-    t_mli, r_mli = _best(lambda: fit_integrated(inc_log), args.repeat)
-    t_gmwm, r_gmwm = _best(lambda: fit_gmwm(x, fs), max(1, args.repeat - 1))
+    t_mli_int, inc_log = best_of(lambda: integrate(x, fs), args.repeat)
+    t_mli, r_mli = best_of(lambda: fit_integrated(inc_log), args.repeat)
+    t_gmwm, r_gmwm = best_of(lambda: fit_gmwm(x, fs), max(1, args.repeat - 1))
     print(f"ML_i (log, m=1000): integration {t_mli_int * 1e3:.1f} ms + fit {t_mli:.3f} s")
     print(f"GMWM              : {t_gmwm:.3f} s (wavelet variance and fit)")
     print(f"ratio ML_i-F total / GMWM: {total / t_gmwm:.2f}; / ML_i total: {total / (t_mli_int + t_mli):.2f}")
