@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import select
 import subprocess
@@ -11,6 +10,8 @@ import sys
 import time
 import urllib.error
 import urllib.request
+
+from procs import wait_for_file  # noqa: F401 - the monitor tests import it from here
 
 CONFIG = """
 [station]
@@ -44,16 +45,6 @@ def start_capture(config, out, duration: str, *extra: str) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "imustation", "capture", str(config), "--simulate", "-o", str(out)]
     cmd += ["--duration", duration, "--sim-speed", str(PACE), "--quiet", *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def wait_for_file(path, proc, timeout: float = 60.0) -> None:
-    t_end = time.monotonic() + timeout
-    while not os.path.exists(path):
-        if proc.poll() is not None:
-            raise AssertionError(f"capture exited early: {proc.stderr.read()}")
-        if time.monotonic() > t_end:
-            raise AssertionError("capture did not create its file")
-        time.sleep(0.05)
 
 
 def read_url(stream, proc, timeout: float = 60.0) -> tuple[str, int, list[str]]:

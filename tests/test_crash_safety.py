@@ -19,6 +19,7 @@ import time
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from procs import wait_for_file
 
 from imustation.acquisition import capture, load_config
 from imustation.cli import cli
@@ -63,16 +64,6 @@ def _start(config_file, out, *extra):
     cmd = [sys.executable, "-m", "imustation", "capture", str(config_file), "--simulate", "-o", str(out)]
     cmd += ["--duration", "1h", "--sim-speed", str(PACE), "--json-status", "--status-interval", "0.2", *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def _wait_for(path, proc, timeout=30.0):
-    t_end = time.monotonic() + timeout
-    while not os.path.exists(path):
-        if proc.poll() is not None:
-            raise AssertionError(f"capture exited early: {proc.stderr.read()}")
-        if time.monotonic() > t_end:
-            raise AssertionError("capture did not create its file")
-        time.sleep(0.02)
 
 
 def _check_prefix(paths, reference, *, complete: bool) -> int:
@@ -125,7 +116,7 @@ def _kill_at_random(config_file, tmp_path, reference, kills: int, seed: int, *ex
     for i in range(kills):
         out = tmp_path / f"kill{i}.h5"
         proc = _start(config_file, out, *extra)
-        _wait_for(tmp_path / f"kill{i}.001.h5" if extra else out, proc)
+        wait_for_file(tmp_path / f"kill{i}.001.h5" if extra else out, proc, timeout=30.0, poll=0.02)
         time.sleep(rng.uniform(0.0, 1.5))
         proc.send_signal(signal.SIGKILL)
         stdout, _ = proc.communicate(timeout=30)
@@ -160,7 +151,7 @@ def test_sigterm_second_capture_and_live_reading(config_file, tmp_path, referenc
     out = tmp_path / "term.h5"
     proc = _start(config_file, out)
     try:
-        _wait_for(out, proc)
+        wait_for_file(out, proc, timeout=30.0, poll=0.02)
         time.sleep(0.5)
         # a second capture of the same output is refused, even with --overwrite
         res = CliRunner().invoke(cli, ["capture", str(config_file), "--simulate", "-o", str(out), "--overwrite"])
