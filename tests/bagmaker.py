@@ -14,25 +14,10 @@ def write_imu_bag(path, t_ns, gyro, accel, *, fmt="ros1", topic="/imu/data", ext
     path = Path(path)
     store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
     Imu = store.types["sensor_msgs/msg/Imu"]
-    Header = store.types["std_msgs/msg/Header"]
-    Time = store.types["builtin_interfaces/msg/Time"]
-    Vector3 = store.types["geometry_msgs/msg/Vector3"]
-    Quaternion = store.types["geometry_msgs/msg/Quaternion"]
     String = store.types["std_msgs/msg/String"]
-    cov = np.zeros(9)
 
     def msg(i, t):
-        hdr = Header(seq=i, stamp=Time(sec=int(t // 10**9), nanosec=int(t % 10**9)), frame_id="imu") if fmt == "ros1" \
-            else Header(stamp=Time(sec=int(t // 10**9), nanosec=int(t % 10**9)), frame_id="imu")  # fmt: skip
-        return Imu(
-            header=hdr,
-            orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
-            orientation_covariance=cov,
-            angular_velocity=Vector3(x=float(gyro[i, 0]), y=float(gyro[i, 1]), z=float(gyro[i, 2])),
-            angular_velocity_covariance=cov,
-            linear_acceleration=Vector3(x=float(accel[i, 0]), y=float(accel[i, 1]), z=float(accel[i, 2])),
-            linear_acceleration_covariance=cov,
-        )
+        return _imu_msg(store, fmt, i, t, gyro[i], accel[i])
 
     t0 = int(t_ns[0])
     if fmt == "ros1":
@@ -69,22 +54,28 @@ def imu_template(fmt: str = "ros1", frame_id: str = "imu") -> tuple[bytes, int, 
     return raw, stamp_at, len(raw) - 37 * 8
 
 
-def _one(store, fmt, frame_id):
-    Imu = store.types["sensor_msgs/msg/Imu"]
+def _imu_msg(store, fmt, seq, t_ns, gyro, accel, frame_id="imu"):
+    """One sensor_msgs/Imu of ``store`` (ROS 1 headers carry ``seq``), stamped ``t_ns``."""
     Header = store.types["std_msgs/msg/Header"]
     Time = store.types["builtin_interfaces/msg/Time"]
     V3 = store.types["geometry_msgs/msg/Vector3"]
     Q = store.types["geometry_msgs/msg/Quaternion"]
     cov = np.zeros(9)
-    kw = {"seq": 0} if fmt == "ros1" else {}
-    m = Imu(
-        header=Header(**kw, stamp=Time(sec=0, nanosec=0), frame_id=frame_id),
+    kw = {"seq": seq} if fmt == "ros1" else {}
+    stamp = Time(sec=int(t_ns // 10**9), nanosec=int(t_ns % 10**9))
+    return store.types["sensor_msgs/msg/Imu"](
+        header=Header(**kw, stamp=stamp, frame_id=frame_id),
         orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=cov,
-        angular_velocity=V3(x=0.0, y=0.0, z=0.0), angular_velocity_covariance=cov,
-        linear_acceleration=V3(x=0.0, y=0.0, z=0.0), linear_acceleration_covariance=cov,
+        angular_velocity=V3(x=float(gyro[0]), y=float(gyro[1]), z=float(gyro[2])), angular_velocity_covariance=cov,
+        linear_acceleration=V3(x=float(accel[0]), y=float(accel[1]), z=float(accel[2])),
+        linear_acceleration_covariance=cov,
     )  # fmt: skip
+
+
+def _one(store, fmt, frame_id):
+    m = _imu_msg(store, fmt, 0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), frame_id)
     ser = store.serialize_ros1 if fmt == "ros1" else store.serialize_cdr
-    return bytes(ser(m, Imu.__msgtype__))
+    return bytes(ser(m, m.__msgtype__))
 
 
 def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0, frame_id: str = "imu") -> np.ndarray:
