@@ -179,7 +179,6 @@ class Monitor:
         self._status: dict[str, Any] = {"state": "starting", "file": os.path.basename(self.path), "devices": {}}
         self._temps: dict[str, Any] = {"series": {}, "warmup": {}}
         self._allan: dict[str, Any] = {"devices": {}, "model_after_s": self.model_after_s}
-        self._fitted = False  # the last analyse() fitted a model
         self.error: str | None = None
 
     @staticmethod
@@ -232,10 +231,11 @@ class Monitor:
             now = time.monotonic()
             if now - last_allan >= self.allan_every_s:
                 fit_due = now - last_fit >= self.fit_every_s
-                if self.analyse(fit=fit_due):
+                did, fitted = self.analyse(fit=fit_due)
+                if did:
                     last_allan = now
                     # the refit clock starts at a fit, not at a due time with too little data
-                    last_fit = now if self._fitted else last_fit
+                    last_fit = now if fitted else last_fit
             self._kick.wait(1.0)
             self._kick.clear()
 
@@ -442,12 +442,14 @@ class Monitor:
         }
 
     # -- analysis (no file access) ------------------------------------------
-    def analyse(self, fit: bool) -> bool:
-        """Recompute the Allan curves (and the model overlay when ``fit``); False when no device has data."""
+    def analyse(self, fit: bool) -> tuple[bool, bool]:
+        """Recompute the Allan curves (and the model overlay when ``fit``).
+
+        Returns (some device had data, a model was fitted).
+        """
         out: dict[str, Any] = {}
         previous = self._allan.get("devices", {})
-        did = False
-        self._fitted = False
+        did = fitted = False
         for name, dev in list(self._devices.items()):
             snap = dev.gyro.snapshot() if dev.gyro is not None else None
             if snap is None:
@@ -480,7 +482,7 @@ class Monitor:
             if fit and duration >= self.model_after_s and len(curves["tau"]):
                 entry["model"] = model_curves(snap, np.asarray(curves["tau"]))
                 entry["model"]["fitted_utc"] = _utc()
-                self._fitted = True
+                fitted = True
             elif old is not None and len(curves["tau"]):
                 # keep the last fit, its curve evaluated at the new taus
                 entry["model"] = {**old, "axes": dict(old["axes"])}
@@ -489,7 +491,7 @@ class Monitor:
             out[name] = entry
         if did:
             self._allan = {"devices": out, "model_after_s": self.model_after_s, "model": "wn+gm", "updated_utc": _utc()}
-        return did
+        return did, fitted
 
     # -- snapshots for the server -------------------------------------------
     def status(self) -> dict[str, Any]:
