@@ -35,6 +35,7 @@ from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
 from imustation.clock import Clock, MonotonicClock, VirtualClock
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS, DriverInfo
+from imustation.drivers.base import Block
 from imustation.drivers.bus.trace import Trace, TraceWriter
 from imustation.errors import BusError, DeviceError, DiskFullError
 from imustation.runfile import DeviceSpec
@@ -81,6 +82,8 @@ class DeviceState:
     window_samples: int = 0
     #: block length -> time offsets of its samples before the newest, ns (reused every poll)
     offsets: dict[int, np.ndarray] = field(default_factory=dict)
+    #: station time of the last poll, ns (what a driver's ``drain`` dates its samples from)
+    last_poll_ns: int = 0
 
 
 @dataclass
@@ -252,6 +255,7 @@ class Station:
                 reason = self._run_virtual(recorder, end, should_stop, pace)
             else:
                 reason = self._run_threaded(recorder, end, should_stop)
+            self._drain(recorder)
         except DiskFullError as exc:
             reason = f"disk full: {exc}"
             raise
@@ -272,6 +276,9 @@ class Station:
         for st in self.devices.values():
             try:
                 st.driver.read_block()
+                drain = getattr(st.driver, "drain", None)
+                if drain is not None:
+                    drain()
             except (BusError, DeviceError) as exc:
                 self._fault(sink, st, str(exc))
         self.t0 = self.clock.now_ns()
@@ -409,6 +416,13 @@ class Station:
         except BaseException as exc:  # noqa: BLE001 - a bug in a reader must stop the capture, not vanish
             sink._put(("error", exc))
 
+    def _drain(self, sink: Sink) -> None:
+        """Hand the samples drivers still hold to ``sink``, dated from each device's last poll."""
+        for st in self.devices.values():
+            drain = getattr(st.driver, "drain", None)
+            if drain is not None and not st.failed:
+                self._store(sink, st, drain(), st.last_poll_ns)
+
     # -- one poll ---------------------------------------------------------------------
     def _poll_device(self, sink: Sink, st: DeviceState) -> None:
         name = st.config.name
@@ -430,8 +444,13 @@ class Station:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:
             return self._fault(sink, st, str(exc))
+        t_read = st.last_poll_ns = clock.now_ns() - self.t0
+        self._store(sink, st, block, t_read)
+
+    def _store(self, sink: Sink, st: DeviceState, block: Block, t_read: int) -> None:
+        """Log a block's losses and append its samples, the newest dated ``t_read`` less its age."""
+        name = st.config.name
         k = block.n
-        t_read = clock.now_ns() - self.t0
         if st.resync and not block.lost:
             block.lost, block.note = -1, "samples lost while the device was failing"
             st.last_counter = None  # the device restarted its counter
@@ -453,6 +472,8 @@ class Station:
         if k == 0:
             return
         # sample times: the last sample is the newest at read time, spaced by the ODR
+        if block.age:
+            t_read -= int(round(block.age * st.period_ns))
         offsets = st.offsets.get(k)
         if offsets is None:
             offsets = (np.arange(k - 1, -1, -1, dtype=np.float64) * st.period_ns).round().astype(np.int64)

@@ -24,7 +24,7 @@ import numpy as np
 
 from imustation.drivers.base import Block, DriverInfo, Setting, Sleep, check_settings
 from imustation.drivers.bus.spi import SPIDevice
-from imustation.errors import ChipIdMismatch, DeviceError, SettingError
+from imustation.errors import BusError, ChipIdMismatch, DeviceError, SettingError
 from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD, G0
 
@@ -67,6 +67,10 @@ BURST = struct.Struct(">H3h3h3hHH")  # diag, gyro, accel, mag, baro (unsigned, �
 CRC_WORD = struct.Struct(">H")
 #: check the configuration registers every this many polls (~1 s): a chip reset is caught
 CONFIG_CHECK_S = 1.0
+#: bursts held and decoded together, s of samples: the chip has no FIFO, so the station
+#: polls once per sample, and decoding (and handing over) one sample at a time costs more
+#: than the USB transfer itself; 50 ms is far inside the run file's flush interval
+BATCH_S = 0.05
 
 # --- scales (sensors.md §4.4) ---------------------------------------------------------------
 ACCEL_G_PER_LSB = 1.0 / 1200.0  # [L-ADIS][PX4-ADIS][JC]
@@ -126,17 +130,35 @@ def _crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _crc_table()
 
 
+def _crc_word_table() -> list[int]:
+    """Two steps of the byte table at once: the CRC after one whole MSB-first word ``x ^ crc``.
+
+    After two byte steps of a 16-bit CRC nothing of the old CRC is left but what
+    was XORed into the two bytes, so the pair of steps is one lookup.
+    """
+    x = np.arange(1 << 16, dtype=np.uint32)
+    table = np.array(_CRC_TABLE, dtype=np.uint32)
+    crc = table[x & 0xFF] ^ (x >> 8)  # low byte of the word first ...
+    crc = (crc >> 8) ^ table[crc & 0xFF]  # ... then the high byte
+    return crc.tolist()
+
+
+_CRC_WORD_TABLE = _crc_word_table()
+_CRC_WORDS = struct.Struct(">11H")
+
+
 def burst_crc(data: bytes) -> int:
     """CRC-16 of the burst words XGYRO..TEMP (22 bytes, MSB-first as on MISO).
 
     sensors.md §4.6 [PX4-ADIS][JC]: bytes fed low byte first, reflected
     polynomial 0x1021, init 0xFFFF, result inverted and byte-swapped; compared
-    with the CRC word read MSB-first. Table-driven form of that bitwise loop.
+    with the CRC word read MSB-first. Table-driven form of that bitwise loop,
+    one lookup per 16-bit word.
     """
     crc = 0xFFFF
-    for i in range(0, len(data), 2):
-        crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ data[i + 1]) & 0xFF]
-        crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ data[i]) & 0xFF]
+    table = _CRC_WORD_TABLE
+    for word in _CRC_WORDS.unpack(data):
+        crc = table[crc ^ word]
     crc = ~crc & 0xFFFF
     return ((crc << 8) | (crc >> 8)) & 0xFFFF
 
@@ -186,6 +208,13 @@ class ADIS16448:
         self._burst_tx = BURST_CMD + bytes(2 * BURST_WORDS + (CRC_WORD.size if self._crc else 0))
         self._last: bytes | None = None
         self._polls = 0
+        #: bursts read and not yet handed over; polls since the newest of them
+        self._held: list[bytes] = []
+        self._age = 0
+        self._batch = max(1, round(BATCH_S * self._rate))
+        #: bursts dropped since the last hand-over; an error to raise at the next call
+        self._lost = 0
+        self._error: BaseException | None = None
         self._check_every = max(1, round(CONFIG_CHECK_S * self._rate))
         #: bursts dropped for a CRC mismatch (a health figure)
         self.crc_errors = 0
@@ -246,6 +275,8 @@ class ADIS16448:
         lot1, lot2, serial, diag = self.read_regs([REG_LOT_ID1, REG_LOT_ID2, REG_SERIAL_NUM, REG_DIAG_STAT])
         self._sleep(2.0 / self._rate)  # the first output period after configuration
         self._last = None
+        self._held.clear()
+        self._age, self._lost, self._error = 0, 0, None
         if self._crc:
             rx = self.spi.transfer(self._burst_tx)
             if burst_crc(rx[4:26]) != CRC_WORD.unpack_from(rx, 26)[0]:
@@ -286,44 +317,88 @@ class ADIS16448:
 
     # -- streaming ------------------------------------------------------------------------
     def read_block(self) -> Block:
+        """One burst (the newest sample); every ``BATCH_S`` the samples read so far.
+
+        A sample read is kept, decoded with the others of its batch, and handed
+        over when the batch is full, before a dropped burst or a failed
+        transfer (``Block.age`` then says the newest is one period old), and by
+        :meth:`drain` when the capture ends. A bus or device error is raised at
+        the call after the one that hands over the samples before it.
+        """
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise exc
         self._polls += 1
-        if self._polls % self._check_every == 0:
-            self._check_config()
-        rx = self.spi.transfer(self._burst_tx)
+        try:
+            if self._polls % self._check_every == 0:
+                self._check_config()
+            rx = self.spi.transfer(self._burst_tx)
+        except (BusError, DeviceError) as exc:
+            if not self._held:
+                raise
+            self._error = exc
+            return self._release(age=1)
         data = rx[2 : 2 + 2 * BURST_WORDS]
         if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
             self.crc_errors += 1
             self._last = None
-            self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
-            return Block(_empty(), lost=1, note="checksum: burst CRC mismatch, sample dropped")
+            before = self._release(age=1) if self._held else None
+            self._lost += 1  # handed over with the next block: it comes after ``before``
+            try:
+                self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
+            except (BusError, DeviceError) as exc:
+                if before is None:
+                    raise
+                self._error = exc
+            return before if before is not None else self._release(age=0)
         if data == self._last:
-            return Block(_empty())  # the same sample read twice: no new data yet
+            self._age += 1  # the same sample read twice: no new data yet
+            return self._release(age=self._age) if self._lost else Block(_EMPTY)
         self._last = data
-        return self._block(BURST.unpack(data))
+        self._held.append(data)
+        self._age = 0
+        if len(self._held) >= self._batch or self._lost:
+            return self._release(age=0)
+        return Block(_EMPTY)
 
-    @staticmethod
-    def _block(w: tuple[int, ...]) -> Block:
-        return Block(
-            {
-                "gyro": np.array([w[1:4]], dtype=np.int16),
-                "accel": np.array([w[4:7]], dtype=np.int16),
-                "mag": np.array([w[7:10]], dtype=np.int16),
-                "baro": np.array([w[10]], dtype=np.uint16),
-                "temp": np.array([sign_extend(w[11] & 0x0FFF, TEMP_BITS)], dtype=np.int16),
-                "diag": np.array([w[0]], dtype=np.uint16),
-            }
-        )
+    def drain(self) -> Block:
+        """The samples read but not yet handed over (the capture is ending)."""
+        return self._release(age=self._age)
+
+    def _release(self, age: int) -> Block:
+        """Decode the held bursts into one block; a dropped burst counts as lost before it."""
+        lost, self._lost = self._lost, 0
+        note = "checksum: burst CRC mismatch, sample dropped" if lost else ""
+        if not self._held:
+            return Block(_EMPTY, lost=lost, note=note)
+        words = np.frombuffer(b"".join(self._held), dtype=">u2").reshape(-1, BURST_WORDS)
+        self._held.clear()
+        return Block(_decode(words), lost=lost, note=note, age=age)
 
     def close(self) -> None:
         self.spi.close()
 
 
-def _empty() -> dict[str, np.ndarray]:
+def _decode(words: np.ndarray) -> dict[str, np.ndarray]:
+    """Burst words (k, 12) as read, big-endian u16 -> channels in the station's dtypes (§4.4, §4.6)."""
+    temp = (words[:, 11] & 0x0FFF).astype(np.int16)
+    temp -= (temp & 0x0800) << 1  # 12-bit two's complement
     return {
-        "gyro": np.zeros((0, 3), np.int16),
-        "accel": np.zeros((0, 3), np.int16),
-        "mag": np.zeros((0, 3), np.int16),
-        "baro": np.zeros(0, np.uint16),
-        "temp": np.zeros(0, np.int16),
-        "diag": np.zeros(0, np.uint16),
+        "gyro": words[:, 1:4].astype(np.int16),
+        "accel": words[:, 4:7].astype(np.int16),
+        "mag": words[:, 7:10].astype(np.int16),
+        "baro": words[:, 10].astype(np.uint16),
+        "temp": temp,
+        "diag": words[:, 0].astype(np.uint16),
     }
+
+
+def _frozen_empty() -> dict[str, np.ndarray]:
+    out = _decode(np.zeros((0, BURST_WORDS), dtype=">u2"))
+    for a in out.values():
+        a.flags.writeable = False
+    return out
+
+
+#: the channels of a poll that hands nothing over (shared: nobody writes into them)
+_EMPTY = _frozen_empty()

@@ -17,13 +17,17 @@ class Block:
 
     ``channels`` maps channel name to raw counts, shape ``(k, ...)``;
     ``lost`` is the number of samples the device dropped before this block
-    (FIFO overrun, counter jump), ``note`` says why.
+    (FIFO overrun, counter jump), ``note`` says why. ``age``: the newest
+    sample was read this many output periods before the read that returns
+    the block (a driver that holds samples back, e.g. when a later transfer
+    failed); 0 means it is the newest at this read.
     """
 
     channels: dict[str, np.ndarray]
     counter: np.ndarray | None = None
     lost: int = 0
     note: str = ""
+    age: int = 0
 
     @property
     def n(self) -> int:
@@ -66,7 +70,13 @@ class Driver(Protocol):
         ...
 
     def read_block(self) -> Block:
-        """Return every sample produced since the last call (may be empty)."""
+        """Return every sample produced since the last call (may be empty).
+
+        A driver may hold samples it has read and hand them over later (then
+        ``Block.age`` dates them); such a driver also has ``drain() -> Block``,
+        which the station calls once when recording ends, and at the start to
+        drop what was read before it.
+        """
         ...
 
     def close(self) -> None: ...

@@ -11,7 +11,7 @@ from imustation.drivers.sim.faults import FaultPlan, FaultSpec
 from imustation.drivers.sim.sources import NoiseSource
 from imustation.drivers.sim.spi_bridges import CP2130Sim, MCP2210Sim
 from imustation.drivers.sim.usb_backend import SimUSBBackend
-from imustation.errors import ChipIdMismatch, DeviceError, SettingError
+from imustation.errors import BusError, ChipIdMismatch, DeviceError, SettingError
 from imustation.units import DEG2RAD, G0
 
 JC_BYTES = bytes.fromhex("0F 00 F8 FF 0A 00 41 FE CC FF 56 04 27 02 A3 FD 12 F4 3C C1 6C FF")  # LSB first
@@ -120,12 +120,17 @@ def test_open_and_stream(scheme):
     assert gyro.scale == pytest.approx(0.02 * DEG2RAD)
     accel = next(c for c in info.channels if c.name == "accel")
     n, rows = 0, []
-    for _ in range(410):
+    for _ in range(415):
         clock.sleep(info.poll_interval_s)
         block = drv.read_block()
+        assert block.n in (0, round(adis.BATCH_S * 204.8))  # handed over in batches
         n += block.n
         rows.append(block.channels["accel"])
-    assert 405 <= n <= 410  # one sample per period; a poll that finds the same sample stores nothing
+    held = drv.drain()
+    assert 0 < held.n < round(adis.BATCH_S * 204.8) and held.age == 0
+    n += held.n
+    rows.append(held.channels["accel"])
+    assert 410 <= n <= 415  # one sample per period; a poll that finds the same sample stores nothing
     acc = np.concatenate(rows) * accel.scale
     assert acc[:, 2].mean() == pytest.approx(G0, abs=0.01)  # the simulator's gravity on +z
     burst = [tx for tx, _ in rec.frames if len(tx) == 28]
@@ -135,13 +140,20 @@ def test_open_and_stream(scheme):
 def test_bad_crc_drops_the_sample_and_says_so():
     drv, _, chip, clock = rig(faults=[FaultSpec("checksum", at_s=1.0)])
     info = drv.open()
-    notes = []
+    notes, aged, n = [], [], 0
     for _ in range(1000):
         clock.sleep(info.poll_interval_s)
         b = drv.read_block()
+        n += b.n
         if b.lost:
             notes.append((b.n, b.lost, b.note))
-    assert notes == [(0, 1, "checksum: burst CRC mismatch, sample dropped")]
+        if b.age:
+            aged.append((b.n, b.age))
+    # the samples held before the bad burst are handed over at once, dated one period back;
+    # the loss comes with the next sample, before which it happened
+    assert notes == [(1, 1, "checksum: burst CRC mismatch, sample dropped")]
+    assert len(aged) == 1 and aged[0][1] == 1 and 0 < aged[0][0] < round(adis.BATCH_S * 409.6)
+    assert n + drv.drain().n + 1 == 1000
 
 
 def test_reset_is_detected_as_lost_configuration():
@@ -168,3 +180,20 @@ def test_wrong_spi_mode_or_chip():
 def test_bad_settings(settings, needle):
     with pytest.raises(SettingError, match=needle):
         adis.ADIS16448.check_settings(settings)
+
+
+def test_a_failed_transfer_hands_over_the_held_samples_first():
+    drv, _, _, clock = rig(faults=[FaultSpec("disconnect", at_s=1.0, duration_s=0.5)])
+    info = drv.open()
+    n, blocks = 0, []
+    with pytest.raises(BusError):
+        for _ in range(1000):
+            clock.sleep(info.poll_interval_s)
+            b = drv.read_block()
+            n += b.n
+            blocks.append((b.n, b.age))
+    # the poll that failed returned what it held (its newest one period old); the next raised
+    k, age = blocks[-1]
+    assert 0 < k < round(adis.BATCH_S * 409.6) and age == 1
+    assert n == len(blocks) - 1  # every poll before the failure read one new sample
+    assert drv.drain().n == 0
