@@ -54,6 +54,7 @@ def capture(
     ballast_bytes: int = DEFAULT_BALLAST_BYTES,
     trace: str | os.PathLike | None = None,
     replay: str | os.PathLike | None = None,
+    workers: int = 1,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -67,6 +68,8 @@ def capture(
     trace : write every bus transaction of every device to this JSON-lines file.
     replay : answer every driver from this trace instead of a bus (virtual clock);
         the drivers must ask exactly what they asked when it was recorded.
+    workers : simulation on the virtual clock only: processes to poll the bus
+        groups in (see :mod:`~imustation.acquisition.simworkers`); 1 = this one.
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
@@ -87,6 +90,11 @@ def capture(
     )
     if trace is not None and replay is not None:
         raise InputError("--trace and --replay exclude each other")
+    if workers > 1 and (not simulate or clock is not None or trace is not None or replay is not None):
+        raise InputError(
+            f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "
+            "uses worker processes (a real capture has a reader thread per bus)"
+        )
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()
     try:
@@ -94,7 +102,7 @@ def capture(
     except BaseException:
         recorder.lock.release()
         raise
-    station = Station(config, simulate=simulate, clock=clock, trace=tracer, replay=replayed)
+    station = Station(config, simulate=simulate, clock=clock, trace=tracer, replay=replayed, workers=workers)
     stop = _StopFlag()
     previous = {}
     if threading.current_thread() is threading.main_thread():

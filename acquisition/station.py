@@ -31,6 +31,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from imustation.acquisition import simworkers
 from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
 from imustation.clock import Clock, MonotonicClock, VirtualClock
@@ -48,6 +49,10 @@ WRITER_WAKEUP_S = 0.05
 _MAX_CACHED_OFFSETS = 512
 #: number of first counter jumps of a block quoted in the event text
 _QUOTED_JUMPS = 3
+#: with worker processes: how often the main process takes in their data (wall s), and how far
+#: (station time) it may run ahead of the slowest
+WORKER_PUMP_S = 0.02
+WORKER_LEAD_NS = 10_000_000_000
 
 
 class Sink(Protocol):
@@ -163,9 +168,16 @@ class Station:
         clock: Clock | None = None,
         trace: TraceWriter | None = None,
         replay: Trace | None = None,
+        workers: int = 1,
     ):
         self.config = config
         self.simulate = simulate
+        if workers < 1:
+            raise ValueError(f"workers = {workers}: at least 1")
+        #: processes a simulated capture may use (bus groups polled in worker processes)
+        self.workers = workers
+        self._workers: list[Any] = []
+        self._trace, self._replay = trace, replay
         # a replayed trace, like a simulation, runs on a virtual clock
         self.clock: Clock = clock or (VirtualClock() if simulate or replay else MonotonicClock())
         self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed, trace=trace, replay=replay)
@@ -181,16 +193,31 @@ class Station:
         return bool(getattr(self.clock, "virtual", False))
 
     def open(self) -> list[DeviceSpec]:
-        """Identify and configure every device and thermometer; return the devices' run-file descriptions."""
-        specs = []
+        """Identify and configure every device and thermometer; return the devices' run-file descriptions.
+
+        With ``workers`` > 1 on a virtual clock, the bus groups other than this
+        process's share are opened (and later polled) by worker processes.
+        """
+        local = None
+        if self.workers > 1 and len(simworkers.bus_groups(self.config)) > 1:
+            if not self.virtual or self._trace is not None or self._replay is not None:
+                raise ValueError("workers > 1 needs a simulated capture without trace or replay")
+            shares = simworkers.partition(self.config, self.workers)
+            local = set(shares[0])
+            self._workers = [
+                simworkers.Worker(simworkers.subset(self.config, share), i) for i, share in enumerate(shares[1:], 1)
+            ]
+        specs = {}
         for dev in self.config.devices:
+            if local is not None and dev.name not in local:
+                continue
             driver_cls = DRIVERS[dev.driver]
             regs = self.buses.register_device(dev)
             driver = driver_cls(regs, dev.settings, sleep=self.clock.sleep)
             info = driver.open()
             st = DeviceState(dev, driver, info, 1e9 / info.rate_hz, int(info.poll_interval_s * 1e9))
             self.devices[dev.name] = st
-            specs.append(
+            specs[dev.name] = (
                 DeviceSpec(
                     name=dev.name,
                     driver=dev.driver,
@@ -204,21 +231,44 @@ class Station:
                 )
             )
         for th in self.config.thermometers:
+            if local is not None and th.name not in local:
+                continue
             driver_cls = THERMOMETER_DRIVERS[th.driver]
             regs = self.buses.register_thermometer(th)
             driver = driver_cls(regs, th.settings, sleep=self.clock.sleep)
             identity = driver.open()
             period = int(round(1e9 / float(th.settings.get("rate_hz", 1.0))))
             self.thermometers[th.name] = ThermometerState(th, driver, str(identity), period)
-        return specs
+        for w in self._workers:
+            w_specs, infos, thermos = w.opened()
+            for spec in w_specs:
+                specs[spec.name] = spec
+            for dev in w.config.devices:
+                info = infos[dev.name]
+                poll = int(info.poll_interval_s * 1e9)
+                self.devices[dev.name] = DeviceState(dev, None, info, 1e9 / info.rate_hz, poll)
+            for th in w.config.thermometers:
+                identity, period = thermos[th.name]
+                self.thermometers[th.name] = ThermometerState(th, None, identity, period)
+        # config order, whichever process polls them
+        self.devices = {d.name: self.devices[d.name] for d in self.config.devices}
+        self.thermometers = {t.name: self.thermometers[t.name] for t in self.config.thermometers}
+        return [specs[d.name] for d in self.config.devices]
 
     def close(self) -> None:
         for obj in [*self.devices.values(), *self.thermometers.values()]:
+            if obj.driver is None:
+                continue  # polled by a worker process
             try:
                 obj.driver.close()
             except Exception:  # noqa: BLE001 - closing must not mask the capture's outcome
                 pass
         self.buses.close()
+        for w in self._workers:
+            try:
+                w.close()
+            except Exception:  # noqa: BLE001 - closing must not mask the capture's outcome
+                pass
 
     # -- scheduling ---------------------------------------------------------------
     def run(
@@ -250,12 +300,16 @@ class Station:
         self._recorder = recorder
         end = self.t0 + int(round(duration_s * 1e9))
         reason = ""
+        for w in self._workers:
+            w.start(duration_s, pace)
         try:
             if self.virtual:
                 reason = self._run_virtual(recorder, end, should_stop, pace)
             else:
                 reason = self._run_threaded(recorder, end, should_stop)
             self._drain(recorder)
+            if self._workers:
+                reason = self._finish_workers(recorder, should_stop, reason)
         except DiskFullError as exc:
             reason = f"disk full: {exc}"
             raise
@@ -274,6 +328,8 @@ class Station:
         self.t0 = self.clock.now_ns()
         self._started = True
         for st in self.devices.values():
+            if st.driver is None:
+                continue  # a worker process starts its own
             try:
                 st.driver.read_block()
                 drain = getattr(st.driver, "drain", None)
@@ -305,7 +361,10 @@ class Station:
         return heap
 
     def _all_pollers(self) -> list[tuple[str, str]]:
-        return [("device", n) for n in self.devices] + [("thermometer", n) for n in self.thermometers]
+        """This process's devices and thermometers (not those a worker process polls)."""
+        return [("device", n) for n, st in self.devices.items() if st.driver is not None] + [
+            ("thermometer", n) for n, th in self.thermometers.items() if th.driver is not None
+        ]
 
     def _poll(self, sink: Sink, kind: str, name: str) -> int:
         """Poll one device or thermometer; return its poll interval, ns."""
@@ -321,6 +380,8 @@ class Station:
         clock = self.clock
         heap = self._pollers(self._all_pollers())
         tick = _ticker(recorder)
+        if self._workers:
+            tick = self._pumping(recorder, tick, should_stop)
         heappop, heappush = heapq.heappop, heapq.heappush
         wall0 = time.monotonic()
         while heap:
@@ -345,6 +406,71 @@ class Station:
         if clock.now_ns() < end:
             clock.advance_to(end)  # type: ignore[attr-defined]
         return ""
+
+    # -- worker processes (simulated captures on several cores) ---------------------------
+    def _pump(self, recorder: Any, timeout: float = 0.0) -> bool:
+        """Write what the workers sent; True if anything came."""
+        got = False
+        for w in self._workers:
+            got |= w.pump(lambda item: _dispatch(recorder, item), self._mirror, timeout)
+        return got
+
+    def _mirror(self, counts: dict[str, dict[str, tuple]]) -> None:
+        for name, (samples, lost, gaps, faults, temp_c, failed) in counts["devices"].items():
+            st = self.devices[name]
+            st.samples, st.lost, st.gaps, st.faults, st.temp_c, st.failed = samples, lost, gaps, faults, temp_c, failed
+        for name, (readings, lost, faults, celsius, failed) in counts["thermometers"].items():
+            th = self.thermometers[name]
+            th.readings, th.lost, th.faults, th.celsius, th.failed = readings, lost, faults, celsius, failed
+
+    def _workers_t_ns(self) -> int | None:
+        """Station time every running worker has reached (None: all done)."""
+        running = [w.t_ns for w in self._workers if not w.done]
+        return min(running) if running else None
+
+    def _pumping(self, recorder: Any, tick: Callable[[int], None] | None, should_stop: Callable[[], bool]):
+        """The virtual loop's between-polls hook with workers: take in their data, stay in step with them.
+
+        This process runs at most ``WORKER_LEAD_NS`` of station time ahead of the
+        slowest worker, so the data of all processes reach the file together
+        (bounded memory, coherent status and file rotation).
+        """
+        next_pump = 0.0
+
+        def hook(t_ns: int) -> None:
+            nonlocal next_pump
+            now = time.monotonic()
+            if now >= next_pump:
+                self._pump(recorder)
+                next_pump = now + WORKER_PUMP_S
+            behind = self._workers_t_ns()
+            while behind is not None and t_ns > behind + WORKER_LEAD_NS and not should_stop():
+                self._pump(recorder, timeout=WORKER_PUMP_S)
+                behind = self._workers_t_ns()
+            if tick is not None:
+                tick(t_ns)
+
+        return hook
+
+    def _finish_workers(self, recorder: Any, should_stop: Callable[[], bool], reason: str) -> str:
+        """After this process's share: stop the workers if stopping, and write what they still send."""
+        stopping = bool(reason)
+        if stopping:
+            for w in self._workers:
+                w.stop()
+        tick = _ticker(recorder)
+        while not all(w.done for w in self._workers):
+            if not stopping and should_stop():
+                stopping, reason = True, "stopped by signal"
+                for w in self._workers:
+                    w.stop()
+            self._pump(recorder, timeout=WORKER_PUMP_S)
+            behind = self._workers_t_ns()
+            if tick is not None and behind is not None:
+                tick(behind)
+            if self._on_status is not None and time.monotonic() >= self._next_status:
+                self._emit_status()
+        return reason or next((w.reason for w in self._workers if w.reason), "")
 
     def _run_threaded(self, recorder: Any, end: int, should_stop: Callable[[], bool]) -> str:
         q: queue.SimpleQueue = queue.SimpleQueue()
@@ -574,6 +700,9 @@ class Station:
     def status(self, *, final: bool = False, reason: str = "") -> dict[str, Any]:
         """The live status (see docs/capture.md for the JSON keys)."""
         elapsed = (self.clock.now_ns() - self.t0) / 1e9
+        behind = self._workers_t_ns() if self._workers else None
+        if behind is not None:
+            elapsed = min(elapsed, behind / 1e9)
         wall_now = time.monotonic()
         wall = wall_now - self._wall0
         window = wall_now - self._window_wall

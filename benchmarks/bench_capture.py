@@ -22,6 +22,7 @@ import tomllib
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
+from imustation.acquisition.simworkers import bus_groups
 from imustation.configs import config_path
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 
@@ -31,9 +32,19 @@ PAPER_THERMOMETERS = ("mcp9804",) * 3
 TARGET_RATIO = 200.0
 
 
-def lab_config(path: str):
+def lab_config(path: str, only: list[str] | None = None):
     with open(path, "rb") as fh:
         data = tomllib.load(fh)
+    if only is not None:
+        names = {d.get("name") for d in data.get("device", [])} | {t.get("name") for t in data.get("thermometer", [])}
+        unknown = sorted(set(only) - names)
+        if unknown:
+            raise SystemExit(f"--devices: {', '.join(unknown)} not in {path} (has {', '.join(sorted(names))})")
+        data = {
+            **data,
+            "device": [d for d in data.get("device", []) if d.get("name") in only],
+            "thermometer": [t for t in data.get("thermometer", []) if t.get("name") in only],
+        }
     devices = [d for d in data.get("device", []) if d.get("driver") in DRIVERS]
     thermos = [t for t in data.get("thermometer", []) if t.get("driver") in THERMOMETER_DRIVERS]
     for d in data.get("device", []):
@@ -57,18 +68,24 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=12.0, help="virtual hours to record (default 12)")
     ap.add_argument("--config", default=config_path("lab-example.toml"))
     ap.add_argument("--profile", action="store_true", help="print the 25 costliest functions")
+    ap.add_argument("--devices", help="comma-separated device/thermometer names of the config (default: all)")
+    ap.add_argument(
+        "--workers", type=int, default=None, help="processes (default: one per core, at most one per bus group)"
+    )
     args = ap.parse_args()
-    cfg = lab_config(args.config)
+    cfg = lab_config(args.config, args.devices.split(",") if args.devices else None)
     rates = ", ".join(f"{d.name} ({d.driver}, {d.settings.get('rate_hz', '?')} Hz)" for d in cfg.devices)
     print(f"devices: {rates}; thermometers: {len(cfg.thermometers)}")
     duration = args.hours * 3600.0
+    workers = args.workers or max(1, min(os.cpu_count() or 1, len(bus_groups(cfg))))
+    print(f"workers: {workers} (bus groups: {len(bus_groups(cfg))})")
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "bench.h5")
         prof = cProfile.Profile() if args.profile else None
         t0 = time.perf_counter()
         if prof:
             prof.enable()
-        summary = capture(cfg, out, duration, simulate=True)
+        summary = capture(cfg, out, duration, simulate=True, workers=workers)
         if prof:
             prof.disable()
         wall = time.perf_counter() - t0

@@ -10,6 +10,7 @@ import click
 
 from imustation.acquisition import capture as run_capture
 from imustation.acquisition import load_config
+from imustation.acquisition.simworkers import bus_groups
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.monitor.launcher import MonitorProcess
@@ -57,6 +58,19 @@ def _write_status_file(path: str, status: dict) -> None:
     os.replace(tmp, path)
 
 
+def _workers(value: str, cfg, can: bool) -> int:
+    """``--workers``: a count, or auto (cores, at most one per bus group; 1 where workers cannot help)."""
+    if value == "auto":
+        return max(1, min(os.cpu_count() or 1, len(bus_groups(cfg)))) if can else 1
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise InputError(f"--workers {value!r}: a whole number >= 1, or auto")
+    return n
+
+
 @cli.command()
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", default="run.h5", show_default=True, help="Run file to create (HDF5).")
@@ -98,6 +112,15 @@ def _write_status_file(path: str, status: dict) -> None:
 )
 @click.option("--monitor-host", default="127.0.0.1", show_default=True, help="--monitor: address to listen on.")
 @click.option("--monitor-port", default=8765, show_default=True, type=int, help="--monitor: TCP port.")
+@click.option(
+    "--workers",
+    default="1",
+    show_default=True,
+    metavar="N|auto",
+    help="--simulate: processes polling the bus groups (simulated chips cost CPU; 2 halves a long lab "
+    "simulation). auto = one per core, at most one per bus. A device's noise realisation then differs "
+    "from a one-process run (docs/capture.md).",
+)
 @click.option("--sim-speed", default=None, type=float, hidden=True, help="Simulation: max virtual s per wall s.")
 @click.option("--no-fsync", is_flag=True, hidden=True, help="Skip fsync after flushes (tests on slow disks).")
 def capture(
@@ -116,6 +139,7 @@ def capture(
     with_monitor: bool,
     monitor_host: str,
     monitor_port: int,
+    workers: str,
     sim_speed: float | None,
     no_fsync: bool,
 ) -> None:
@@ -132,6 +156,7 @@ def capture(
         raise InputError(f"--status-interval {status_interval}: must be > 0 s")
     if sim_speed is not None and not sim_speed > 0:
         raise InputError(f"--sim-speed {sim_speed}: must be > 0")
+    n_workers = _workers(workers, cfg, simulate and not trace_file and not replay_file)
     tty = sys.stderr.isatty()
     live = not quiet and not json_status
     launcher = MonitorProcess(monitor_host, monitor_port, note=lambda msg: click.echo(msg, err=True))
@@ -161,6 +186,7 @@ def capture(
             fsync=not no_fsync,
             trace=trace_file,
             replay=replay_file,
+            workers=n_workers,
         )
     finally:
         launcher.stop()
