@@ -107,8 +107,9 @@ class ADIS16448Sim:
         self.t_start_ns = self.clock.now_ns()
         self.produced = 0
         self._chunk = np.zeros((0, 13), dtype=np.uint16)
+        self._chunk_bytes = b""  # the same words as on MISO (big-endian), 26 bytes a sample
         self._chunk_first = 0
-        fs = self.rate_hz
+        fs = self._rate = self.rate_hz
         if self.source is None or self.source.fs_hz != fs:
             self.source = self.source_factory(fs)
 
@@ -140,17 +141,23 @@ class ADIS16448Sim:
         words = (w & 0xFFFF).astype(np.uint16)
         words[:, 12] = burst_crc_rows(words[:, 1:12])
         self._chunk = words
+        self._chunk_bytes = words.astype(">u2").tobytes()
         self._chunk_first = self.produced
         self.produced += n
 
-    def _latest(self) -> np.ndarray | None:
-        """Burst words of the newest sample due by now (None before the first)."""
-        due = int((self.clock.now_ns() - self.t_start_ns) * self.rate_hz / 1e9)
+    def _newest(self) -> int:
+        """Row in the current chunk of the newest sample due by now (-1 before the first)."""
+        due = int((self.clock.now_ns() - self.t_start_ns) * self._rate / 1e9)
         if due <= 0:
-            return None
+            return -1
         while self.produced < due:
             self._build(max(CHUNK, due - self.produced))
-        return self._chunk[due - 1 - self._chunk_first]
+        return due - 1 - self._chunk_first
+
+    def _latest(self) -> np.ndarray | None:
+        """Burst words of the newest sample due by now (None before the first)."""
+        row = self._newest()
+        return None if row < 0 else self._chunk[row]
 
     # -- wire protocol -------------------------------------------------------------------------
     def spi_transfer(self, tx: bytes, mode: int, hz: float) -> bytes:
@@ -207,12 +214,11 @@ class ADIS16448Sim:
 
     def _burst(self, n: int) -> bytes:
         self.sim_bursts += 1
-        row = self._latest()
-        words = np.zeros(13, dtype=np.uint16) if row is None else row.copy()
+        row = self._newest()
+        body = bytes(26) if row < 0 else self._chunk_bytes[26 * row : 26 * row + 26]
         crc_on = bool(self.regs.get(chip.REG_MSC_CTRL, 0) & chip.MSC_CTRL_CRC)
         if crc_on and self.plan is not None and self.plan.fire("checksum"):
-            words[12] ^= 0x5A5A
-        body = words.astype(">u2").tobytes()
+            body = body[:-2] + bytes([body[-2] ^ 0x5A, body[-1] ^ 0x5A])
         if not crc_on:
             body = body[:-2] + bytes(2)  # MISO idle after the 12 words
         out = self.pending.to_bytes(2, "big") + body
