@@ -37,8 +37,8 @@ from imustation.acquisition.config import StationConfig
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 
 #: rough wall cost of one simulated sample by bus kind, us (benchmarks/bench_capture.py --devices:
-#: ADIS16448 on a CP2130 ~45, MTi ~12, FIFO devices on I2C ~2-6); balances the split
-SIM_COST_US = {"spi": 45.0, "serial": 12.0, "i2c": 6.0}
+#: ADIS16448 on a CP2130 ~35, MTi ~12, FIFO devices on I2C ~3-20); balances the split
+SIM_COST_US = {"spi": 35.0, "serial": 12.0, "i2c": 8.0}
 #: the main process also writes every sample to the run file, us per sample
 WRITER_COST_US = 1.5
 #: a worker sends what it has at least this often (wall s), or when this many items wait
