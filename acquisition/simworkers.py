@@ -59,8 +59,7 @@ def _group_cost_us(config: StationConfig, names: list[str]) -> float:
     cost = 0.0
     for dev in config.devices:
         if dev.name in names:
-            rate = float(dev.settings.get("rate_hz") or _rate_of(dev))
-            cost += rate * SIM_COST_US.get(DRIVERS[dev.driver].bus_kind, 10.0)
+            cost += device_rate_hz(dev) * SIM_COST_US.get(DRIVERS[dev.driver].bus_kind, 10.0)
     for th in config.thermometers:
         if th.name in names:
             kind = THERMOMETER_DRIVERS[th.driver].bus_kind
@@ -68,10 +67,11 @@ def _group_cost_us(config: StationConfig, names: list[str]) -> float:
     return cost
 
 
-def _rate_of(dev) -> float:
+def device_rate_hz(dev) -> float:
+    """The output rate a device's settings ask for, Hz (``rate_hz``, or the driver's own rule)."""
     from imustation.drivers.sim import _configured_rate
 
-    return _configured_rate(dev.driver, dev.settings)
+    return float(dev.settings.get("rate_hz") or _configured_rate(dev.driver, dev.settings))
 
 
 def partition(config: StationConfig, workers: int) -> list[list[str]]:
@@ -81,7 +81,7 @@ def partition(config: StationConfig, workers: int) -> list[list[str]]:
     main process's (which also carries the writer's cost). Empty shares are dropped.
     """
     groups = bus_groups(config)
-    total_rate = sum(float(d.settings.get("rate_hz") or _rate_of(d)) for d in config.devices)
+    total_rate = sum(device_rate_hz(d) for d in config.devices)
     loads = [total_rate * WRITER_COST_US] + [0.0] * (max(1, workers) - 1)
     shares: list[list[str]] = [[] for _ in loads]
     for names in sorted(groups.values(), key=lambda n: -_group_cost_us(config, n)):

@@ -151,3 +151,21 @@ def _alive(pid: int) -> bool:
             return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_rotation_with_a_worker_keeps_every_sample_in_order_near_its_part(tmp_path):
+    out = tmp_path / "rot.h5"
+    summary = capture(two_buses(), out, 50.0, simulate=True, workers=2, rotate_s=20.0)
+    assert [os.path.basename(p) for p in summary.paths] == ["rot.001.h5", "rot.002.h5", "rot.003.h5"]
+    for dev in ("gyro", "adis"):
+        parts = []
+        for k, p in enumerate(summary.paths):
+            with open_run(p) as run:
+                assert run.complete
+                t = run.read(dev, "t")
+            parts.append(t)
+            # a part ends at its rotation time, within the main process's lead over the worker
+            if len(t):
+                assert t[-1] <= (k + 1) * 20e9 + 10e9 and t[0] >= k * 20e9 - 10e9
+        t = np.concatenate(parts)
+        assert len(t) == summary.samples[dev] and (np.diff(t) > 0).all()
