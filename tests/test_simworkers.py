@@ -18,8 +18,8 @@ from imustation.acquisition.config import parse_config
 from imustation.acquisition.simworkers import bus_groups, partition
 from imustation.cli import cli
 from imustation.configs import config_path
-from imustation.errors import BusError
-from imustation.runfile import open_run
+from imustation.errors import BusError, DiskFullError
+from imustation.runfile import RunWriter, open_run
 
 
 def two_buses(adis_faults=()):
@@ -169,3 +169,32 @@ def test_rotation_with_a_worker_keeps_every_sample_in_order_near_its_part(tmp_pa
                 assert t[-1] <= (k + 1) * 20e9 + 10e9 and t[0] >= k * 20e9 - 10e9
         t = np.concatenate(parts)
         assert len(t) == summary.samples[dev] and (np.diff(t) > 0).all()
+
+
+def test_a_full_disk_stops_every_process_with_a_complete_file(tmp_path, monkeypatch):
+    calls = {"n": 0}
+
+    def free_bytes(self):
+        calls["n"] += 1
+        return 10**12 if calls["n"] < 6 else 1000
+
+    monkeypatch.setattr(RunWriter, "free_bytes", free_bytes)
+    out = tmp_path / "full.h5"
+    with pytest.raises(DiskFullError, match="disk full"):
+        capture(two_buses(), out, 600.0, simulate=True, workers=2)
+    with open_run(out) as run:
+        assert run.complete and run.attrs["stopped"] == "disk full"
+        assert run.rows("adis") > 0 and run.rows("gyro") > 0
+    assert not multiprocessing.active_children()
+
+
+def test_a_worker_device_pulled_and_replugged_is_logged_and_resumed(tmp_path):
+    pulled = [{"kind": "disconnect", "at_s": 10, "duration_s": 2}]
+    summary = capture(two_buses(pulled), tmp_path / "p.h5", 30.0, simulate=True, workers=2)
+    with open_run(tmp_path / "p.h5") as run:
+        kinds = [(e.source, e.kind) for e in run.events()]
+        t = run.read("adis", "t")
+    assert ("adis", "fault") in kinds and ("adis", "reconnect") in kinds
+    assert summary.lost["adis"] > 0.5 * 2 * 409.6  # about the 2 s it was gone
+    assert summary.samples["adis"] + summary.lost["adis"] == pytest.approx(30 * 409.6, abs=3)
+    assert (t[-1] - t[0]) / 1e9 > 28 and (np.diff(t) > 0).all()
