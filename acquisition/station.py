@@ -547,7 +547,12 @@ class Station:
         for st in self.devices.values():
             drain = getattr(st.driver, "drain", None)
             if drain is not None and not st.failed:
-                self._store(sink, st, drain(), st.last_poll_ns)
+                try:
+                    block = drain()
+                except (BusError, DeviceError) as exc:
+                    self._fault(sink, st, str(exc))
+                    continue
+                self._store(sink, st, block, st.last_poll_ns)
 
     # -- one poll ---------------------------------------------------------------------
     def _poll_device(self, sink: Sink, st: DeviceState) -> None:
@@ -574,13 +579,17 @@ class Station:
         self._store(sink, st, block, t_read)
 
     def _store(self, sink: Sink, st: DeviceState, block: Block, t_read: int) -> None:
-        """Log a block's losses and append its samples, the newest dated ``t_read`` less its age."""
+        """Log a block's losses and append its samples, the newest dated ``t_read`` (ns) less its age."""
         name = st.config.name
         k = block.n
         if st.resync and not block.lost:
+            if k == 0:
+                return  # measure the loss at the first samples (a driver may be holding them)
             block.lost, block.note = -1, "samples lost while the device was failing"
             st.last_counter = None  # the device restarted its counter
         st.resync = False
+        # the newest sample's time: the read, less the periods it was held
+        t_new = t_read - int(round(block.age * st.period_ns)) if block.age else t_read
         counter = block.counter
         if counter is not None and k and not block.lost and self._check_counter(sink, st, counter, t_read):
             block.lost, block.note = -1, "device counter went back (device restarted?): resync"
@@ -589,7 +598,7 @@ class Station:
             if lost < 0:
                 # the chip cannot count them: samples expected since the last one, minus those read
                 last = st.last_t_ns if st.last_t_ns is not None else 0
-                lost = max(0, int(round((t_read - last) / st.period_ns)) - k)
+                lost = max(0, int(round((t_new - last) / st.period_ns)) - k)
             st.lost += lost
             st.gaps += 1
             note = block.note.lower()
@@ -598,8 +607,7 @@ class Station:
         if k == 0:
             return
         # sample times: the last sample is the newest at read time, spaced by the ODR
-        if block.age:
-            t_read -= int(round(block.age * st.period_ns))
+        t_read = t_new
         offsets = st.offsets.get(k)
         if offsets is None:
             offsets = (np.arange(k - 1, -1, -1, dtype=np.float64) * st.period_ns).round().astype(np.int64)

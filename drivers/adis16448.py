@@ -321,9 +321,12 @@ class ADIS16448:
 
         A sample read is kept, decoded with the others of its batch, and handed
         over when the batch is full, before a dropped burst or a failed
-        transfer (``Block.age`` then says the newest is one period old), and by
+        transfer (``Block.age`` then counts the polls since the newest was
+        read, i.e. output periods on the station's schedule), and by
         :meth:`drain` when the capture ends. A bus or device error is raised at
-        the call after the one that hands over the samples before it.
+        the call after the one that hands over the samples before it. A dropped
+        burst is reported (``lost``) with the next block, or at once when
+        nothing is held.
         """
         if self._error is not None:
             exc, self._error = self._error, None
@@ -337,12 +340,12 @@ class ADIS16448:
             if not self._held:
                 raise
             self._error = exc
-            return self._release(age=1)
+            return self._release(age=self._age + 1)
         data = rx[2 : 2 + 2 * BURST_WORDS]
         if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
             self.crc_errors += 1
             self._last = None
-            before = self._release(age=1) if self._held else None
+            before = self._release(age=self._age + 1) if self._held else None
             self._lost += 1  # handed over with the next block: it comes after ``before``
             try:
                 self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
@@ -353,7 +356,7 @@ class ADIS16448:
             return before if before is not None else self._release(age=0)
         if data == self._last:
             self._age += 1  # the same sample read twice: no new data yet
-            return self._release(age=self._age) if self._lost else Block(_EMPTY)
+            return Block(_EMPTY)
         self._last = data
         self._held.append(data)
         self._age = 0
@@ -362,7 +365,13 @@ class ADIS16448:
         return Block(_EMPTY)
 
     def drain(self) -> Block:
-        """The samples read but not yet handed over (the capture is ending)."""
+        """The samples read but not yet handed over (the capture is ending).
+
+        An error held back from the last poll is raised now, so it is logged.
+        """
+        if self._error is not None:
+            exc, self._error = self._error, None
+            raise exc
         return self._release(age=self._age)
 
     def _release(self, age: int) -> Block:

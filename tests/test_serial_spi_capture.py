@@ -111,3 +111,22 @@ def test_bus_kind_mismatch_is_a_config_error(tmp_path):
     cfg = parse_config({"device": [{"name": "a", "driver": "adis16448", "bus": "serial:/dev/ttyUSB0"}]})
     with pytest.raises(ConfigError, match="driver 'adis16448' needs a spi bus \\(cp2130:, mcp2210:, sim:\\)"):
         capture(cfg, tmp_path / "x.h5", 1.0, simulate=True)
+
+
+@pytest.mark.parametrize(
+    "faults",
+    [
+        [{"kind": "disconnect", "at_s": 10, "duration_s": 2}],
+        [{"kind": "disconnect", "at_s": 8, "duration_s": 1}, {"kind": "disconnect", "at_s": 20, "duration_s": 2}],
+        [{"kind": "reset", "at_s": 10}],
+        [{"kind": "checksum", "every_s": 2}],
+    ],
+    ids=["pulled", "pulled-twice", "reset", "crc"],
+)
+def test_adis_samples_plus_logged_losses_are_exact(tmp_path, faults):
+    """The driver holds samples between hand-overs: a re-opened device's loss is measured at its first block."""
+    adis = {"name": "adis", "driver": "adis16448", "bus": "cp2130:", "sim": {"faults": faults}}
+    cfg = parse_config({"device": [adis]})
+    summary = capture(cfg, tmp_path / "a.h5", 30.0, simulate=True)
+    assert summary.lost["adis"] > 0
+    assert summary.samples["adis"] + summary.lost["adis"] == round(30 * 409.6)
