@@ -90,6 +90,10 @@ def capture(
     )
     if trace is not None and replay is not None:
         raise InputError("--trace and --replay exclude each other")
+    if workers > 1 and rotate_s is not None:
+        raise InputError(
+            f"--workers {workers} with --rotate: parts would not end at their times for every process; use --workers 1"
+        )
     if workers > 1 and (not simulate or clock is not None or trace is not None or replay is not None):
         raise InputError(
             f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "

@@ -26,15 +26,24 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing as mp
+import os
+import pickle
 import signal
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from imustation.acquisition.config import StationConfig
+import numpy as np
+
+from imustation.acquisition.config import DeviceConfig, StationConfig
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
+from imustation.drivers.sim import configured_rate
+from imustation.errors import ImustationError
+
+if TYPE_CHECKING:
+    from imustation.acquisition.station import Station
 
 #: rough wall cost of one simulated sample by bus kind, us (benchmarks/bench_capture.py --devices:
 #: ADIS16448 on a CP2130 ~35, MTi ~12, FIFO devices on I2C ~3-20); balances the split
@@ -44,6 +53,11 @@ WRITER_COST_US = 1.5
 #: a worker sends what it has at least this often (wall s), or when this many items wait
 SEND_INTERVAL_S = 0.02
 SEND_ITEMS = 512
+#: wall s a worker may take to open its devices, and to finish once told to stop
+OPEN_TIMEOUT_S = 120.0
+STOP_TIMEOUT_S = 10.0
+#: what an operator sends to stop a capture; the main process handles them for every process
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 def bus_groups(config: StationConfig) -> dict[str, list[str]]:
@@ -67,11 +81,14 @@ def _group_cost_us(config: StationConfig, names: list[str]) -> float:
     return cost
 
 
-def device_rate_hz(dev) -> float:
+def device_rate_hz(dev: DeviceConfig) -> float:
     """The output rate a device's settings ask for, Hz (``rate_hz``, or the driver's own rule)."""
-    from imustation.drivers.sim import _configured_rate
+    return configured_rate(dev.driver, dev.settings)
 
-    return float(dev.settings.get("rate_hz") or _configured_rate(dev.driver, dev.settings))
+
+def default_workers(config: StationConfig) -> int:
+    """One process per usable core, at most one per bus group."""
+    return max(1, min(len(os.sched_getaffinity(0)), len(bus_groups(config))))
 
 
 def partition(config: StationConfig, workers: int) -> list[list[str]]:
@@ -105,20 +122,22 @@ def subset(config: StationConfig, names: list[str]) -> StationConfig:
 class _PipeSink:
     """A worker's recorder: batches of polled items plus the device counters, sent through the pipe."""
 
-    def __init__(self, conn: Connection, station: Any):
+    def __init__(self, conn: Connection, station: Station):
         self._conn = conn
         self._station = station
         self._items: list[tuple] = []
         self._next_send = time.monotonic() + SEND_INTERVAL_S
         self.stop_requested = False
 
-    def append(self, device, t_ns, channels, counter) -> None:
+    def append(
+        self, device: str, t_ns: np.ndarray, channels: Mapping[str, np.ndarray], counter: np.ndarray | None
+    ) -> None:
         self._items.append(("append", device, t_ns, dict(channels), counter))
 
-    def append_temperature(self, name, t_ns, celsius) -> None:
+    def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None:
         self._items.append(("temperature", name, t_ns, celsius))
 
-    def event(self, t_ns, source, kind, detail="", lost=0) -> None:
+    def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None:
         self._items.append(("event", t_ns, source, kind, detail, lost))
 
     def tick(self, t_ns: int) -> None:
@@ -134,7 +153,7 @@ class _PipeSink:
                 self.stop_requested = True
 
 
-def counters(station: Any) -> dict[str, dict[str, tuple]]:
+def counters(station: Station) -> dict[str, dict[str, tuple]]:
     """What the main process mirrors of a worker's devices and thermometers."""
     return {
         "devices": {
@@ -150,8 +169,11 @@ def worker_main(conn: Connection, config: StationConfig) -> None:
     """Open the devices of ``config``, report them, record when told, report the end."""
     from imustation.acquisition.station import Station
 
-    # Ctrl-C reaches the whole process group: the main process stops the workers itself
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Ctrl-C and a group-wide SIGTERM (systemd, kill -- -PGID) reach the workers too: the main
+    # process stops them itself. Both were blocked since before this process existed.
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     station = None
     try:
         station = Station(config, simulate=True)
@@ -185,13 +207,30 @@ def worker_main(conn: Connection, config: StationConfig) -> None:
 
 
 def _picklable(exc: BaseException) -> BaseException:
-    import pickle
+    """``exc`` if it survives pickling, else its nearest project error class with its message."""
+    if _round_trips(exc):
+        return exc
+    for cls in type(exc).__mro__:
+        if isinstance(cls, type) and issubclass(cls, ImustationError):
+            try:
+                twin = cls(str(exc))
+            except Exception:  # noqa: BLE001 - a constructor with other arguments
+                continue
+            if _round_trips(twin):
+                return twin
+    return RuntimeError(f"{type(exc).__name__}: {exc}")
 
+
+def _round_trips(exc: BaseException) -> bool:
     try:
         pickle.loads(pickle.dumps(exc))
-        return exc
+        return True
     except Exception:  # noqa: BLE001 - exceptions with odd constructors
-        return RuntimeError(f"{type(exc).__name__}: {exc}")
+        return False
+
+
+class WorkerError(ImustationError):
+    """A simulation worker process ended without saying why (killed, crashed)."""
 
 
 # -- main-process side ---------------------------------------------------------------------
@@ -206,8 +245,14 @@ class Worker:
         self.process = ctx.Process(
             target=worker_main, args=(child, config), name=f"imustation-sim-{index}", daemon=True
         )
-        self.process.start()
+        # the child inherits the mask: no stop signal can kill it before it ignores them
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            self.process.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
         child.close()
+        self.stop_sent: float | None = None
         #: station time the worker has reached, ns; None once it is done
         self.t_ns: int = 0
         self.done = False
@@ -215,6 +260,9 @@ class Worker:
 
     def opened(self) -> tuple[list, dict, dict]:
         """Wait for the worker to open its devices: (specs, driver infos, thermometer (identity, period))."""
+        if not self.conn.poll(OPEN_TIMEOUT_S):
+            who = ", ".join(self.names)
+            raise WorkerError(f"simulation worker for {who} did not open them in {OPEN_TIMEOUT_S:g} s")
         msg = self._recv()
         return msg[1], msg[2], msg[3]
 
@@ -222,17 +270,28 @@ class Worker:
         self.conn.send(("run", duration_s, pace))
 
     def stop(self) -> None:
-        if not self.done:
+        if not self.done and self.stop_sent is None:
+            self.stop_sent = time.monotonic()
             try:
                 self.conn.send(("stop",))
             except OSError:
                 pass
 
+    def overdue(self) -> bool:
+        """Told to stop more than ``STOP_TIMEOUT_S`` ago and still not done."""
+        return not self.done and self.stop_sent is not None and time.monotonic() - self.stop_sent > STOP_TIMEOUT_S
+
     def pump(self, dispatch: Callable[[tuple], None], mirror: Callable[[dict], None], timeout: float = 0.0) -> bool:
         """Hand over whatever the worker sent (waiting up to ``timeout`` s for something); True if anything came."""
         got = False
         while not self.done and self.conn.poll(timeout):
-            msg = self._recv()
+            try:
+                msg = self._recv()
+            except WorkerError:
+                if self.stop_sent is None:
+                    raise
+                self.done, self.reason = True, "stopped"  # told to stop, and gone: that is an end too
+                return got
             got = True
             timeout = 0.0
             for item in msg[1]:
@@ -248,21 +307,23 @@ class Worker:
         try:
             msg = self.conn.recv()
         except (EOFError, OSError):
-            code = self.process.exitcode
-            raise RuntimeError(
-                f"simulation worker for {', '.join(self.names)} died (exit code {code})"
+            self.process.join(timeout=1.0)
+            raise WorkerError(
+                f"simulation worker for {', '.join(self.names)} ended without a word"
+                f" (exit code {self.process.exitcode})"
             ) from None
         if msg[0] == "error":
             exc = msg[1]
-            exc.add_note(f"in the simulation worker for {', '.join(self.names)}")
+            exc.add_note(f"in the simulation worker for {', '.join(self.names)}:\n{msg[2]}")
             raise exc
         return msg
 
     def close(self) -> None:
         self.stop()
-        # a worker blocked on a full pipe (the main process stopped reading) never sees "stop"
+        # a worker blocked on a full pipe (the main process stopped reading) never sees "stop";
+        # it ignores SIGTERM, so it is killed
         self.process.join(timeout=1.0 if self.done else 0.2)
         if self.process.is_alive():
-            self.process.terminate()
+            self.process.kill()
             self.process.join(timeout=5.0)
         self.conn.close()

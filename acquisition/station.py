@@ -217,18 +217,16 @@ class Station:
             info = driver.open()
             st = DeviceState(dev, driver, info, 1e9 / info.rate_hz, int(info.poll_interval_s * 1e9))
             self.devices[dev.name] = st
-            specs[dev.name] = (
-                DeviceSpec(
-                    name=dev.name,
-                    driver=dev.driver,
-                    model=info.model,
-                    bus=dev.bus + (f"@0x{dev.address:02X}" if dev.address is not None else ""),
-                    identity=info.identity,
-                    rate_hz=info.rate_hz,
-                    settings=info.settings,
-                    channels=info.channels,
-                    has_counter=info.has_counter,
-                )
+            specs[dev.name] = DeviceSpec(
+                name=dev.name,
+                driver=dev.driver,
+                model=info.model,
+                bus=dev.bus + (f"@0x{dev.address:02X}" if dev.address is not None else ""),
+                identity=info.identity,
+                rate_hz=info.rate_hz,
+                settings=info.settings,
+                channels=info.channels,
+                has_counter=info.has_counter,
             )
         for th in self.config.thermometers:
             if local is not None and th.name not in local:
@@ -464,6 +462,15 @@ class Station:
                 stopping, reason = True, "stopped by signal"
                 for w in self._workers:
                     w.stop()
+            for w in self._workers:
+                if w.overdue():
+                    w.done, w.reason = True, "stopped"
+                    recorder.event(
+                        self._workers_t_ns() or 0,
+                        "station",
+                        "note",
+                        f"simulation worker for {', '.join(w.names)} did not stop in time: killed",
+                    )
             self._pump(recorder, timeout=WORKER_PUMP_S)
             behind = self._workers_t_ns()
             if tick is not None and behind is not None:
@@ -717,15 +724,17 @@ class Station:
         duration = self._duration_s
         speed = elapsed / wall if wall > 0 else None
         devices = {}
+        own = {n: w.t_ns / 1e9 for w in self._workers for n in w.names}  # each worker's own station time
         for name, st in self.devices.items():
             recent = None
             if window > 0 and not self.virtual:
                 recent = st.window_samples / window
             st.window_samples = 0
+            t_dev = own.get(name, elapsed if not self._workers else (self.clock.now_ns() - self.t0) / 1e9)
             devices[name] = {
                 "state": "failed" if st.failed else "ok",
                 "samples": st.samples,
-                "rate_hz": st.samples / elapsed if elapsed > 0 else 0.0,
+                "rate_hz": st.samples / t_dev if t_dev > 0 else 0.0,
                 "rate_recent_hz": recent,
                 "rate_cfg_hz": st.info.rate_hz,
                 "gaps": st.gaps,

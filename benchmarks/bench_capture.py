@@ -22,7 +22,7 @@ import tomllib
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.simworkers import bus_groups, device_rate_hz
+from imustation.acquisition.simworkers import bus_groups, default_workers, device_rate_hz
 from imustation.configs import config_path
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 
@@ -77,7 +77,7 @@ def main() -> None:
     rates = ", ".join(f"{d.name} ({d.driver}, {device_rate_hz(d):g} Hz)" for d in cfg.devices)
     print(f"devices: {rates}; thermometers: {len(cfg.thermometers)}")
     duration = args.hours * 3600.0
-    workers = args.workers or max(1, min(os.cpu_count() or 1, len(bus_groups(cfg))))
+    workers = args.workers or default_workers(cfg)
     print(f"workers: {workers} (bus groups: {len(bus_groups(cfg))})")
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "bench.h5")

@@ -15,10 +15,10 @@ from procs import wait_for_file
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.simworkers import bus_groups, partition
+from imustation.acquisition.simworkers import _picklable, bus_groups, partition
 from imustation.cli import cli
 from imustation.configs import config_path
-from imustation.errors import BusError, DiskFullError
+from imustation.errors import BusError, ChipIdMismatch, DeviceError, DiskFullError, InputError
 from imustation.runfile import RunWriter, open_run
 
 
@@ -68,6 +68,9 @@ def test_a_capture_on_two_processes_records_what_one_does(tmp_path):
         assert len(r2.temperatures("amb")[1]) == two.readings["amb"]
     final = statuses[-1]
     assert final["state"] == "done" and final["devices"]["adis"]["samples"] == two.samples["adis"]
+    # each device's rate over its own process's time
+    assert final["devices"]["adis"]["rate_hz"] == pytest.approx(409.6, rel=0.01)
+    assert final["devices"]["gyro"]["rate_hz"] == pytest.approx(400.0, rel=0.01)
     assert not multiprocessing.active_children()
 
 
@@ -105,6 +108,12 @@ def test_workers_option_is_checked(tmp_path):
     assert res.exit_code == 2 and "only a simulated capture" in res.output
 
 
+TWO_BUSES_TOML = (
+    '[[device]]\nname = "gyro"\ndriver = "bmx055"\nbus = "i2c:1"\nrate_hz = 400\nbandwidth_hz = 47\n'
+    '[[device]]\nname = "adis"\ndriver = "adis16448"\nbus = "cp2130:"\n'
+)
+
+
 def _children(pid: int) -> list[int]:
     out = []
     for entry in os.listdir("/proc"):
@@ -121,10 +130,7 @@ def _children(pid: int) -> list[int]:
 
 def test_workers_end_when_the_main_process_is_killed(tmp_path):
     cfg = tmp_path / "two.toml"
-    cfg.write_text(
-        '[[device]]\nname = "gyro"\ndriver = "bmx055"\nbus = "i2c:1"\nrate_hz = 400\nbandwidth_hz = 47\n'
-        '[[device]]\nname = "adis"\ndriver = "adis16448"\nbus = "cp2130:"\n'
-    )
+    cfg.write_text(TWO_BUSES_TOML)
     out = tmp_path / "k.h5"
     cmd = [sys.executable, "-m", "imustation", "capture", str(cfg), "--simulate", "-o", str(out), "--quiet"]
     proc = subprocess.Popen([*cmd, "--duration", "1h", "--workers", "2", "--sim-speed", "50"], stderr=subprocess.PIPE)
@@ -153,22 +159,33 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def test_rotation_with_a_worker_keeps_every_sample_in_order_near_its_part(tmp_path):
-    out = tmp_path / "rot.h5"
-    summary = capture(two_buses(), out, 50.0, simulate=True, workers=2, rotate_s=20.0)
-    assert [os.path.basename(p) for p in summary.paths] == ["rot.001.h5", "rot.002.h5", "rot.003.h5"]
-    for dev in ("gyro", "adis"):
-        parts = []
-        for k, p in enumerate(summary.paths):
-            with open_run(p) as run:
-                assert run.complete
-                t = run.read(dev, "t")
-            parts.append(t)
-            # a part ends at its rotation time, within the main process's lead over the worker
-            if len(t):
-                assert t[-1] <= (k + 1) * 20e9 + 10e9 and t[0] >= k * 20e9 - 10e9
-        t = np.concatenate(parts)
-        assert len(t) == summary.samples[dev] and (np.diff(t) > 0).all()
+def test_rotation_is_refused_with_workers(tmp_path):
+    # parts must end at their times for every device; processes reach a time at different moments
+    with pytest.raises(InputError, match="--workers 2 with --rotate"):
+        capture(two_buses(), tmp_path / "rot.h5", 50.0, simulate=True, workers=2, rotate_s=20.0)
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_stop_signal_to_the_whole_process_group_finishes_the_file(tmp_path):
+    """systemd and ``kill -- -PGID`` signal every process of the group, workers included."""
+    cfg = tmp_path / "two.toml"
+    cfg.write_text(TWO_BUSES_TOML)
+    out = tmp_path / "g.h5"
+    cmd = [sys.executable, "-m", "imustation", "capture", str(cfg), "--simulate", "-o", str(out), "--quiet"]
+    cmd += ["--duration", "1h", "--workers", "2", "--sim-speed", "50"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        wait_for_file(out, proc)
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGTERM)
+        outp, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, err
+    assert "stopped by signal SIGTERM" in outp
+    with open_run(out) as run:
+        assert run.complete and run.rows("adis") > 0 and run.rows("gyro") > 0
 
 
 def test_a_full_disk_stops_every_process_with_a_complete_file(tmp_path, monkeypatch):
@@ -198,3 +215,10 @@ def test_a_worker_device_pulled_and_replugged_is_logged_and_resumed(tmp_path):
     assert summary.lost["adis"] > 0.5 * 2 * 409.6  # about the 2 s it was gone
     assert summary.samples["adis"] + summary.lost["adis"] == pytest.approx(30 * 409.6, abs=3)
     assert (t[-1] - t[0]) / 1e9 > 28 and (np.diff(t) > 0).all()
+
+
+def test_worker_errors_that_do_not_pickle_keep_their_class_family_and_message():
+    exc = ChipIdMismatch("ADIS16448", 0x4040, 0xFFFF, "cp2130:")
+    twin = _picklable(exc)
+    assert isinstance(twin, DeviceError) and str(twin) == str(exc)
+    assert _picklable(BusError("gone")) is not None and str(_picklable(BusError("gone"))) == "gone"

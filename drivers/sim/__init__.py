@@ -90,7 +90,7 @@ def _with_replays(driver: str, settings: dict, sources: dict[str, SourceFactory]
 
     out = dict(sources)
     axes = ("z",) if driver == "dsp3000" else _XYZ
-    rate = _configured_rate(driver, settings)
+    rate = configured_rate(driver, settings)
     for channel, key in (("gyro", "replay"), ("accel", "accel_replay")):
         if key in sim and channel in out:
             source = ReplaySource.open(str(sim[key]), rate, axes, sim)
@@ -227,10 +227,10 @@ def station_device_seed(station_seed: int, name: str) -> int:
 
 
 def _output_rate(dev) -> float:
-    return _configured_rate(dev.driver, dev.settings)
+    return configured_rate(dev.driver, dev.settings)
 
 
-def _configured_rate(driver: str, settings: dict) -> float:
+def configured_rate(driver: str, settings: dict) -> float:
     """Output data rate of a configured device, Hz (the ADIS16448 sets it by decimation)."""
     if driver == "adis16448":
         from imustation.drivers.adis16448 import rate_hz

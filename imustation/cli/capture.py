@@ -10,7 +10,7 @@ import click
 
 from imustation.acquisition import capture as run_capture
 from imustation.acquisition import load_config
-from imustation.acquisition.simworkers import bus_groups
+from imustation.acquisition.simworkers import default_workers
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.monitor.launcher import MonitorProcess
@@ -61,7 +61,7 @@ def _write_status_file(path: str, status: dict) -> None:
 def _workers(value: str, cfg, can: bool) -> int:
     """``--workers``: a count, or auto (cores, at most one per bus group; 1 where workers cannot help)."""
     if value == "auto":
-        return max(1, min(os.cpu_count() or 1, len(bus_groups(cfg)))) if can else 1
+        return default_workers(cfg) if can else 1
     try:
         n = int(value)
     except ValueError:
@@ -156,7 +156,7 @@ def capture(
         raise InputError(f"--status-interval {status_interval}: must be > 0 s")
     if sim_speed is not None and not sim_speed > 0:
         raise InputError(f"--sim-speed {sim_speed}: must be > 0")
-    n_workers = _workers(workers, cfg, simulate and not trace_file and not replay_file)
+    n_workers = _workers(workers, cfg, simulate and not trace_file and not replay_file and not rotate)
     tty = sys.stderr.isatty()
     live = not quiet and not json_status
     launcher = MonitorProcess(monitor_host, monitor_port, note=lambda msg: click.echo(msg, err=True))
