@@ -37,9 +37,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from imustation.acquisition.config import DeviceConfig, StationConfig
+from imustation.acquisition.config import StationConfig
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
-from imustation.drivers.sim import configured_rate
+from imustation.drivers.sim import output_rate
 from imustation.errors import ImustationError
 
 if TYPE_CHECKING:
@@ -73,17 +73,12 @@ def _group_cost_us(config: StationConfig, names: list[str]) -> float:
     cost = 0.0
     for dev in config.devices:
         if dev.name in names:
-            cost += device_rate_hz(dev) * SIM_COST_US.get(DRIVERS[dev.driver].bus_kind, 10.0)
+            cost += output_rate(dev) * SIM_COST_US.get(DRIVERS[dev.driver].bus_kind, 10.0)
     for th in config.thermometers:
         if th.name in names:
             kind = THERMOMETER_DRIVERS[th.driver].bus_kind
             cost += float(th.settings.get("rate_hz", 1.0)) * SIM_COST_US.get(kind, 10.0)
     return cost
-
-
-def device_rate_hz(dev: DeviceConfig) -> float:
-    """The output rate a device's settings ask for, Hz (``rate_hz``, or the driver's own rule)."""
-    return configured_rate(dev.driver, dev.settings)
 
 
 def default_workers(config: StationConfig) -> int:
@@ -97,14 +92,14 @@ def partition(config: StationConfig, workers: int) -> list[list[str]]:
     Returns the device/thermometer names of each process; the first list is the
     main process's (which also carries the writer's cost). Empty shares are dropped.
     """
-    groups = bus_groups(config)
-    total_rate = sum(device_rate_hz(d) for d in config.devices)
+    costs = [(_group_cost_us(config, names), names) for names in bus_groups(config).values()]
+    total_rate = sum(output_rate(d) for d in config.devices)
     loads = [total_rate * WRITER_COST_US] + [0.0] * (max(1, workers) - 1)
     shares: list[list[str]] = [[] for _ in loads]
-    for names in sorted(groups.values(), key=lambda n: -_group_cost_us(config, n)):
+    for cost, names in sorted(costs, key=lambda c: -c[0]):
         i = min(range(len(loads)), key=loads.__getitem__)
         shares[i].extend(names)
-        loads[i] += _group_cost_us(config, names)
+        loads[i] += cost
     return [shares[0]] + [s for s in shares[1:] if s]
 
 

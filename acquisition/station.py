@@ -431,7 +431,7 @@ class Station:
 
         This process runs at most ``WORKER_LEAD_NS`` of station time ahead of the
         slowest worker, so the data of all processes reach the file together
-        (bounded memory, coherent status and file rotation).
+        (bounded memory, coherent status).
         """
         next_pump = 0.0
 
@@ -596,7 +596,7 @@ class Station:
             st.last_counter = None  # the device restarted its counter
         st.resync = False
         # the newest sample's time: the read, less the periods it was held
-        t_new = t_read - int(round(block.age * st.period_ns)) if block.age else t_read
+        t_new = t_read - int(round(block.age * st.period_ns))
         counter = block.counter
         if counter is not None and k and not block.lost and self._check_counter(sink, st, counter, t_read):
             block.lost, block.note = -1, "device counter went back (device restarted?): resync"
@@ -613,24 +613,23 @@ class Station:
             sink.event(t_read, name, kind, block.note or "samples lost", lost=lost)
         if k == 0:
             return
-        # sample times: the last sample is the newest at read time, spaced by the ODR
-        t_read = t_new
+        # sample times: the last sample is the newest (at read time unless held), spaced by the ODR
         offsets = st.offsets.get(k)
         if offsets is None:
             offsets = (np.arange(k - 1, -1, -1, dtype=np.float64) * st.period_ns).round().astype(np.int64)
             if len(st.offsets) < _MAX_CACHED_OFFSETS:
                 st.offsets[k] = offsets
-        t = t_read - offsets
+        t = t_new - offsets
         last = st.last_t_ns
         if last is not None and t[0] <= last:
             # the host read late last time (or early now): the block holds more samples than
             # the ODR fits in the time since the last read; spread them evenly over that time
             # so sample times stay strictly increasing and still end at this read
-            t = last + ((t_read - last) * np.arange(1, k + 1, dtype=np.float64) / k).astype(np.int64)
+            t = last + ((t_new - last) * np.arange(1, k + 1, dtype=np.float64) / k).astype(np.int64)
         sink.append(name, t, block.channels, counter)
         st.samples += k
         st.window_samples += k
-        st.last_t_ns = t_read
+        st.last_t_ns = t_new
         if counter is not None:
             st.last_counter = int(counter[-1])
         temp = block.channels.get("temp")
@@ -714,23 +713,22 @@ class Station:
 
     def status(self, *, final: bool = False, reason: str = "") -> dict[str, Any]:
         """The live status (see docs/capture.md for the JSON keys)."""
-        elapsed = (self.clock.now_ns() - self.t0) / 1e9
+        own_s = (self.clock.now_ns() - self.t0) / 1e9  # this process's station time
         behind = self._workers_t_ns() if self._workers else None
-        if behind is not None:
-            elapsed = min(elapsed, behind / 1e9)
+        elapsed = own_s if behind is None else min(own_s, behind / 1e9)
         wall_now = time.monotonic()
         wall = wall_now - self._wall0
         window = wall_now - self._window_wall
         duration = self._duration_s
         speed = elapsed / wall if wall > 0 else None
         devices = {}
-        own = {n: w.t_ns / 1e9 for w in self._workers for n in w.names}  # each worker's own station time
+        own = {n: w.t_ns / 1e9 for w in self._workers for n in w.names}  # each worker's station time
         for name, st in self.devices.items():
             recent = None
             if window > 0 and not self.virtual:
                 recent = st.window_samples / window
             st.window_samples = 0
-            t_dev = own.get(name, elapsed if not self._workers else (self.clock.now_ns() - self.t0) / 1e9)
+            t_dev = own.get(name, own_s)
             devices[name] = {
                 "state": "failed" if st.failed else "ok",
                 "samples": st.samples,

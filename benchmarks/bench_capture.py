@@ -22,9 +22,10 @@ import tomllib
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.simworkers import bus_groups, default_workers, device_rate_hz
+from imustation.acquisition.simworkers import bus_groups, default_workers
 from imustation.configs import config_path
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
+from imustation.drivers.sim import output_rate
 
 #: the lab of Nikolic et al. 2016 (devices by driver name; three MCP9804 thermometers)
 PAPER_LAB = ("bmx055", "mpu9150", "mpu6500", "adis16448", "mti", "dsp3000")
@@ -74,7 +75,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     cfg = lab_config(args.config, args.devices.split(",") if args.devices else None)
-    rates = ", ".join(f"{d.name} ({d.driver}, {device_rate_hz(d):g} Hz)" for d in cfg.devices)
+    rates = ", ".join(f"{d.name} ({d.driver}, {output_rate(d):g} Hz)" for d in cfg.devices)
     print(f"devices: {rates}; thermometers: {len(cfg.thermometers)}")
     duration = args.hours * 3600.0
     workers = args.workers or default_workers(cfg)

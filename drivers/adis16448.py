@@ -328,9 +328,7 @@ class ADIS16448:
         burst is reported (``lost``) with the next block, or at once when
         nothing is held.
         """
-        if self._error is not None:
-            exc, self._error = self._error, None
-            raise exc
+        self._raise_held()
         self._polls += 1
         try:
             if self._polls % self._check_every == 0:
@@ -369,10 +367,14 @@ class ADIS16448:
 
         An error held back from the last poll is raised now, so it is logged.
         """
+        self._raise_held()
+        return self._release(age=self._age)
+
+    def _raise_held(self) -> None:
+        """Raise the error of a transfer that failed after samples were held (they went first)."""
         if self._error is not None:
             exc, self._error = self._error, None
             raise exc
-        return self._release(age=self._age)
 
     def _release(self, age: int) -> Block:
         """Decode the held bursts into one block; a dropped burst counts as lost before it."""
@@ -389,7 +391,10 @@ class ADIS16448:
 
 
 def _decode(words: np.ndarray) -> dict[str, np.ndarray]:
-    """Burst words (k, 12) as read, big-endian u16 -> channels in the station's dtypes (§4.4, §4.6)."""
+    """Burst words (k, 12) as read, big-endian u16 -> channels in the station's dtypes (§4.4, §4.6).
+
+    The layout of :data:`BURST`, vectorised.
+    """
     temp = (words[:, 11] & 0x0FFF).astype(np.int16)
     temp -= (temp & 0x0800) << 1  # 12-bit two's complement
     return {

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 from imustation.drivers.sim.i2c import SimSMBus
 from imustation.drivers.sim.sources import ACCEL_SIM_KEYS, GYRO_SIM_KEYS, NoiseSource, SignalSource
@@ -90,7 +91,7 @@ def _with_replays(driver: str, settings: dict, sources: dict[str, SourceFactory]
 
     out = dict(sources)
     axes = ("z",) if driver == "dsp3000" else _XYZ
-    rate = configured_rate(driver, settings)
+    rate = _configured_rate(driver, settings)
     for channel, key in (("gyro", "replay"), ("accel", "accel_replay")):
         if key in sim and channel in out:
             source = ReplaySource.open(str(sim[key]), rate, axes, sim)
@@ -200,7 +201,7 @@ def simulated_truth(config) -> dict:
         for channel, factory in SOURCES[dev.driver](dev.sim, seed).items():
             if ("replay" if channel == "gyro" else "accel_replay") in dev.sim:
                 continue  # a recording: no model to compare with
-            src = factory(_output_rate(dev))
+            src = factory(output_rate(dev))
             axes = ("z",) if dev.driver == "dsp3000" else _XYZ
             for axis, model in zip(axes, src.models, strict=True):
                 out[f"{dev.name}/{channel}/{axis}"] = model
@@ -215,7 +216,7 @@ def device_sources(dev, seed: int) -> dict[str, SignalSource]:
     Used to synthesise a run file at the noise-model level (acquisition.synthesize).
     """
     factories = _with_replays(dev.driver, dev.settings, SOURCES[dev.driver](dev.sim, seed), dev.sim)
-    rate = _output_rate(dev)
+    rate = output_rate(dev)
     return {channel: factory(rate) for channel, factory in factories.items()}
 
 
@@ -226,11 +227,12 @@ def station_device_seed(station_seed: int, name: str) -> int:
     return (station_seed * 1_000_003 + zlib.crc32(name.encode())) % (2**31)
 
 
-def _output_rate(dev) -> float:
-    return configured_rate(dev.driver, dev.settings)
+def output_rate(dev: Any) -> float:
+    """The output rate a device config (``driver``, ``settings``) asks for, Hz."""
+    return _configured_rate(dev.driver, dev.settings)
 
 
-def configured_rate(driver: str, settings: dict) -> float:
+def _configured_rate(driver: str, settings: dict) -> float:
     """Output data rate of a configured device, Hz (the ADIS16448 sets it by decimation)."""
     if driver == "adis16448":
         from imustation.drivers.adis16448 import rate_hz

@@ -106,8 +106,7 @@ class ADIS16448Sim:
     def _restart(self) -> None:
         self.t_start_ns = self.clock.now_ns()
         self.produced = 0
-        self._chunk = np.zeros((0, 13), dtype=np.uint16)
-        self._chunk_bytes = b""  # the same words as on MISO (big-endian), 26 bytes a sample
+        self._chunk_bytes = b""  # burst words of the current chunk as on MISO (big-endian), 26 bytes a sample
         self._chunk_first = 0
         fs = self._rate = self.rate_hz
         if self.source is None or self.source.fs_hz != fs:
@@ -140,7 +139,6 @@ class ADIS16448Sim:
         w[:, 11] = int(np.clip(round((temp - chip.TEMP_OFFSET_C) / chip.TEMP_C_PER_LSB), -2048, 2047)) & 0x0FFF
         words = (w & 0xFFFF).astype(np.uint16)
         words[:, 12] = burst_crc_rows(words[:, 1:12])
-        self._chunk = words
         self._chunk_bytes = words.astype(">u2").tobytes()
         self._chunk_first = self.produced
         self.produced += n
@@ -153,11 +151,6 @@ class ADIS16448Sim:
         while self.produced < due:
             self._build(max(CHUNK, due - self.produced))
         return due - 1 - self._chunk_first
-
-    def _latest(self) -> np.ndarray | None:
-        """Burst words of the newest sample due by now (None before the first)."""
-        row = self._newest()
-        return None if row < 0 else self._chunk[row]
 
     # -- wire protocol -------------------------------------------------------------------------
     def spi_transfer(self, tx: bytes, mode: int, hz: float) -> bytes:
@@ -192,8 +185,9 @@ class ADIS16448Sim:
             value, self.diag = self.diag, 0  # DIAG_STAT clears on read
             return value
         if chip.REG_XGYRO_OUT <= reg <= 0x18:
-            row = self._latest()
-            return 0 if row is None else int(row[1 + (reg - chip.REG_XGYRO_OUT) // 2])
+            row = self._newest()
+            at = 26 * row + 2 * (1 + (reg - chip.REG_XGYRO_OUT) // 2)
+            return 0 if row < 0 else int.from_bytes(self._chunk_bytes[at : at + 2], "big")
         return self.regs.get(reg, 0)
 
     def _write_byte(self, addr: int, value: int) -> None:
@@ -209,7 +203,7 @@ class ADIS16448Sim:
         new = (old & 0xFF00) | value if addr == reg else (old & 0x00FF) | value << 8
         self.regs[reg] = new
         if reg in (chip.REG_SMPL_PRD, chip.REG_SENS_AVG):
-            self._latest()  # samples due so far belong to the old setting
+            self._newest()  # samples due so far belong to the old setting
             self._restart()
 
     def _burst(self, n: int) -> bytes:
