@@ -76,6 +76,35 @@ def test_cp2130_framing_matches_sensors_md():
     assert spi.hz == 1.5e6
 
 
+@pytest.mark.parametrize("scheme", ["cp2130", "mcp2210"])
+def test_data_transfers_hand_pyusb_arrays(scheme, monkeypatch):
+    # pyusb takes array('B') as is and converts anything else through a caught
+    # exception per call; the bridges' per-sample path must not pay for that
+    import array
+
+    import usb.core
+
+    spi, target, _, _ = bridge(scheme)
+    spi.ensure_open()
+    seen = []
+    write, read = usb.core.Device.write, usb.core.Device.read
+
+    def checked_write(dev, ep, data, timeout=None):
+        seen.append(("out", type(data)))
+        return write(dev, ep, data, timeout)
+
+    def checked_read(dev, ep, size_or_buffer, timeout=None):
+        seen.append(("in", type(size_or_buffer)))
+        return read(dev, ep, size_or_buffer, timeout)
+
+    monkeypatch.setattr(usb.core.Device, "write", checked_write)
+    monkeypatch.setattr(usb.core.Device, "read", checked_read)
+    for n in (2, 26, 2):
+        assert spi.transfer(bytes(range(n))) == bytes(range(1, n + 1))
+    assert seen and all(kind is array.array for _, kind in seen)
+    assert {d for d, _ in seen} == {"out", "in"}
+
+
 def test_cp2130_clock_is_fastest_not_above_request():
     spi, target, _, _ = bridge("cp2130", "?hz=1000000")
     spi.transfer(b"\0\0")

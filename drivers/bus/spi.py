@@ -14,6 +14,7 @@ chip simulator).
 
 from __future__ import annotations
 
+import array
 import errno
 import time
 from collections.abc import Sequence
@@ -107,6 +108,8 @@ class USBSPIBridge:
         self.dev: Any = None
         #: transfers that needed a retry (a health figure)
         self.retried = 0
+        #: IN buffers by size, reused (see :meth:`_data_in`)
+        self._in_buffers: dict[int, array.array] = {}
 
     # -- device lookup ------------------------------------------------------------
     def _find(self) -> Any:
@@ -173,6 +176,23 @@ class USBSPIBridge:
         return outs[0], ins[0]
 
     # -- transfers ------------------------------------------------------------------
+    def _data_out(self, packet: bytes) -> None:
+        """Send one packet on the OUT endpoint (bulk on the CP2130, interrupt on the MCP2210).
+
+        pyusb takes ``array('B')`` as is; bytes it first tries as a buffer
+        length, which raises and is caught on every call (pyusb 1.3
+        ``_interop.as_array``), so the packet goes over as an array.
+        """
+        self.dev.write(self.ep_out, array.array("B", packet), self.timeout_ms)
+
+    def _data_in(self, size: int) -> bytes:
+        """Read up to ``size`` bytes from the IN endpoint into a reused buffer."""
+        buf = self._in_buffers.get(size)
+        if buf is None:
+            buf = self._in_buffers[size] = array.array("B", bytes(size))
+        n = self.dev.read(self.ep_in, buf, self.timeout_ms)
+        return buf[:n].tobytes()
+
     def _error(self, exc: Exception, what: str) -> BusError:
         import usb.core
 

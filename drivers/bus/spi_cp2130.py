@@ -82,8 +82,8 @@ class CP2130(USBSPIBridge):
     def _transfer(self, tx: bytes) -> bytes:
         if len(tx) > MAX_WRITEREAD_BYTES:
             raise ValueError(f"CP2130 WriteRead of {len(tx)} bytes: at most {MAX_WRITEREAD_BYTES} per transfer")
-        self.dev.write(self.ep_out, HEADER.pack(0, CMD_WRITE_READ, 0, len(tx)) + tx, self.timeout_ms)
-        rx = bytes(self.dev.read(self.ep_in, len(tx), self.timeout_ms))
+        self._data_out(HEADER.pack(0, CMD_WRITE_READ, 0, len(tx)) + tx)
+        rx = self._data_in(len(tx))
         if len(rx) != len(tx):
             raise BusError(f"{self.where}: WriteRead of {len(tx)} bytes returned {len(rx)}")
         return rx

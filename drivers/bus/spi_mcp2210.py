@@ -77,9 +77,8 @@ class MCP2210(USBSPIBridge):
     N_CS: ClassVar[int] = N_PINS
 
     def _command(self, payload: bytes, what: str) -> bytes:
-        report = payload.ljust(REPORT_LEN, b"\0")
-        self.dev.write(self.ep_out, report, self.timeout_ms)
-        reply = bytes(self.dev.read(self.ep_in, REPORT_LEN, self.timeout_ms))
+        self._data_out(payload.ljust(REPORT_LEN, b"\0"))
+        reply = self._data_in(REPORT_LEN)
         if len(reply) < 4 or reply[0] != payload[0]:
             raise DeviceError(
                 f"{self.where}: {what}: reply {reply[:4].hex(' ')} does not echo command {payload[0]:02X}"

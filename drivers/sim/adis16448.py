@@ -210,11 +210,11 @@ class ADIS16448Sim:
         self.sim_bursts += 1
         row = self._newest()
         body = bytes(26) if row < 0 else self._chunk_bytes[26 * row : 26 * row + 26]
-        crc_on = bool(self.regs.get(chip.REG_MSC_CTRL, 0) & chip.MSC_CTRL_CRC)
-        if crc_on and self.plan is not None and self.plan.fire("checksum"):
-            body = body[:-2] + bytes([body[-2] ^ 0x5A, body[-1] ^ 0x5A])
-        if not crc_on:
-            body = body[:-2] + bytes(2)  # MISO idle after the 12 words
+        if self.regs.get(chip.REG_MSC_CTRL, 0) & chip.MSC_CTRL_CRC:
+            if self.plan is not None and self.plan.fire("checksum"):
+                body = body[:-2] + bytes([body[-2] ^ 0x5A, body[-1] ^ 0x5A])
+        else:
+            body = body[:-2] + b"\0\0"  # MISO idle after the 12 words
         out = self.pending.to_bytes(2, "big") + body
         self.pending = 0
-        return (out + bytes(max(0, n - len(out))))[:n]
+        return out if n == len(out) else (out + bytes(max(0, n - len(out))))[:n]

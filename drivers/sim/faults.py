@@ -92,6 +92,9 @@ class FaultPlan:
 
     def __init__(self, specs: Sequence[FaultSpec], clock: Clock, seed: int = 0):
         self.specs = tuple(specs)
+        #: kinds this plan can fire: a bus or chip asks for every kind it models on each
+        #: transaction, and most plans hold one or two (answer the rest without work)
+        self.kinds = frozenset(spec.kind for spec in self.specs)
         self.clock = clock
         self.t0_ns = clock.now_ns()
         self._rng = np.random.default_rng([seed, 0xFA17])
@@ -140,16 +143,20 @@ class FaultPlan:
 
     def fire(self, kind: str) -> bool:
         """True once per event of ``kind`` that has become due (the event is consumed)."""
-        return self.fire_duration(kind) is not None
+        return kind in self.kinds and self.fire_duration(kind) is not None
 
     def fire_duration(self, kind: str) -> float | None:
         """Like :meth:`fire`, but give the consumed event's ``duration_s`` (None: no event due)."""
+        if kind not in self.kinds:
+            return None
         self._collect()
         pending = self._pending.get(kind)
         return pending.pop(0) if pending else None
 
     def active(self, kind: str) -> bool:
         """True while the clock is inside a window of an event of ``kind`` (``duration_s``)."""
+        if kind not in self.kinds:
+            return False
         self._collect()
         if not self._windows.get(kind):
             return False

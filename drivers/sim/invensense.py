@@ -85,7 +85,9 @@ class InvenSenseSim(RegisterFileChip):
         self.produced = 0
         self.latest = np.zeros(7, dtype=np.int16)
         self.accel_drawn, self.accel_last = 0, np.zeros(3)
-        rate = self.rate_hz
+        # the registers these depend on are _TIMING registers, whose writes come here
+        rate = self._rate = self.rate_hz
+        self._running = self.running
         if self.gyro_src is None or self.gyro_src.fs_hz != rate:
             self.gyro_src = self.gyro_factory(rate)
         accel_fs = min(rate, chip.ACCEL_OUTPUT_HZ)
@@ -116,7 +118,7 @@ class InvenSenseSim(RegisterFileChip):
     def _accel(self, n: int) -> np.ndarray:
         """Accelerometer values for the next ``n`` samples (held at 1 kHz above 1 kHz)."""
         assert self.accel_src is not None
-        rate = self.rate_hz
+        rate = self._rate
         if rate <= chip.ACCEL_OUTPUT_HZ:
             return self.accel_src.next(n)
         k = np.arange(self.produced, self.produced + n)
@@ -138,11 +140,11 @@ class InvenSenseSim(RegisterFileChip):
             self.sim_resets += 1
             self._power_on()
             return
-        if not self.running:
+        if not self._running:
             self._restart_timing()
             return
-        due = (self.clock.now_ns() - self.t_start_ns) * self.rate_hz / 1e9
-        n = int(due) - self.produced
+        rate = self._rate
+        n = int((self.clock.now_ns() - self.t_start_ns) * rate / 1e9) - self.produced
         if n <= 0:
             return
         assert self.gyro_src is not None
@@ -150,7 +152,7 @@ class InvenSenseSim(RegisterFileChip):
         rows = np.empty((n, 7))
         rows[:, 0:3] = self._accel(n) / accel_scale
         # the die temperature changes slowly: one value per burst of samples
-        temp_c = self.gyro_src.temperature((self.produced + n) / self.rate_hz)
+        temp_c = self.gyro_src.temperature((self.produced + n) / rate)
         rows[:, 3] = (temp_c - self.variant.temp_offset_c) * self.variant.temp_lsb_per_c
         rows[:, 4:7] = self.gyro_src.next(n) / gyro_scale
         counts = np.clip(np.rint(rows), -32768, 32767).astype(np.int16)

@@ -219,8 +219,9 @@ class SimUSBBackend(usb.backend.IBackend):
     def _read(self, dev_handle: SimUSBFunction, ep: int, buff: array.array) -> int:
         dev_handle.gate(False)
         data = dev_handle.in_(ep, len(buff))
-        buff[: len(data)] = array.array("B", data)
-        return len(data)
+        n = len(data)
+        memoryview(buff)[:n] = data
+        return n
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
         return self._write(dev_handle, ep, data)
