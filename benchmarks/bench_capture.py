@@ -64,6 +64,37 @@ def lab_config(path: str, only: list[str] | None = None):
     return parse_config(data, path=path, text="")
 
 
+class _Echo:
+    """SPI target with no work of its own: what is left is the transport."""
+
+    def spi_transfer(self, tx: bytes, mode: int, hz: float) -> bytes:
+        return tx
+
+
+def transport_floor_us(n: int = 20000) -> float:
+    """Microseconds of one 28-byte CP2130 WriteRead through pyusb and the simulated bridge.
+
+    The same-run reference: an SPI chip without a FIFO (the ADIS16448) costs at least
+    this per sample in a simulated capture, before its driver and chip simulator.
+    """
+    from imustation.drivers.bus.spi import open_spi
+    from imustation.drivers.sim.spi_bridges import CP2130Sim
+    from imustation.drivers.sim.usb_backend import SimUSBBackend
+
+    fn = CP2130Sim()
+    fn.attach(0, _Echo())
+    spi = open_spi("cp2130:?cs=0", mode=3, backend=SimUSBBackend([fn]))
+    spi.ensure_open()
+    tx = bytes(28)
+    best = float("inf")
+    for _ in range(5):
+        t0 = time.perf_counter()
+        for _ in range(n // 5):
+            spi.transfer(tx)
+        best = min(best, (time.perf_counter() - t0) / (n // 5))
+    return best * 1e6
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=12.0, help="virtual hours to record (default 12)")
@@ -99,6 +130,14 @@ def main() -> None:
     )
     verdict = "PASS" if ratio >= TARGET_RATIO else "FAIL"
     print(f"ratio virtual/wall = {ratio:.0f}x (target >= {TARGET_RATIO:.0f}x: {verdict})")
+    floor = transport_floor_us()
+    print(f"reference, same run: one simulated CP2130 transfer through pyusb = {floor:.1f} us", end="")
+    polled = [output_rate(d) for d in cfg.devices if d.driver == "adis16448"]
+    if polled:
+        # no FIFO: one transfer per sample, on one core at best
+        print(f"; an ADIS16448 at {polled[0]:g} Hz alone is bounded by {1e6 / (polled[0] * floor):.0f}x")
+    else:
+        print()
     if prof:
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)
 

@@ -202,26 +202,24 @@ class USBSPIBridge:
             return BusClosed(f"{self.where}: {self.NAME} gone during {what}: {exc}")
         return BusError(f"{self.where}: USB error during {what}: {exc}")
 
-    def _retrying(self, what: str, fn, *args):
+    def transfer(self, tx: bytes) -> bytes:
         import usb.core
 
+        tx = bytes(tx)
         self.ensure_open()
         last: Exception | None = None
         for _attempt in range(self.retries):
             try:
-                return fn(*args)
+                return self._transfer(tx)
             except usb.core.USBError as exc:
                 last = exc
                 if exc.errno in _GONE:
                     self._drop()
-                    raise self._error(exc, what) from exc
+                    raise self._error(exc, f"SPI transfer of {len(tx)} bytes") from exc
                 self.retried += 1
                 self._recover()
         assert last is not None
-        raise self._error(last, what) from last
-
-    def transfer(self, tx: bytes) -> bytes:
-        return self._retrying(f"SPI transfer of {len(tx)} bytes", self._transfer, bytes(tx))
+        raise self._error(last, f"SPI transfer of {len(tx)} bytes") from last
 
     def transfer_frames(self, frames: Sequence[bytes], gap_s: float) -> list[bytes]:
         out = []

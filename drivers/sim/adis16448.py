@@ -51,21 +51,26 @@ ACCEL_NOISE_G = 1.5e-3  # white accel noise per sample, g (simulation choice)
 BARO_NOISE_MBAR = 0.05  # simulation choice
 BARO_MBAR = 1013.25
 MAG_GAUSS = (0.21, 0.0, 0.43)  # a mid-latitude earth field, gauss (simulation choice)
-CHUNK = 1024  # samples built per numpy step
+CHUNK = 4096  # samples built per numpy step (10 s at 409.6 Hz)
 DIAG_SPI_FAILURE = 1 << 3
 MISO_GARBAGE = 0xFF
 
 
 def burst_crc_rows(words: np.ndarray) -> np.ndarray:
-    """Vectorised :func:`chip.burst_crc` over rows of 11 words (n, 11) uint16 -> (n,) uint16."""
-    table = np.array(chip._CRC_TABLE, dtype=np.uint32)
+    """Vectorised :func:`chip.burst_crc` over rows of 11 words (n, 11) uint16 -> (n,) uint16.
+
+    One lookup per word column in the driver's word table (two byte steps at once).
+    """
     crc = np.full(len(words), 0xFFFF, dtype=np.uint32)
     for j in range(words.shape[1]):
-        w = words[:, j].astype(np.uint32)
-        for byte in (w & 0xFF, w >> 8):  # low byte first
-            crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
+        crc = _CRC_WORD_TABLE[crc ^ words[:, j]]
     crc = ~crc & 0xFFFF
     return (((crc << 8) | (crc >> 8)) & 0xFFFF).astype(np.uint16)
+
+
+_CRC_WORD_TABLE = np.array(chip._CRC_WORD_TABLE, dtype=np.uint32)
+#: magnetometer words of the fixed field
+_MAG_WORDS = np.rint(np.array(MAG_GAUSS) / chip.MAG_GAUSS_PER_LSB).astype(np.int64)
 
 
 class ADIS16448Sim:
@@ -127,14 +132,16 @@ class ADIS16448Sim:
         assert self.source is not None
         rates = self.source.next(n)
         t_mid = (self.produced + n / 2) / self.rate_hz
-        w = np.zeros((n, 13), dtype=np.int64)
+        w = np.empty((n, 13), dtype=np.int64)
         w[:, 0] = self.diag
-        w[:, 1:4] = np.clip(np.rint(rates / self.gyro_scale), -32768, 32767)
-        accel = np.array([0.0, 0.0, 1.0]) + self.rng.normal(0.0, ACCEL_NOISE_G, (n, 3))
-        w[:, 4:7] = np.clip(np.rint(accel / chip.ACCEL_G_PER_LSB), -32768, 32767)
-        w[:, 7:10] = np.rint(np.array(MAG_GAUSS) / chip.MAG_GAUSS_PER_LSB)
-        baro = BARO_MBAR + self.rng.normal(0.0, BARO_NOISE_MBAR, n)
-        w[:, 10] = np.clip(np.rint(baro / chip.BARO_MBAR_PER_LSB), 0, 65535)
+        gyro = rates / self.gyro_scale  # a new array: the source's may be a recording's
+        w[:, 1:4] = np.rint(np.clip(gyro, -32768, 32767, out=gyro), out=gyro)
+        accel = self.rng.normal(0.0, ACCEL_NOISE_G / chip.ACCEL_G_PER_LSB, (n, 3))
+        accel[:, 2] += 1.0 / chip.ACCEL_G_PER_LSB  # gravity on +z
+        w[:, 4:7] = np.rint(np.clip(accel, -32768, 32767, out=accel), out=accel)
+        w[:, 7:10] = _MAG_WORDS
+        baro = self.rng.normal(BARO_MBAR / chip.BARO_MBAR_PER_LSB, BARO_NOISE_MBAR / chip.BARO_MBAR_PER_LSB, n)
+        w[:, 10] = np.rint(np.clip(baro, 0, 65535, out=baro), out=baro)
         temp = self.source.temperature(t_mid)
         w[:, 11] = int(np.clip(round((temp - chip.TEMP_OFFSET_C) / chip.TEMP_C_PER_LSB), -2048, 2047)) & 0x0FFF
         words = (w & 0xFFFF).astype(np.uint16)
