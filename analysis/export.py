@@ -55,14 +55,14 @@ import json
 import math
 from dataclasses import dataclass
 
+from imustation.analysis.choices import EXPORT_FORMATS as FORMATS
+from imustation.analysis.choices import EXPORT_SOURCES as SOURCES
+from imustation.analysis.choices import RW_CONVERSIONS
 from imustation.analysis.noise_models import GaussMarkov
 from imustation.analysis.pipeline import ChannelAnalysis
 from imustation.errors import InputError
 from imustation.units import G0
 
-FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
-RW_CONVERSIONS = ("diffusion", "tau_b")
-SOURCES = ("model", "mli", "ieee")
 #: a Gauss-Markov bias decorrelating faster than this (s) looks like white noise at the time
 #: scales VIO filters integrate over (camera frame intervals and longer): its random-walk
 #: figure is flagged (typically a record too short to identify the slow bias)

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imustation.analysis.choices import TIME_UNITS
 from imustation.analysis.imu_decode import IMU_MD5, decode_imu_cdr
 from imustation.analysis.timestamps import StampChecker, StampReport
 from imustation.errors import InputError
@@ -48,7 +49,6 @@ IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
 TEMP_TYPES = ("sensor_msgs/msg/Temperature", "sensor_msgs/Temperature")
 BAG_EXTS = (".bag", ".mcap")
 TEXT_EXTS = (".csv", ".tsv", ".txt", ".dat", ".log")
-TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 
 Progress = Callable[[int, int], None]
 

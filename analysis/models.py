@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 
 @dataclass(frozen=True)
@@ -96,6 +95,8 @@ class StandardNoiseStream:
         if n <= 0:
             return np.zeros(0)
         w = self.rng.normal(0.0, self.sigma_bd, n)
+        from scipy.signal import lfilter  # here: scipy.signal loads scipy.stats (~1 s), simulators start without
+
         bias, _ = lfilter([1.0], [1.0, -self.phi], w, zi=[self.phi * self.b])
         self.b = float(bias[-1])
         v = self.rng.normal(0.0, self.sigma_wd, n)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imustation.analysis.allan import AllanResult, oadev
+from imustation.analysis.choices import DEFAULT_ESTIMATOR, ESTIMATORS, METHODS
 from imustation.analysis.composite import fit_composite
 from imustation.analysis.gmwm import fit_gmwm
 from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
@@ -18,12 +19,6 @@ from imustation.errors import InputError
 
 DOC_FORMAT = "imustation-analysis"
 DOC_VERSION = 1
-#: comparison blocks of ``analyze --method`` (JSON keys ``mli`` / ``gmwm``)
-METHODS = ("mli", "gmwm", "both")
-#: estimators that can fill the ``noise_model`` block (``analyze --estimator``)
-ESTIMATORS = ("mli-f", "mli", "gmwm")
-#: the default: ML_i-F won the Monte Carlo study of docs/noise-model.md
-DEFAULT_ESTIMATOR = "mli-f"
 
 
 @dataclass(frozen=True)

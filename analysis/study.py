@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imustation.analysis.choices import STUDY_ESTIMATORS as ESTIMATORS
 from imustation.analysis.composite import DEFAULT_M as F_DEFAULT_M
 from imustation.analysis.composite import fine_scale, fit_composite_data
 from imustation.analysis.gmwm import fit_gmwm
@@ -42,7 +43,6 @@ from imustation.analysis.models import StandardModel
 from imustation.analysis.noise_models import standard
 from imustation.errors import InputError
 
-ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single", "mli-f")
 #: estimators with a multi-start default whose single start the study can check
 MULTI_START = ("mli-log", "mli-uniform", "gmwm", "mli-f")
 PARAMS = ("sigma_w", "sigma_b", "tau_b")

@@ -3,6 +3,14 @@
 Every subcommand only parses options, calls the library and prints. Expected
 errors (:class:`~imustation.errors.ImustationError`) print one line on stderr
 and exit with status 2; ``--debug`` shows the traceback instead.
+
+Start-up time: ``imustation --help``, ``imustation CMD --help`` and argument
+errors must not wait for numpy, scipy, h5py, numba or matplotlib (seconds on a
+small machine). So the subcommand modules import only click and light modules
+(errors, units, clock, configs) at module top; everything else is imported
+inside the command functions; option choices and defaults come from the
+dependency-free :mod:`imustation.analysis.choices`. tests/test_startup.py
+checks this.
 """
 
 from __future__ import annotations
@@ -60,7 +68,7 @@ def main() -> None:
         sys.exit(1)
 
 
-# subcommand modules register themselves on the group
+# subcommand modules register themselves on the group (keep their module tops light: see above)
 from imustation.cli import (  # noqa: E402,F401
     analyze,
     capture,

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import click
 
-from imustation.analysis.parallel import AnalysisOptions, ChannelTask, TaskFailure, dask_client, run_tasks
-from imustation.analysis.pipeline import ChannelAnalysis
 from imustation.errors import InputError
+
+if TYPE_CHECKING:
+    from imustation.analysis.parallel import AnalysisOptions, ChannelTask, TaskFailure
+    from imustation.analysis.pipeline import ChannelAnalysis
 
 
 def cluster_options(f):
@@ -47,6 +50,8 @@ def execute(
     label: str = "analysing",
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
     """Run the tasks (serially, locally or on ``scheduler``) with a progress bar and failures on stderr."""
+    from imustation.analysis.parallel import dask_client, run_tasks
+
     if workers and scheduler:
         raise InputError("give --workers or --scheduler, not both")
     with dask_client(workers, scheduler, memory_limit=memory_limit) as client:

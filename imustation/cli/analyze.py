@@ -9,17 +9,7 @@ import tempfile
 
 import click
 
-from imustation.analysis.field_import import is_field_input
-from imustation.analysis.loaders import load_inputs
-from imustation.analysis.mli import DEFAULT_COMPARISON
-from imustation.analysis.parallel import AnalysisOptions, plan_tasks
-from imustation.analysis.pipeline import (
-    DEFAULT_ESTIMATOR,
-    ESTIMATORS,
-    METHODS,
-    analysis_document,
-    analyze_channel,
-)
+from imustation.analysis import choices
 from imustation.cli import cli
 from imustation.cli._parallel import cluster_options, execute, report_failures
 from imustation.cli.importcmd import field_options, run_import, text_options
@@ -105,15 +95,15 @@ def _interp_adev(allan, tau: float) -> float:
 )
 @click.option(
     "--estimator",
-    type=click.Choice(ESTIMATORS),
-    default=DEFAULT_ESTIMATOR,
+    type=click.Choice(choices.ESTIMATORS),
+    default=choices.DEFAULT_ESTIMATOR,
     show_default=True,
     help="Estimator of the noise model reported first and in the JSON 'noise_model' block: ML_i-F (ML_i's "
     "integrated likelihood + the fine-scale Allan variance, docs/noise-model.md), ML_i or GMWM.",
 )
 @click.option(
     "--method",
-    type=click.Choice(METHODS),
+    type=click.Choice(choices.METHODS),
     default="mli",
     show_default=True,
     help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
@@ -159,6 +149,10 @@ def analyze(
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
+    from imustation.analysis.field_import import is_field_input
+    from imustation.analysis.mli import DEFAULT_COMPARISON
+    from imustation.analysis.parallel import AnalysisOptions
+
     with tempfile.TemporaryDirectory(prefix="imustation-import-") as tmp:
         paths = []
         for k, path in enumerate(inputs):
@@ -180,6 +174,9 @@ def analyze(
 
 
 def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
+    from imustation.analysis.parallel import plan_tasks
+    from imustation.analysis.pipeline import analysis_document
+
     tasks, failures = plan_tasks(paths, globs, opts.rate_hz)
     report_failures(failures)
     results, failed = execute(tasks, opts, workers=workers, scheduler=scheduler, memory_limit=memory_limit)
@@ -200,6 +197,10 @@ def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_li
 
 
 def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json) -> None:
+    from imustation.analysis.loaders import load_inputs
+    from imustation.analysis.mli import DEFAULT_COMPARISON
+    from imustation.analysis.pipeline import analysis_document, analyze_channel
+
     channels = load_inputs(inputs, globs, rate_hz)
     results = []
     for ch in channels:

@@ -8,12 +8,8 @@ import sys
 
 import click
 
-from imustation.acquisition import capture as run_capture
-from imustation.acquisition import load_config
-from imustation.acquisition.simworkers import default_workers
 from imustation.cli import cli
 from imustation.errors import InputError
-from imustation.monitor.launcher import MonitorProcess
 from imustation.units import format_duration, parse_duration
 
 
@@ -61,6 +57,8 @@ def _write_status_file(path: str, status: dict) -> None:
 def _workers(value: str, cfg, can: bool) -> int:
     """``--workers``: a count, or auto (cores, at most one per bus group; 1 where workers cannot help)."""
     if value == "auto":
+        from imustation.acquisition.simworkers import default_workers
+
         return default_workers(cfg) if can else 1
     try:
         n = int(value)
@@ -149,6 +147,10 @@ def capture(
     SIGTERM stops the capture cleanly and finishes the file; after a crash the
     file holds every sample up to the last flush (see docs/capture.md).
     """
+    from imustation.acquisition import capture as run_capture
+    from imustation.acquisition import load_config
+    from imustation.monitor.launcher import MonitorProcess
+
     cfg = load_config(config)
     seconds = parse_duration(duration)
     rotate_s = parse_duration(rotate) if rotate else None

@@ -10,15 +10,8 @@ import time
 
 import click
 
-from imustation.acquisition import capture as run_capture
-from imustation.acquisition import load_config
-from imustation.acquisition.simworkers import bus_groups
-from imustation.acquisition.synthesize import synthesize
-from imustation.analysis.loaders import load_inputs
-from imustation.analysis.pipeline import analyze_channel
 from imustation.cli import cli
 from imustation.configs import config_path
-from imustation.drivers.sim import simulated_truth
 from imustation.units import format_duration, parse_duration
 
 #: virtual durations: the quick demo (byte-level capture), and the full lab (synthesised at the
@@ -72,6 +65,14 @@ def demo(
     sources and seeds without the bus transport (a few minutes in all; see
     docs/reports.md); --through-drivers runs the byte-level capture instead.
     """
+    from imustation.acquisition import capture as run_capture
+    from imustation.acquisition import load_config
+    from imustation.acquisition.simworkers import bus_groups
+    from imustation.acquisition.synthesize import synthesize
+    from imustation.analysis.loaders import load_inputs
+    from imustation.analysis.pipeline import analyze_channel
+    from imustation.drivers.sim import simulated_truth
+
     default_cfg = "demo-lab.toml" if lab else "demo.toml"
     cfg = load_config(config_file or config_path(default_cfg))
     seconds = parse_duration(duration or (LAB_DURATION if lab else QUICK_DURATION))

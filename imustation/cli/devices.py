@@ -4,11 +4,8 @@ from __future__ import annotations
 
 import click
 
-from imustation.acquisition import load_config
-from imustation.acquisition.buses import BusFactory
 from imustation.cli import cli
 from imustation.clock import MonotonicClock, VirtualClock
-from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.errors import ImustationError
 
 
@@ -23,6 +20,10 @@ def devices(config: str, simulate: bool) -> None:
     driver, bus@address and the identity, or the error. Exit status 1 if any
     device failed to answer.
     """
+    from imustation.acquisition import load_config
+    from imustation.acquisition.buses import BusFactory
+    from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
+
     cfg = load_config(config)
     clock = VirtualClock() if simulate else MonotonicClock()
     buses = BusFactory(simulate=simulate, clock=clock, seed=cfg.seed)

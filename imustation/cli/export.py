@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import click
 
-from imustation.analysis.export import FORMATS, RW_CONVERSIONS, SOURCES, export_text, sensor_noise
-from imustation.analysis.loaders import load_run
-from imustation.analysis.pipeline import analyze_channel
+from imustation.analysis import choices
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -27,14 +25,14 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 
 @cli.command()
 @click.argument("run", type=click.Path(dir_okay=False))
-@click.option("--format", "fmt", type=click.Choice(FORMATS), required=True, help="Target tool.")
+@click.option("--format", "fmt", type=click.Choice(choices.EXPORT_FORMATS), required=True, help="Target tool.")
 @click.option("-o", "--output", default=None, help="Write the YAML here (default: print it).")
 @click.option("--device", default=None, help="Device whose gyroscope is exported (default: the only one).")
 @click.option("--accel-device", default=None, help="Device whose accelerometer is exported (default: --device).")
 @click.option("--gyro-only", is_flag=True, help="Leave the accelerometer keys out (e.g. a gyro-only device).")
 @click.option(
     "--source",
-    type=click.Choice(SOURCES),
+    type=click.Choice(choices.EXPORT_SOURCES),
     default="model",
     show_default=True,
     help="model: sigma_w and the bias model of the default estimator (ML_i-F); mli: the same from ML_i; "
@@ -43,7 +41,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 @click.option(
     "--random-walk",
     "rw",
-    type=click.Choice(RW_CONVERSIONS),
+    type=click.Choice(choices.RW_CONVERSIONS),
     default="diffusion",
     show_default=True,
     help="Gauss-Markov bias -> random walk: sigma_b (conservative) or ADEV match at tau_b (docs/reports.md).",
@@ -71,6 +69,10 @@ def export(
     """
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
+    from imustation.analysis.export import export_text, sensor_noise
+    from imustation.analysis.loaders import load_run
+    from imustation.analysis.pipeline import analyze_channel
+
     channels = load_run(run)
     gyros = _device_channels(channels, device, "gyro", run)
     if not gyros:

@@ -8,17 +8,6 @@ import os
 
 import click
 
-from imustation.analysis import plots
-from imustation.analysis.fleet import (
-    MIN_GROUP,
-    Z_LIMIT,
-    flag_outliers,
-    fleet_csv,
-    fleet_markdown,
-    fleet_rows,
-    repeatability,
-)
-from imustation.analysis.parallel import AnalysisOptions, plan_tasks
 from imustation.cli import cli
 from imustation.cli._parallel import cluster_options, execute, report_failures
 from imustation.cli.report import _CSS, _html_table
@@ -27,6 +16,8 @@ from imustation.errors import InputError
 
 def _page(md: str, png: bytes, summary: str) -> str:
     """Self-contained HTML: the Markdown tables as HTML and the Allan figure embedded as base64 PNG."""
+    from imustation.analysis.fleet import MIN_GROUP, Z_LIMIT
+
     img = base64.b64encode(png).decode("ascii")
     rule = (
         f"Outliers: robust z = 0.6745 (x − median)/MAD of log10 σ_w, σ_b, τ_b against every run of the same "
@@ -73,6 +64,10 @@ def fleet(
     that fails is reported and listed; the exit status is 2 only when every
     run failed.
     """
+    from imustation.analysis import plots
+    from imustation.analysis.fleet import flag_outliers, fleet_csv, fleet_markdown, fleet_rows, repeatability
+    from imustation.analysis.parallel import AnalysisOptions, plan_tasks
+
     tasks, failures = plan_tasks(runs, globs)
     report_failures(failures)
     results, failed = execute(

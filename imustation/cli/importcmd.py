@@ -8,7 +8,7 @@ import sys
 
 import click
 
-from imustation.analysis.field_import import TIME_UNITS, import_recording
+from imustation.analysis.choices import TIME_UNITS
 from imustation.cli import cli
 
 
@@ -64,6 +64,8 @@ def text_options(time_column, gyro_columns, accel_columns, gyro_unit) -> dict:
 
 def run_import(source: str, out: str, *, quiet: bool, overwrite: bool, topic, time_unit, text: dict):
     """Import with a progress bar; prints the mapping and the stamp summary on stderr."""
+    from imustation.analysis.field_import import import_recording
+
     with progress_bar(f"importing {os.path.basename(source.rstrip('/'))}", quiet) as progress:
         res = import_recording(
             source, out, topic=topic, text=text, time_unit=time_unit, overwrite=overwrite, progress=progress

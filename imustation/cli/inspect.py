@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import click
-import numpy as np
 
 from imustation.cli import cli
-from imustation.runfile import open_run
 from imustation.units import format_duration
 
 
@@ -14,6 +12,10 @@ from imustation.units import format_duration
 @click.argument("run", type=click.Path(dir_okay=False))
 def inspect(run: str) -> None:
     """Print the devices, settings, sample counts, duration and gaps of a RUN file."""
+    import numpy as np
+
+    from imustation.runfile import open_run
+
     with open_run(run) as rf:
         a = rf.attrs
         state = "complete" if rf.complete else "INCOMPLETE (still recording, or cut off by a crash)"

@@ -9,8 +9,6 @@ import click
 
 from imustation.cli import cli
 from imustation.errors import InputError
-from imustation.monitor import Monitor
-from imustation.monitor.server import bind, is_loopback, new_token, serve
 from imustation.units import parse_duration
 
 #: CPU priority the monitor lowers itself to (nice increment), so it yields to a capture
@@ -72,6 +70,9 @@ def monitor(run_file: str, host: str, port: int, poll_s: float, allan_every_s: f
     if not (poll_s > 0 and allan_every_s > 0):
         raise InputError("--poll and --allan-every must be > 0 s")
     model_after_s = parse_duration(model_after)
+    from imustation.monitor import Monitor
+    from imustation.monitor.server import bind, is_loopback, new_token, serve
+
     mon = Monitor(run_file, poll_s=poll_s, allan_every_s=allan_every_s, model_after_s=model_after_s)
     sockets = bind(host, port)
     token = new_token(host)

@@ -8,19 +8,8 @@ import os
 
 import click
 
-from imustation.analysis import plots
-from imustation.analysis.loaders import load_run
-from imustation.analysis.pipeline import analyze_channel
-from imustation.analysis.tables import noise_rows, table_csv, table_latex, table_markdown, units_of
-from imustation.analysis.temperature import (
-    detect_warmup,
-    device_temperature,
-    fit_tempco,
-    thermometer_temperature,
-)
 from imustation.cli import cli
 from imustation.errors import InputError
-from imustation.runfile import open_run
 from imustation.units import format_duration, parse_duration
 
 #: bias block length of the temperature figure and regression, s
@@ -79,6 +68,18 @@ def _figure_html(name: str, caption: str) -> str:
 
 def report_run(path: str, out_dir: str, globs: tuple[str, ...], model: str, warmup: str) -> tuple[list[str], list]:
     """Analyse one run and write its tables, figures and ``index.html``; returns the files written and table rows."""
+    from imustation.analysis import plots
+    from imustation.analysis.loaders import load_run
+    from imustation.analysis.pipeline import analyze_channel
+    from imustation.analysis.tables import noise_rows, table_csv, table_latex, table_markdown, units_of
+    from imustation.analysis.temperature import (
+        detect_warmup,
+        device_temperature,
+        fit_tempco,
+        thermometer_temperature,
+    )
+    from imustation.runfile import open_run
+
     os.makedirs(out_dir, exist_ok=True)
     channels = load_run(path, globs)
     with open_run(path) as run:
@@ -258,6 +259,8 @@ def report(runs: tuple[str, ...], out_dir: str, globs: tuple[str, ...], model: s
     """
     if warmup not in ("auto", "0", "none"):
         parse_duration(warmup)
+    from imustation.analysis.tables import table_csv, table_latex, table_markdown
+
     all_rows = []
     for path in runs:
         if not path.lower().endswith((".h5", ".hdf5")):

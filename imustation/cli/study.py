@@ -8,8 +8,7 @@ from pathlib import Path
 
 import click
 
-from imustation.analysis.reference import TABLE_III_MEAN
-from imustation.analysis.study import ESTIMATORS, markdown, run_study, summarize
+from imustation.analysis.choices import STUDY_ESTIMATORS
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.units import parse_duration
@@ -34,7 +33,7 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
     "--estimators",
     default="mli-log",
     show_default=True,
-    help=f"Comma-separated subset of {','.join(ESTIMATORS)}.",
+    help=f"Comma-separated subset of {','.join(STUDY_ESTIMATORS)}.",
 )
 @click.option(
     "--levels",
@@ -64,6 +63,9 @@ def study(
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
     lv = _floats(levels, "--levels")
     seconds = parse_duration(duration)
+    from imustation.analysis.reference import TABLE_III_MEAN
+    from imustation.analysis.study import markdown, run_study, summarize
+
     fits = run_study(
         TABLE_III_MEAN,
         records=records,
