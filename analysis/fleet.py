@@ -257,9 +257,7 @@ def _sensor_units(sensor: str, q: str) -> tuple[str, float]:
     return disp, factor
 
 
-def fleet_markdown(
-    rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failures: Sequence[TaskFailure] = ()
-) -> str:
+def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failures: Sequence[TaskFailure] = ()) -> str:
     """Markdown: the fleet table and the repeatability table per sensor kind (display units), outliers, failures."""
     parts = [f"# Fleet noise table\n\n{len({r.run for r in rows})} runs, {len(rows)} axes, "
              f"{len({r.key for r in rows})} devices, {len(failures)} failures."]  # fmt: skip
