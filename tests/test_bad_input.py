@@ -59,6 +59,13 @@ def test_bad_duration(demo_config):
     assert_one_line_error(run("capture", demo_config.path, "--simulate", "--duration", "soon"), "duration 'soon'")
 
 
+def test_demo_output_needs_an_h5_name(tmp_path):
+    # refused before the simulation, not after it when the analysis cannot open the file
+    res = run("demo", "-o", str(tmp_path / "night"), "--duration", "10s")
+    assert_one_line_error(res, "-o", "needs an .h5 name")
+    assert not (tmp_path / "night").exists()
+
+
 def test_not_hdf5(tmp_path):
     p = tmp_path / "x.h5"
     p.write_text("hello")

@@ -12,6 +12,7 @@ import click
 
 from imustation.cli import cli
 from imustation.configs import config_path
+from imustation.errors import InputError
 from imustation.units import format_duration, parse_duration
 
 #: virtual durations: the quick demo (byte-level capture), and the full lab (synthesised at the
@@ -65,6 +66,9 @@ def demo(
     sources and seeds without the bus transport (a few minutes in all; see
     docs/reports.md); --through-drivers runs the byte-level capture instead.
     """
+    if output is not None and os.path.splitext(output)[1].lower() not in (".h5", ".hdf5"):
+        # the analysis that follows opens the file by its extension: refuse before hours of simulation
+        raise InputError(f"-o {output}: the run file needs an .h5 name (e.g. {output}.h5)")
     from imustation.acquisition import capture as run_capture
     from imustation.acquisition import load_config
     from imustation.acquisition.simworkers import bus_groups
