@@ -1,9 +1,10 @@
 """A virtual capture at the noise-model level: the run file a simulated capture would write, fast.
 
 Why: the byte-level simulated capture runs every sample through the driver, the bus
-and the chip simulator (``capture --simulate``: about 14x real time for the whole lab
-of the paper, because the ADIS16448 has no FIFO and costs one USB round trip per
-sample). A 12 h demo of the whole lab would take 50 minutes that way. This module
+and the chip simulator (``capture --simulate``: about 27x real time for the whole lab
+of the paper in one process, 43-55x with ``--workers 2``, because the ADIS16448 has
+no FIFO and costs one USB round trip per sample; docs/capture.md). A 12 h demo of the
+whole lab would take 15 to 30 minutes that way. This module
 draws the same signals from the same sources (:mod:`imustation.drivers.sim`: the
 standard noise model with the device's Table IV parameters, the same per-device
 seeds, the same die and room temperatures) and writes them in run-file format v1

@@ -21,6 +21,8 @@ import tempfile
 import time
 import tomllib
 
+from _common import best_of
+
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.simworkers import bus_groups, default_workers
@@ -93,13 +95,14 @@ def transport_floor_us(n: int = 20000) -> float:
     spi = open_spi("cp2130:?cs=0", mode=3, backend=SimUSBBackend([fn]))
     spi.ensure_open()
     tx = bytes(28)
-    best = float("inf")
-    for _ in range(5):
-        t0 = time.perf_counter()
-        for _ in range(n // 5):
+    per_round = n // 5
+
+    def one_round() -> None:
+        for _ in range(per_round):
             spi.transfer(tx)
-        best = min(best, (time.perf_counter() - t0) / (n // 5))
-    return best * 1e6
+
+    best, _ = best_of(one_round, 5)
+    return best / per_round * 1e6
 
 
 def main() -> None:

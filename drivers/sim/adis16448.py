@@ -131,7 +131,7 @@ class ADIS16448Sim:
         """Draw the next ``n`` samples and build their burst words (n, 13): diag, 11 data, CRC."""
         assert self.source is not None
         rates = self.source.next(n)
-        t_mid = (self.produced + n / 2) / self.rate_hz
+        t_mid = (self.produced + n / 2) / self._rate
         w = np.empty((n, 13), dtype=np.int64)
         w[:, 0] = self.diag
         gyro = rates / self.gyro_scale  # a new array: the source's may be a recording's

@@ -143,7 +143,7 @@ class FaultPlan:
 
     def fire(self, kind: str) -> bool:
         """True once per event of ``kind`` that has become due (the event is consumed)."""
-        return kind in self.kinds and self.fire_duration(kind) is not None
+        return self.fire_duration(kind) is not None
 
     def fire_duration(self, kind: str) -> float | None:
         """Like :meth:`fire`, but give the consumed event's ``duration_s`` (None: no event due)."""
