@@ -55,6 +55,7 @@ def capture(
     trace: str | os.PathLike | None = None,
     replay: str | os.PathLike | None = None,
     workers: int = 1,
+    sim_level: str = "bus",
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -62,6 +63,8 @@ def capture(
     ----------
     rotate_s : start a new part file every this many seconds of station time
         (``run.001.h5``, ``run.002.h5``, ...); None writes one file.
+    sim_level : simulation only: ``"bus"`` (chip simulators behind the real bus code) or
+        ``"model"`` (devices at the noise-model level, :mod:`~imustation.acquisition.modelsim`).
     pace : simulation only: at most this many virtual seconds per wall second.
     clock : override the station clock (tests run simulated chips on a real clock).
     fsync, min_free_bytes, ballast_bytes : see :class:`~imustation.runfile.RunWriter`.
@@ -99,6 +102,10 @@ def capture(
             f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "
             "uses worker processes (a real capture has a reader thread per bus)"
         )
+    if sim_level not in ("bus", "model"):
+        raise InputError(f"--sim-level {sim_level!r}: bus or model")
+    if sim_level == "model" and (not simulate or clock is not None or trace is not None or replay is not None):
+        raise InputError("--sim-level model: only a simulated capture on its virtual clock, without --trace/--replay")
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()
     try:
@@ -106,7 +113,9 @@ def capture(
     except BaseException:
         recorder.lock.release()
         raise
-    station = Station(config, simulate=simulate, clock=clock, trace=tracer, replay=replayed, workers=workers)
+    station = Station(
+        config, simulate=simulate, clock=clock, trace=tracer, replay=replayed, workers=workers, sim_level=sim_level
+    )
     stop = _StopFlag()
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -117,6 +126,14 @@ def capture(
         specs = station.open()
         recorder.start(specs, list(station.thermometers))
         started = True
+        if sim_level == "model":
+            recorder.event(
+                0,
+                "station",
+                "note",
+                "simulated at the noise-model level (--sim-level model): the drivers opened their chip "
+                "simulators, the samples come from the same noise sources without bus transport",
+            )
         try:
             summary = station.run(
                 recorder,

@@ -50,6 +50,10 @@ if TYPE_CHECKING:
 SIM_COST_US = {"spi": 35.0, "serial": 12.0, "i2c": 8.0}
 #: the main process also writes every sample to the run file, us per sample
 WRITER_COST_US = 1.5
+#: at --sim-level model a sample costs about the same on every bus, and writing it about half
+#: as much again (benchmarks/bench_capture.py --profile: generation ~0.9 us, writer ~0.5 us)
+MODEL_COST_US = 1.0
+MODEL_WRITER_COST_US = 0.5
 #: a worker sends what it has at least this often (wall s), or when this many items wait
 SEND_INTERVAL_S = 0.02
 SEND_ITEMS = 512
@@ -68,12 +72,13 @@ def bus_groups(config: StationConfig) -> dict[str, list[str]]:
     return groups
 
 
-def _group_cost_us(config: StationConfig, names: list[str]) -> float:
+def _group_cost_us(config: StationConfig, names: list[str], sim_level: str = "bus") -> float:
     """Estimated wall us per virtual second of polling these devices."""
     cost = 0.0
     for dev in config.devices:
         if dev.name in names:
-            cost += output_rate(dev) * SIM_COST_US.get(DRIVERS[dev.driver].bus_kind, 10.0)
+            per_sample = MODEL_COST_US if sim_level == "model" else SIM_COST_US.get(DRIVERS[dev.driver].bus_kind, 10.0)
+            cost += output_rate(dev) * per_sample
     for th in config.thermometers:
         if th.name in names:
             kind = THERMOMETER_DRIVERS[th.driver].bus_kind
@@ -86,15 +91,16 @@ def default_workers(config: StationConfig) -> int:
     return max(1, min(len(os.sched_getaffinity(0)), len(bus_groups(config))))
 
 
-def partition(config: StationConfig, workers: int) -> list[list[str]]:
+def partition(config: StationConfig, workers: int, sim_level: str = "bus") -> list[list[str]]:
     """Split the bus groups over ``workers`` processes, heaviest first to the least loaded.
 
     Returns the device/thermometer names of each process; the first list is the
     main process's (which also carries the writer's cost). Empty shares are dropped.
     """
-    costs = [(_group_cost_us(config, names), names) for names in bus_groups(config).values()]
+    costs = [(_group_cost_us(config, names, sim_level), names) for names in bus_groups(config).values()]
     total_rate = sum(output_rate(d) for d in config.devices)
-    loads = [total_rate * WRITER_COST_US] + [0.0] * (max(1, workers) - 1)
+    writer = MODEL_WRITER_COST_US if sim_level == "model" else WRITER_COST_US
+    loads = [total_rate * writer] + [0.0] * (max(1, workers) - 1)
     shares: list[list[str]] = [[] for _ in loads]
     for cost, names in sorted(costs, key=lambda c: -c[0]):
         i = min(range(len(loads)), key=loads.__getitem__)
@@ -160,7 +166,7 @@ def counters(station: Station) -> dict[str, dict[str, tuple]]:
     }
 
 
-def worker_main(conn: Connection, config: StationConfig) -> None:
+def worker_main(conn: Connection, config: StationConfig, sim_level: str = "bus") -> None:
     """Open the devices of ``config``, report them, record when told, report the end."""
     from imustation.acquisition.station import Station
 
@@ -171,7 +177,7 @@ def worker_main(conn: Connection, config: StationConfig) -> None:
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     station = None
     try:
-        station = Station(config, simulate=True)
+        station = Station(config, simulate=True, sim_level=sim_level)
         specs = station.open()
         conn.send(
             (
@@ -232,13 +238,13 @@ class WorkerError(ImustationError):
 class Worker:
     """One worker process as the main station sees it."""
 
-    def __init__(self, config: StationConfig, index: int):
+    def __init__(self, config: StationConfig, index: int, sim_level: str = "bus"):
         ctx = mp.get_context("spawn")  # nothing of the parent's open files, threads or HDF5 state
         self.config = config
         self.names = [d.name for d in config.devices] + [t.name for t in config.thermometers]
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(
-            target=worker_main, args=(child, config), name=f"imustation-sim-{index}", daemon=True
+            target=worker_main, args=(child, config, sim_level), name=f"imustation-sim-{index}", daemon=True
         )
         # the child inherits the mask: no stop signal can kill it before it ignores them
         old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)

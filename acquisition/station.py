@@ -169,11 +169,19 @@ class Station:
         trace: TraceWriter | None = None,
         replay: Trace | None = None,
         workers: int = 1,
+        sim_level: str = "bus",
     ):
         self.config = config
         self.simulate = simulate
         if workers < 1:
             raise ValueError(f"workers = {workers}: at least 1")
+        if sim_level not in ("bus", "model"):
+            raise ValueError(f"sim_level = {sim_level!r}: bus or model")
+        if sim_level == "model" and (not simulate or trace is not None or replay is not None):
+            raise ValueError("sim_level = 'model' needs a simulated capture without trace or replay")
+        #: "bus": chip simulators behind the real bus code; "model": devices polled at the
+        #: noise-model level (:mod:`~imustation.acquisition.modelsim`)
+        self.sim_level = sim_level
         #: processes a simulated capture may use (bus groups polled in worker processes)
         self.workers = workers
         self._workers: list[Any] = []
@@ -202,10 +210,11 @@ class Station:
         if self.workers > 1 and len(simworkers.bus_groups(self.config)) > 1:
             if not self.virtual or self._trace is not None or self._replay is not None:
                 raise ValueError("workers > 1 needs a simulated capture without trace or replay")
-            shares = simworkers.partition(self.config, self.workers)
+            shares = simworkers.partition(self.config, self.workers, self.sim_level)
             local = set(shares[0])
             self._workers = [
-                simworkers.Worker(simworkers.subset(self.config, share), i) for i, share in enumerate(shares[1:], 1)
+                simworkers.Worker(simworkers.subset(self.config, share), i, self.sim_level)
+                for i, share in enumerate(shares[1:], 1)
             ]
         specs = {}
         for dev in self.config.devices:
@@ -215,6 +224,14 @@ class Station:
             regs = self.buses.register_device(dev)
             driver = driver_cls(regs, dev.settings, sleep=self.clock.sleep)
             info = driver.open()
+            if self.sim_level == "model":
+                from imustation.acquisition.modelsim import ModelDevice
+
+                # the driver has identified and configured its chip simulator: its report stands,
+                # the samples come from the noise model
+                driver.close()
+                driver = ModelDevice(dev, info, self.clock, self.config.seed, self.config.path)
+                info = driver.open()
             st = DeviceState(dev, driver, info, 1e9 / info.rate_hz, int(info.poll_interval_s * 1e9))
             self.devices[dev.name] = st
             specs[dev.name] = DeviceSpec(

@@ -3,11 +3,19 @@
 Builds the station from ``configs/lab-example.toml``, keeping the devices and
 thermometers whose driver is registered when this runs (and saying which of the
 paper's lab are missing), then records ``--hours`` of virtual time into a
-temporary run file with the normal capture path (event-queue scheduler,
-byte-level simulators, HDF5 writer with compression and fsync).
+temporary run file with the normal capture path (event-queue scheduler, HDF5
+writer with compression and fsync) at the chosen simulation level: ``model``
+(default; devices at the noise-model level, the level the 200x budget is set for,
+docs/capture.md) or ``bus`` (byte-level chip simulators behind the bus code).
 
-    python benchmarks/bench_capture.py            # 12 h, prints the ratio
+    python benchmarks/bench_capture.py                    # 12 h, model level, prints the ratio
+    python benchmarks/bench_capture.py --sim-level bus    # the byte-level capture (~15-25 min)
     python benchmarks/bench_capture.py --hours 1 --profile
+
+Same-run references: at the model level, the same noise sources written straight to
+a run file (``acquisition.synthesize``, no station) for up to 1 h; at both levels,
+one simulated CP2130 transfer through pyusb (the floor of a FIFO-less SPI chip at
+the bus level; it also shows the machine's speed, which drifts by up to 2x here).
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from _common import best_of
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.simworkers import bus_groups, default_workers
+from imustation.acquisition.synthesize import synthesize
 from imustation.configs import config_path
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate
@@ -114,13 +123,19 @@ def main() -> None:
     ap.add_argument(
         "--workers", type=int, default=None, help="processes (default: one per core, at most one per bus group)"
     )
+    ap.add_argument(
+        "--sim-level",
+        choices=("bus", "model"),
+        default="model",
+        help="model (default): devices at the noise-model level; bus: chip simulators behind the bus code",
+    )
     args = ap.parse_args()
     cfg = lab_config(args.config, args.devices.split(",") if args.devices else None)
     rates = ", ".join(f"{d.name} ({d.driver}, {output_rate(d):g} Hz)" for d in cfg.devices)
     print(f"devices: {rates}; thermometers: {len(cfg.thermometers)}")
     duration = args.hours * 3600.0
     workers = args.workers or default_workers(cfg)
-    print(f"workers: {workers} (bus groups: {len(bus_groups(cfg))})")
+    print(f"workers: {workers} (bus groups: {len(bus_groups(cfg))}); simulation level: {args.sim_level}")
     floor_before = transport_floor_us()
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "bench.h5")
@@ -129,7 +144,7 @@ def main() -> None:
         cpu0 = _cpu_s()
         if prof:
             prof.enable()
-        summary = capture(cfg, out, duration, simulate=True, workers=workers)
+        summary = capture(cfg, out, duration, simulate=True, workers=workers, sim_level=args.sim_level)
         if prof:
             prof.disable()
         wall = time.perf_counter() - t0
@@ -143,6 +158,16 @@ def main() -> None:
     )
     verdict = "PASS" if ratio >= TARGET_RATIO else "FAIL"
     print(f"ratio virtual/wall = {ratio:.0f}x (target >= {TARGET_RATIO:.0f}x: {verdict})")
+    if args.sim_level == "model":
+        ref_s = min(duration, 3600.0)
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            synthesize(cfg, os.path.join(tmp, "ref.h5"), ref_s)
+            ref_wall = time.perf_counter() - t0
+        print(
+            f"reference, same run: the same sources written straight to a run file without the station "
+            f"(acquisition.synthesize, one process, {ref_s / 3600:g} h) = {ref_s / ref_wall:.0f}x real time"
+        )
     floor_after = transport_floor_us()
     floor = min(floor_before, floor_after)
     print(
@@ -150,7 +175,7 @@ def main() -> None:
         f"{floor_after:.1f} us after the capture (the machine's speed drifts)",
         end="",
     )
-    polled = [output_rate(d) for d in cfg.devices if d.driver == "adis16448"]
+    polled = [output_rate(d) for d in cfg.devices if d.driver == "adis16448" and args.sim_level == "bus"]
     if polled:
         # no FIFO: one transfer per sample, on one core at best
         print(f"; an ADIS16448 at {polled[0]:g} Hz alone is bounded by {1e6 / (polled[0] * floor):.0f}x at best")
