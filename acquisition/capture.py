@@ -23,6 +23,12 @@ from imustation.drivers.bus.trace import Trace, TraceWriter
 from imustation.errors import DiskFullError, InputError
 from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
 
+#: opens every part file of a model-level simulated capture
+MODEL_LEVEL_NOTE = (
+    "simulated at the noise-model level (--sim-level model): the drivers opened their chip simulators, "
+    "the samples come from the same noise sources without bus transport"
+)
+
 
 class _StopFlag:
     """Set by SIGINT/SIGTERM; the station checks it between polls."""
@@ -90,6 +96,7 @@ def capture(
         fsync=fsync,
         min_free_bytes=min_free_bytes,
         ballast_bytes=ballast_bytes,
+        note=MODEL_LEVEL_NOTE if simulate and sim_level == "model" else "",
     )
     if trace is not None and replay is not None:
         raise InputError("--trace and --replay exclude each other")
@@ -126,14 +133,6 @@ def capture(
         specs = station.open()
         recorder.start(specs, list(station.thermometers))
         started = True
-        if sim_level == "model":
-            recorder.event(
-                0,
-                "station",
-                "note",
-                "simulated at the noise-model level (--sim-level model): the drivers opened their chip "
-                "simulators, the samples come from the same noise sources without bus transport",
-            )
         try:
             summary = station.run(
                 recorder,

@@ -79,6 +79,7 @@ class Recorder:
     output : the run file (without rotation) or the name the parts derive from.
     duration_s : planned capture duration (to check every part name up front).
     rotate_s : station seconds per part, or None for one file.
+    note : an event note opening every part (e.g. the simulation level), or "".
     writer_options : passed to every :class:`RunWriter` (station, config_text,
         simulated, flush_interval_s, fsync, min_free_bytes, ...).
     """
@@ -90,9 +91,11 @@ class Recorder:
         duration_s: float,
         rotate_s: float | None = None,
         overwrite: bool = False,
+        note: str = "",
         **writer_options: Any,
     ):
         self.output = os.fspath(output)
+        self.note = note
         self.rotate_s = rotate_s
         self.overwrite = overwrite
         self.writer_options = writer_options
@@ -104,6 +107,8 @@ class Recorder:
         self._closed_flushed: dict[str, int] = {}
         self._next_rotation_ns: int | None = None
         self.lock = OutputLock(self.output)
+        #: station time the capture ends, ns: no part starts there (nothing would follow)
+        self._end_ns = int(round(duration_s * 1e9))
         n_parts = math.ceil(duration_s / rotate_s) if rotate_s else 1
         self.planned = [part_path(self.output, k) for k in range(1, n_parts + 1)] if rotate_s else [self.output]
 
@@ -143,6 +148,8 @@ class Recorder:
             **self.writer_options,
         )
         self.paths.append(path)
+        if self.note:
+            self.writer.event(t_ns, "station", "note", self.note)
         if rotating:
             assert self.rotate_s is not None
             self._next_rotation_ns = t_ns + int(round(self.rotate_s * 1e9))
@@ -159,7 +166,7 @@ class Recorder:
     def tick(self, t_ns: int) -> None:
         """Between polls: flush when due, start the next part when its time has come."""
         assert self.writer is not None
-        if self._next_rotation_ns is not None and t_ns >= self._next_rotation_ns:
+        if self._next_rotation_ns is not None and self._end_ns > t_ns >= self._next_rotation_ns:
             following = os.path.basename(part_path(self.output, self.part + 1))
             self.writer.event(t_ns, "station", "note", f"continued in {following}")
             self._close_part({"next_part": following})

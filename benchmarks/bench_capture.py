@@ -151,7 +151,9 @@ def main() -> None:
         cpu = _cpu_s() - cpu0
         size = os.path.getsize(out)
     samples = sum(summary.samples.values())
-    ratio = duration / wall
+    if summary.stop_reason:
+        print(f"the capture stopped early at {summary.duration_s:.0f} s of {duration:.0f} s: {summary.stop_reason}")
+    ratio = summary.duration_s / wall
     print(
         f"virtual {args.hours:g} h in {wall:.1f} s wall: {samples} samples ({samples / wall / 1e6:.2f} M/s), "
         f"file {size / 2**20:.0f} MiB; CPU {cpu:.1f} s in all processes"

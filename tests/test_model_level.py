@@ -260,3 +260,11 @@ def test_a_disconnect_shorter_than_a_poll_is_not_missed():
         assert st.driver.produced == due_at_start + st.samples + st.lost
     finally:
         station.close()
+
+
+def test_every_part_of_a_rotated_model_level_capture_names_the_level(tmp_path):
+    summary = capture(_one("bmx055"), tmp_path / "r.h5", 30.0, simulate=True, sim_level="model", rotate_s=10.0)
+    assert len(summary.paths) == 3
+    for path in summary.paths:
+        with open_run(path) as run:
+            assert any("noise-model level" in e.detail for e in run.events()), path

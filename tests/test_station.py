@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -237,3 +239,14 @@ def test_rotation_makes_complete_parts_with_continuous_times(tmp_path):
     assert len(run_ids) == 1 and len(t) == summary.samples["g"] == 25 * 400
     assert np.all(np.diff(t) == 2_500_000)
     assert [len(x) for x in times] == [4000, 4000, 2000]
+
+
+def test_a_duration_that_is_a_whole_number_of_parts_makes_no_part_after_the_end(tmp_path):
+    # the last poll falls on the end time; it used to open a part the name check had not planned
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    out = tmp_path / "rot.h5"
+    summary = capture(cfg, out, 30.0, simulate=True, rotate_s=10.0)
+    assert summary.paths == [part_path(str(out), k) for k in (1, 2, 3)]
+    assert not os.path.exists(part_path(str(out), 4))
+    with open_run(summary.paths[-1]) as run:
+        assert run.complete and run.devices["g"].n == 10 * 400
