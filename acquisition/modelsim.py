@@ -155,7 +155,7 @@ def model_fault_plan(dev: Any, info: DriverInfo, clock: Clock, seed: int, path: 
         checksummed = dev.driver in CHECKSUMMED and info.settings.get("crc", True)
         if spec.kind == "checksum" and not checksummed:
             raise ConfigError(path, where, f"'checksum': driver {dev.driver!r} reads no checksum in this setting")
-    return FaultPlan(specs, clock, int(dev.sim.get("seed", seed))) if specs else None
+    return FaultPlan(specs, clock, seed) if specs else None  # the seed a bus-level plan gets
 
 
 class ModelDevice:

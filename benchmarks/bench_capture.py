@@ -158,8 +158,13 @@ def main() -> None:
         f"virtual {args.hours:g} h in {wall:.1f} s wall: {samples} samples ({samples / wall / 1e6:.2f} M/s), "
         f"file {size / 2**20:.0f} MiB; CPU {cpu:.1f} s in all processes"
     )
-    verdict = "PASS" if ratio >= TARGET_RATIO else "FAIL"
-    print(f"ratio virtual/wall = {ratio:.0f}x (target >= {TARGET_RATIO:.0f}x: {verdict})")
+    if args.sim_level == "model":
+        verdict = "PASS" if ratio >= TARGET_RATIO else "FAIL"
+        print(f"ratio virtual/wall = {ratio:.0f}x (target >= {TARGET_RATIO:.0f}x: {verdict})")
+    else:
+        # docs/capture.md: the budget is stated for the model level; this one runs the bench's transport
+        budget = f"the {TARGET_RATIO:.0f}x budget is the model level's"
+        print(f"ratio virtual/wall = {ratio:.0f}x (bus level: no target; {budget})")
     if args.sim_level == "model":
         ref_s = min(duration, 3600.0)
         with tempfile.TemporaryDirectory() as tmp:
