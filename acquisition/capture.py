@@ -17,7 +17,7 @@ from typing import Any
 
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.recorder import Recorder
-from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
+from imustation.acquisition.station import SIM_LEVELS, STATUS_INTERVAL_S, CaptureSummary, Station
 from imustation.clock import Clock
 from imustation.drivers.bus.trace import Trace, TraceWriter
 from imustation.errors import DiskFullError, InputError
@@ -109,8 +109,8 @@ def capture(
             f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "
             "uses worker processes (a real capture has a reader thread per bus)"
         )
-    if sim_level not in ("bus", "model"):
-        raise InputError(f"--sim-level {sim_level!r}: bus or model")
+    if sim_level not in SIM_LEVELS:
+        raise InputError(f"--sim-level {sim_level!r}: {' or '.join(SIM_LEVELS)}")
     if sim_level == "model" and (not simulate or clock is not None or trace is not None or replay is not None):
         raise InputError("--sim-level model: only a simulated capture on its virtual clock, without --trace/--replay")
     replayed = Trace(replay) if replay is not None else None

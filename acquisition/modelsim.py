@@ -21,8 +21,8 @@ What the model level leaves out: bus transactions and their timing jitter, FIFO
 mechanics, and the bus-level fault kinds. Of the ``[device.sim]`` faults it
 simulates the outcome a station sees: ``disconnect`` (the device fails for
 ``duration_s``, at least until the next poll, is re-opened, and what it produced since
-the last read before it is lost) and
-``checksum`` on devices whose protocol carries one (one sample dropped and logged).
+the last read before it is lost) and ``checksum`` on devices whose protocol carries one
+(one sample dropped and logged).
 Other kinds are refused at open with the level that simulates them.
 """
 
@@ -43,8 +43,6 @@ from imustation.drivers.sim.xsens_mti import ACCEL_NOISE
 from imustation.errors import ConfigError, DeviceError
 from imustation.units import G0
 
-#: simulation levels of ``capture --simulate --sim-level``
-SIM_LEVELS = ("bus", "model")
 #: station poll interval of a model-level device, s: nothing overflows, so poll seldom
 #: (a driver's own interval is kept when it is longer)
 MODEL_POLL_S = 1.0

@@ -55,6 +55,11 @@ WORKER_PUMP_S = 0.02
 WORKER_LEAD_NS = 10_000_000_000
 
 
+#: simulation levels (``capture --simulate --sim-level``): chip simulators behind the bus code,
+#: or devices at the noise-model level (:mod:`~imustation.acquisition.modelsim`)
+SIM_LEVELS = ("bus", "model")
+
+
 class Sink(Protocol):
     """Where polled data go: the run-file recorder, or a queue to it."""
 
@@ -175,8 +180,8 @@ class Station:
         self.simulate = simulate
         if workers < 1:
             raise ValueError(f"workers = {workers}: at least 1")
-        if sim_level not in ("bus", "model"):
-            raise ValueError(f"sim_level = {sim_level!r}: bus or model")
+        if sim_level not in SIM_LEVELS:
+            raise ValueError(f"sim_level = {sim_level!r}: {' or '.join(SIM_LEVELS)}")
         if sim_level == "model" and (not simulate or trace is not None or replay is not None):
             raise ValueError("sim_level = 'model' needs a simulated capture without trace or replay")
         #: "bus": chip simulators behind the real bus code; "model": devices polled at the

@@ -268,3 +268,11 @@ def test_every_part_of_a_rotated_model_level_capture_names_the_level(tmp_path):
     for path in summary.paths:
         with open_run(path) as run:
             assert any("noise-model level" in e.detail for e in run.events()), path
+
+
+def test_the_cli_offers_the_station_levels():
+    from imustation.acquisition.station import SIM_LEVELS
+    from imustation.cli.capture import capture as command
+
+    (option,) = [p for p in command.params if p.name == "sim_level"]
+    assert tuple(option.type.choices) == SIM_LEVELS

@@ -121,7 +121,7 @@ def _workers(value: str, cfg, can: bool) -> int:
 )
 @click.option(
     "--sim-level",
-    type=click.Choice(["bus", "model"]),
+    type=click.Choice(["bus", "model"]),  # acquisition.station.SIM_LEVELS (not imported: --help stays light)
     default="bus",
     show_default=True,
     help="--simulate: bus = chip simulators answer the drivers byte by byte through the real bus code "
