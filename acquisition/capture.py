@@ -104,14 +104,16 @@ def capture(
         raise InputError(
             f"--workers {workers} with --rotate: parts would not end at their times for every process; use --workers 1"
         )
-    if workers > 1 and (not simulate or clock is not None or trace is not None or replay is not None):
+    # worker processes and the model level both need a simulation on its own virtual clock
+    virtual_sim = simulate and clock is None and trace is None and replay is None
+    if workers > 1 and not virtual_sim:
         raise InputError(
             f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "
             "uses worker processes (a real capture has a reader thread per bus)"
         )
     if sim_level not in SIM_LEVELS:
         raise InputError(f"--sim-level {sim_level!r}: {' or '.join(SIM_LEVELS)}")
-    if sim_level == "model" and (not simulate or clock is not None or trace is not None or replay is not None):
+    if sim_level == "model" and not virtual_sim:
         raise InputError("--sim-level model: only a simulated capture on its virtual clock, without --trace/--replay")
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()

@@ -37,11 +37,8 @@ def _record(cfg, path, seconds: float, **kw):
 
 
 def _one(driver: str, faults=(), **settings):
-    dev = {"name": "d", "driver": driver, "bus": "i2c:1", **settings}
-    if driver == "adis16448":
-        dev["bus"] = "sim:"
-    if driver in ("mti", "dsp3000"):
-        dev["bus"] = "sim:"
+    bus = "sim:" if driver in ("adis16448", "mti", "dsp3000") else "i2c:1"
+    dev = {"name": "d", "driver": driver, "bus": bus, **settings}
     if faults:
         dev["sim"] = {"faults": list(faults)}
     return parse_config({"station": {"seed": 5}, "device": [dev]})
@@ -73,29 +70,37 @@ def test_every_device_and_thermometer_of_the_lab_is_recorded_at_its_rate(lab_mod
             assert np.all((c > 15) & (c < 30))
 
 
+def _run_one(cfg, seconds: float):
+    """Record the config's device ``d`` at the model level into a list sink.
+
+    Returns its state, the sink and the samples it produced before the start (dropped then).
+    """
+    station = Station(cfg, simulate=True, sim_level="model")
+    try:
+        station.open()
+        sink = _ListSink()
+        station.run(sink, seconds)
+    finally:
+        station.close()
+    st = station.devices["d"]
+    due_at_start = int((station.t0 - st.driver._origin_ns) * st.info.rate_hz // 1e9)
+    return st, sink, due_at_start
+
+
 def test_samples_written_equal_samples_produced_minus_losses():
     # a disconnect and a checksum fault, on a device with a counter (ADIS16448) and one without
     faults = [{"kind": "disconnect", "at_s": 30.5, "duration_s": 4.2}, {"kind": "checksum", "every_s": 7}]
     for driver in ("adis16448", "bmx055"):
         fl = faults if driver == "adis16448" else faults[:1]
-        cfg = _one(driver, fl)
-        station = Station(cfg, simulate=True, sim_level="model")
-        try:
-            station.open()
-            writer = _ListSink()
-            station.run(writer, 90.0)
-            st = station.devices["d"]
-            # every sample the device produced was dropped at the start (due before t0), written or lost
-            due_at_start = int((station.t0 - st.driver._origin_ns) * st.info.rate_hz // 1e9)
-            assert st.driver.produced == due_at_start + st.samples + st.lost, driver
-            assert writer.samples == st.samples and writer.lost == st.lost > 4 * st.info.rate_hz
-            kinds = [e[2] for e in writer.events]
-            assert "fault" in kinds and "reconnect" in kinds, driver
-            if driver == "adis16448":
-                bad = [e for e in writer.events if "checksum" in e[3]]
-                assert len(bad) >= 5 and all(e[4] >= 1 for e in bad)
-        finally:
-            station.close()
+        st, writer, due_at_start = _run_one(_one(driver, fl), 90.0)
+        # every sample the device produced was dropped at the start (due before t0), written or lost
+        assert st.driver.produced == due_at_start + st.samples + st.lost, driver
+        assert writer.samples == st.samples and writer.lost == st.lost > 4 * st.info.rate_hz
+        kinds = [e[2] for e in writer.events]
+        assert "fault" in kinds and "reconnect" in kinds, driver
+        if driver == "adis16448":
+            bad = [e for e in writer.events if "checksum" in e[3]]
+            assert len(bad) >= 5 and all(e[4] >= 1 for e in bad)
 
 
 class _ListSink:
@@ -245,21 +250,12 @@ def test_a_fault_the_model_level_cannot_simulate_is_one_line_naming_file_and_key
 
 
 def test_a_disconnect_shorter_than_a_poll_is_not_missed():
-    cfg = _one("bmx055", [{"kind": "disconnect", "at_s": 30.2, "duration_s": 0.3}])
-    station = Station(cfg, simulate=True, sim_level="model")
-    try:
-        station.open()
-        sink = _ListSink()
-        station.run(sink, 60.0)
-        st = station.devices["d"]
-        kinds = [e[2] for e in sink.events]
-        assert kinds.count("fault") == 1 and kinds.count("reconnect") == 1
-        # everything since the last read before the disconnect is gone, at most two polls' worth
-        assert 0.3 * 400 <= st.lost <= 2 * 400
-        due_at_start = int((station.t0 - st.driver._origin_ns) * 400 // 1e9)
-        assert st.driver.produced == due_at_start + st.samples + st.lost
-    finally:
-        station.close()
+    st, sink, due_at_start = _run_one(_one("bmx055", [{"kind": "disconnect", "at_s": 30.2, "duration_s": 0.3}]), 60.0)
+    kinds = [e[2] for e in sink.events]
+    assert kinds.count("fault") == 1 and kinds.count("reconnect") == 1
+    # everything since the last read before the disconnect is gone, at most two polls' worth
+    assert 0.3 * 400 <= st.lost <= 2 * 400
+    assert st.driver.produced == due_at_start + st.samples + st.lost
 
 
 def test_every_part_of_a_rotated_model_level_capture_names_the_level(tmp_path):
