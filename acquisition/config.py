@@ -1,6 +1,6 @@
 """Station configuration (TOML): loading and validation.
 
-Layout (design.md, "Configuration"): a ``[station]`` table and any number of
+Layout (docs/reference/design-contracts.md, "Configuration"): a ``[station]`` table and any number of
 ``[[device]]`` and ``[[thermometer]]`` tables; each device names a ``driver``, a
 ``bus`` URL, an optional ``address`` and the driver's settings; an optional
 ``[device.sim]`` table shapes its simulation. Every problem is reported as one

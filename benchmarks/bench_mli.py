@@ -1,4 +1,6 @@
-"""ML_i speed: one axis of a 12 h, 400 Hz record (design.md budget: fit <= 0.2 s after integration).
+"""ML_i speed: one axis of a 12 h, 400 Hz record (budget: fit <= 0.2 s after integration).
+
+The budget is docs/reference/design-contracts.md, "Performance budgets".
 
 Prints the integration pass against a plain ``np.sum`` over the same data (the
 memory-speed reference measured in the same run), the fit time split

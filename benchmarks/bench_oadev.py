@@ -26,7 +26,7 @@ def main() -> None:
     from imustation.analysis import StandardModel, oadev, simulate_standard
 
     fs, n = args.fs, args.n
-    scale = 6.65e-5  # rad/s per count, a BMX055-like gyro (sensors.md)
+    scale = 6.65e-5  # rad/s per count, a BMX055-like gyro (docs/reference/sensors.md)
     truth = StandardModel(1.05e-4, 1.26e-6, 530.5, 0.01)
     counts = np.rint(simulate_standard(truth, n, fs, 1) / scale).astype(np.int16)
     rate = counts.astype(np.float64) * scale

@@ -1,6 +1,6 @@
 """Analog Devices ADIS16448 10-DoF IMU on SPI (through a USB bridge).
 
-Register map, framing, scales and worked examples: ``shared/reference/sensors.md`` §4
+Register map, framing, scales and worked examples: ``docs/reference/sensors.md`` §4
 (sources there: Linux ``adis16400.c``/``adis.c`` [L-ADIS][L-ADISLIB], PX4
 ADIS16448 drivers [PX4-ADIS][PX4-ADIS-OLD], juchong's Arduino library [JC]).
 
@@ -28,7 +28,7 @@ from imustation.errors import BusError, ChipIdMismatch, DeviceError, SettingErro
 from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD, G0
 
-# --- registers (sensors.md §4.2); 16-bit, even addresses, low byte at the even one ----
+# --- registers (docs/reference/sensors.md §4.2); 16-bit, even addresses, low byte at the even one ---
 REG_XGYRO_OUT = 0x04
 REG_SMPL_PRD = 0x36  # bits12:8 D (rate 819.2/2^D), bit0 internal clock, §4.3
 REG_SENS_AVG = 0x38  # bits10:8 gyro range code, bits2:0 FIR taps 2^B, §4.3
@@ -60,7 +60,7 @@ SPI_MODE = 3  # CPOL=1, CPHA=1, §4.1
 SPI_MAX_HZ_REGISTER = 2_000_000  # §4.1 [PX4-ADIS] SPI_SPEED
 SPI_MAX_HZ_BURST = 1_000_000  # §4.1 [PX4-ADIS] SPI_SPEED_BURST
 
-# --- burst (sensors.md §4.6) --------------------------------------------------------------
+# --- burst (docs/reference/sensors.md §4.6) -----------------------------------------------
 BURST_CMD = bytes([REG_GLOB_CMD, 0x00])
 BURST_WORDS = 12  # DIAG_STAT, X/Y/Z GYRO, X/Y/Z ACCL, X/Y/Z MAGN, BARO, TEMP
 BURST = struct.Struct(">H3h3h3hHH")  # diag, gyro, accel, mag, baro (unsigned, §4.4), temp (12-bit)
@@ -72,7 +72,7 @@ CONFIG_CHECK_S = 1.0
 #: than the USB transfer itself; 50 ms is far inside the run file's flush interval
 BATCH_S = 0.05
 
-# --- scales (sensors.md §4.4) ---------------------------------------------------------------
+# --- scales (docs/reference/sensors.md §4.4) ------------------------------------------------
 ACCEL_G_PER_LSB = 1.0 / 1200.0  # [L-ADIS][PX4-ADIS][JC]
 MAG_GAUSS_PER_LSB = 1.0 / 7000.0  # 142.9 ugauss [PX4-ADIS][JC]
 GAUSS_TO_TESLA = 1e-4
@@ -113,7 +113,7 @@ FIR_TAPS = tuple(2**b for b in range(8))  # SENS_AVG B = 0..7 -> 2^B taps, 1 = f
 
 
 def decode_diag(word: int) -> list[str]:
-    """DIAG_STAT -> the messages of its set bits (sensors.md §4.5)."""
+    """DIAG_STAT -> the messages of its set bits (docs/reference/sensors.md §4.5)."""
     return [text for bit, text in DIAG_BITS if word >> bit & 1]
 
 
@@ -150,7 +150,7 @@ _CRC_WORDS = struct.Struct(">11H")
 def burst_crc(data: bytes) -> int:
     """CRC-16 of the burst words XGYRO..TEMP (22 bytes, MSB-first as on MISO).
 
-    sensors.md §4.6 [PX4-ADIS][JC]: bytes fed low byte first, reflected
+    docs/reference/sensors.md §4.6 [PX4-ADIS][JC]: bytes fed low byte first, reflected
     polynomial 0x1021, init 0xFFFF, result inverted and byte-swapped; compared
     with the CRC word read MSB-first. Table-driven form of that bitwise loop,
     one lookup per 16-bit word.
@@ -227,7 +227,7 @@ class ADIS16448:
             raise SettingError(f"stall_us = {stall!r}: a number of microseconds, 9 .. 1000 (datasheet minimum 9)")
         return out
 
-    # -- register access (sensors.md §4.1) -------------------------------------------------
+    # -- register access (docs/reference/sensors.md §4.1) ----------------------------------
     def read_regs(self, regs: Sequence[int]) -> list[int]:
         """Read 16-bit registers, pipelined: frame k returns the register asked in frame k-1."""
         frames = [bytes([r & READ_MASK, 0]) for r in regs] + [bytes(2)]

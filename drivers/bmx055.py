@@ -1,6 +1,6 @@
 """Bosch BMX055 gyroscope die (BMG160-compatible), I2C.
 
-Register map, tables and worked examples: ``shared/reference/sensors.md`` §1
+Register map, tables and worked examples: ``docs/reference/sensors.md`` §1
 (sources there: Linux ``bmg160_core.c`` [L-BMG], Bosch BMG160 API [B-BMG],
 kriswiner BMX-055 [KW]). Streaming uses the on-chip FIFO in stream mode with
 X/Y/Z frames, read in one burst per poll, so no sample is lost to host
@@ -23,7 +23,7 @@ from imustation.errors import ChipIdMismatch, DeviceError
 from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD
 
-# --- registers (sensors.md §1.2) ---------------------------------------------
+# --- registers (docs/reference/sensors.md §1.2) ------------------------------
 REG_CHIP_ID = 0x00  # reads CHIP_ID_VALUE
 CHIP_ID_VALUE = 0x0F  # §1.2 [L-BMG][B-BMG][KW]
 REG_RATE_X_LSB = 0x02  # 0x02..0x07 rate X/Y/Z, s16 little-endian, §1.2 [L-BMG]
@@ -58,7 +58,7 @@ class OdrRow:
     bandwidth_hz: float
 
 
-#: BW register 0x10, sensors.md §1.3 (0x00 bandwidth from [KW][SM]; rest [L-BMG])
+#: BW register 0x10, docs/reference/sensors.md §1.3 (0x00 bandwidth from [KW][SM]; rest [L-BMG])
 ODR_TABLE: tuple[OdrRow, ...] = (
     OdrRow(0x00, 2000, 523),
     OdrRow(0x01, 2000, 230),
@@ -83,7 +83,7 @@ class RangeRow:
         return DEG2RAD / self.lsb_per_dps
 
 
-#: RANGE register 0x0F, sensors.md §1.4; datasheet sensitivities (worked example
+#: RANGE register 0x0F, docs/reference/sensors.md §1.4; datasheet sensitivities (worked example
 #: "34 12" at code 0 -> 284.146 deg/s uses 16.4 LSB/(deg/s)), not Linux's FS/32768.
 RANGE_TABLE: tuple[RangeRow, ...] = (
     RangeRow(0, 2000, 16.4),
@@ -93,7 +93,7 @@ RANGE_TABLE: tuple[RangeRow, ...] = (
     RangeRow(4, 125, 262.4),
 )
 
-#: gyro die temperature, sensors.md §1.5: T [degC] = 23 + 0.5 * s8(raw)
+#: gyro die temperature, docs/reference/sensors.md §1.5: T [degC] = 23 + 0.5 * s8(raw)
 TEMP_SCALE_C = 0.5
 TEMP_OFFSET_C = 23.0
 
@@ -118,7 +118,7 @@ def decode_rates(data: bytes) -> np.ndarray:
 
 
 def decode_temperature(raw: int) -> float:
-    """TEMP register byte -> degC (sensors.md §1.5)."""
+    """TEMP register byte -> degC (docs/reference/sensors.md §1.5)."""
     s8 = raw - 256 if raw >= 128 else raw
     return TEMP_OFFSET_C + TEMP_SCALE_C * s8
 

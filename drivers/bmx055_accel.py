@@ -1,6 +1,6 @@
 """Bosch BMX055 accelerometer die (BMA2x2 family, chip id 0xFA), I2C.
 
-Register map, tables and worked examples: ``shared/reference/sensors.md`` §1.1,
+Register map, tables and worked examples: ``docs/reference/sensors.md`` §1.1,
 §1.5-§1.7 (sources there: Linux ``bmc150-accel-core.c`` [L-BMC], Bosch BMA2x2
 driver [B-BMA], kriswiner BMX-055 [KW]). The accelerometer is a die of its own
 with its own address and output data rate, so it is a device of its own in
@@ -38,7 +38,7 @@ from imustation.errors import ChipIdMismatch, DeviceError, SettingError
 from imustation.runfile import ChannelSpec
 from imustation.units import G0
 
-# --- registers (sensors.md §1.6) ---------------------------------------------
+# --- registers (docs/reference/sensors.md §1.6) ------------------------------
 REG_CHIP_ID = 0x00
 CHIP_ID_VALUE = 0xFA  # §1.6 [L-BMC][KW][SM]
 REG_ACCD_X_LSB = 0x02  # 0x02..0x07 X/Y/Z: LSB bits7:4 = data3:0, bit0 new_data; MSB = data11:4, §1.6 [B-BMA]
@@ -66,7 +66,7 @@ FIFO_DEPTH_FRAMES = 32  # §1.6 [L-BMC] BMC150_ACCEL_FIFO_LENGTH, [B-BMA] MAX_FI
 #: one burst per poll: data .. INT_EN_1 (0x02..0x17)
 STATUS_FIRST, STATUS_LAST = REG_ACCD_X_LSB, REG_INT_EN_1
 #: the data-enable interrupt bit doubles as a configuration marker: its power-on
-#: value is 0 (Bosch BMA2x2 reset values; not in sensors.md), and RANGE/BW alone
+#: value is 0 (Bosch BMA2x2 reset values; not in docs/reference/sensors.md), and RANGE/BW alone
 #: cannot reveal a reset when the configured values equal the power-on ones
 CONFIG_MARKER = INT_EN_1_DATA_EN
 
@@ -90,7 +90,7 @@ class BwRow:
         return 1000.0 / self.update_ms
 
 
-#: PMU_BW register 0x10, sensors.md §1.7: bandwidths [B-BMA], update times [KW][SM]
+#: PMU_BW register 0x10, docs/reference/sensors.md §1.7: bandwidths [B-BMA], update times [KW][SM]
 BW_TABLE: tuple[BwRow, ...] = (
     BwRow(0x08, 7.81, 64.0),
     BwRow(0x09, 15.63, 32.0),
@@ -115,7 +115,7 @@ class RangeRow:
         return G0 / self.lsb_per_g
 
 
-#: PMU_RANGE register 0x0F, sensors.md §1.6/§1.7 (12-bit: 1024/512/256/128 LSB/g [ICG][KW])
+#: PMU_RANGE register 0x0F, docs/reference/sensors.md §1.6/§1.7 (12-bit: 1024/512/256/128 LSB/g [ICG][KW])
 RANGE_TABLE: tuple[RangeRow, ...] = (
     RangeRow(0x03, 2, 1024.0),
     RangeRow(0x05, 4, 512.0),
@@ -143,7 +143,7 @@ def range_row(range_g: int) -> RangeRow:
 def decode_accel(data: bytes) -> tuple[np.ndarray, np.ndarray]:
     """ACCD_X_LSB..ACCD_Z_MSB (or FIFO frames) -> (counts, new_data), shapes ``(k, 3)``.
 
-    Counts are the 12-bit values: ``s16(LSB | MSB << 8) >> 4`` (sensors.md §1.6),
+    Counts are the 12-bit values: ``s16(LSB | MSB << 8) >> 4`` (docs/reference/sensors.md §1.6),
     int16; ``new_data`` is bit 0 of each LSB byte, bool.
     """
     raw = np.frombuffer(data, dtype="<i2").reshape(-1, 3)
@@ -151,7 +151,7 @@ def decode_accel(data: bytes) -> tuple[np.ndarray, np.ndarray]:
 
 
 def decode_temperature(raw: int) -> float:
-    """ACCD_TEMP byte -> degC (sensors.md §1.5: 23 + 0.5 * s8)."""
+    """ACCD_TEMP byte -> degC (docs/reference/sensors.md §1.5: 23 + 0.5 * s8)."""
     s8 = raw - 256 if raw >= 128 else raw
     return TEMP_OFFSET_C + TEMP_SCALE_C * s8
 

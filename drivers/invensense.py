@@ -1,6 +1,6 @@
 """InvenSense MPU-6050-family IMUs (MPU-9150, MPU-6500), I2C: one core, chip variants as data.
 
-Register map, tables and worked examples: ``shared/reference/sensors.md`` §2
+Register map, tables and worked examples: ``docs/reference/sensors.md`` §2
 (MPU-9150 = MPU-6050 register set [L-MPU-C]) and §3 (MPU-6500 differences).
 Sources there: Linux ``inv_mpu6050`` [L-MPU-H][L-MPU-C], i2cdevlib [I2CDEV],
 the MPU-6050 register map [RM6050], PX4's MPU-6500 driver [PX4-6500].
@@ -35,7 +35,7 @@ from imustation.errors import ChipIdMismatch, DeviceError, SettingError
 from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD, G0
 
-# --- registers (sensors.md §2, §3) -----------------------------------------------
+# --- registers (docs/reference/sensors.md §2, §3) --------------------------------
 REG_SMPLRT_DIV = 0x19  # rate = internal / (1 + div), §2.2 [I2CDEV][RM6050-p12]
 DLPF_CFG = Field(0x1A, 0, 3)  # CONFIG bits2:0, §2.2
 CONFIG_FIFO_MODE = Field(0x1A, 6, 1)  # MPU-6500 only: 1 = keep old data when full, §3 [PX4-6500]
@@ -73,7 +73,7 @@ FRAME_DTYPE = ">i2"  # big-endian s16, §2.4 [L-MPU-C]
 INT_ENABLE_VALUE = INT_FIFO_OFLOW | INT_DATA_RDY
 
 # --- delays -----------------------------------------------------------------------
-#: after DEVICE_RESET before the registers answer again (not in sensors.md; the
+#: after DEVICE_RESET before the registers answer again (not in docs/reference/sensors.md; the
 #: MPU-6050 register map's 100 ms figure is used for both chips - UNCONFIRMED)
 RESET_WAIT_S = 0.100
 #: after wake-up before samples are valid: gyro start-up 70 ms (accel 30 ms), §3 [L-MPU-H]
@@ -89,7 +89,7 @@ class DlpfRow:
     internal_hz: float  # gyroscope output rate feeding SMPLRT_DIV
 
 
-#: MPU-6050/9150 CONFIG.DLPF_CFG, sensors.md §2.2 [I2CDEV] (code 7 reserved)
+#: MPU-6050/9150 CONFIG.DLPF_CFG, docs/reference/sensors.md §2.2 [I2CDEV] (code 7 reserved)
 DLPF_6050: tuple[DlpfRow, ...] = (
     DlpfRow(0, 256, 260, 8000),
     DlpfRow(1, 188, 184, 1000),
@@ -100,7 +100,7 @@ DLPF_6050: tuple[DlpfRow, ...] = (
     DlpfRow(6, 5, 5, 1000),
 )
 
-#: MPU-6500 DLPF_CFG with FCHOICE_B = 00, sensors.md §3 (MPU-9250 map [CR]; direct 6500
+#: MPU-6500 DLPF_CFG with FCHOICE_B = 00, docs/reference/sensors.md §3 (MPU-9250 map [CR]; direct 6500
 #: check UNCONFIRMED); accel: same code in A_DLPF_CFG as Linux does [L-MPU-C], nominal
 #: bandwidths 460/184/92/41/20/10/5/460 Hz
 DLPF_6500: tuple[DlpfRow, ...] = (
@@ -139,7 +139,7 @@ class AccelRange:
         return G0 / self.lsb_per_g
 
 
-#: GYRO_CONFIG.FS_SEL / ACCEL_CONFIG.AFS_SEL, sensors.md §2.3 [I2CDEV][RM6050-p29] (same on the 6500, §3)
+#: GYRO_CONFIG.FS_SEL / ACCEL_CONFIG.AFS_SEL, docs/reference/sensors.md §2.3 [I2CDEV][RM6050-p29] (same on the 6500, §3)
 GYRO_RANGES = (GyroRange(0, 250, 131.0), GyroRange(1, 500, 65.5), GyroRange(2, 1000, 32.8), GyroRange(3, 2000, 16.4))
 ACCEL_RANGES = (
     AccelRange(0, 2, 16384.0),
@@ -199,7 +199,7 @@ MPU6500 = Variant(
     dlpf=DLPF_6500,
     has_accel_config2=True,
     # the MPU-6500 register map lists PWR_MGMT_1 reset value 0x01 (awake, auto clock): not
-    # in sensors.md, UNCONFIRMED; only the simulator uses it
+    # in docs/reference/sensors.md, UNCONFIRMED; only the simulator uses it
     por_pwr_mgmt_1=0x01,
     default_bandwidth_hz=41,
 )
@@ -214,7 +214,7 @@ def decode_frames(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def decode_temperature(raw: int, variant: Variant) -> float:
-    """TEMP_OUT (s16) -> degC with the variant's constants (sensors.md §2.4, §3)."""
+    """TEMP_OUT (s16) -> degC with the variant's constants (docs/reference/sensors.md §2.4, §3)."""
     return raw / variant.temp_lsb_per_c + variant.temp_offset_c
 
 

@@ -1,4 +1,4 @@
-"""KVH DSP-3000 fibre-optic gyro, 100 Hz ASCII serial variant (sensors.md §6).
+"""KVH DSP-3000 fibre-optic gyro, 100 Hz ASCII serial variant (docs/reference/sensors.md §6).
 
 Each output is one line ``(-)xxx.xxxxxx y`` + CR LF at 38 400 baud 8N1: the
 value (rate in deg/s, or incremental angle in deg), spaces, and a BIT flag

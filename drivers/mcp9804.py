@@ -1,6 +1,6 @@
 """Microchip MCP9804 ambient thermometer (JC-42.4-style registers), I2C.
 
-Register map and worked examples: ``shared/reference/sensors.md`` §7 (sources
+Register map and worked examples: ``docs/reference/sensors.md`` §7 (sources
 there: Microchip DS22203C [MCP-DS], Linux ``jc42.c`` [L-JC42]). A thermometer,
 not a streaming device: the station polls :meth:`MCP9804.read_celsius` at
 ``rate_hz`` (the paper records three of them at 1 Hz with 0.0625 degC
@@ -25,7 +25,7 @@ from imustation.drivers.base import Setting, Sleep, check_settings
 from imustation.drivers.bus.base import RegisterDevice
 from imustation.errors import DeviceError, SettingError
 
-# --- registers (sensors.md §7, [MCP-DS] Table 5-1) --------------------------------
+# --- registers (docs/reference/sensors.md §7, [MCP-DS] Table 5-1) -----------------
 PTR_CONFIG = 0x01  # bit8 SHDN, §7 Register 5-2
 CONFIG_SHDN = 1 << 8
 PTR_T_A = 0x05  # ambient temperature, 16 bits, read-only
@@ -51,7 +51,7 @@ class ResolutionRow:
     conversion_s: float  # t_conv, §7 Register 5-7
 
 
-#: Resolution register 0x08 bits 1:0, sensors.md §7 [MCP-DS]
+#: Resolution register 0x08 bits 1:0, docs/reference/sensors.md §7 [MCP-DS]
 RESOLUTION_TABLE: tuple[ResolutionRow, ...] = (
     ResolutionRow(0b00, 0.5, 0.030),
     ResolutionRow(0b01, 0.25, 0.065),
@@ -75,7 +75,7 @@ class Reading:
 
 
 def decode_ta(msb: int, lsb: int) -> Reading:
-    """Two T_A bytes (MSB first) -> :class:`Reading` (sensors.md §7: 13-bit two's complement x 0.0625)."""
+    """Two T_A bytes (MSB first) -> :class:`Reading` (§7: 13-bit two's complement x 0.0625 degC)."""
     word = (msb << 8) | lsb
     value = word & ((1 << TA_VALUE_BITS) - 1)
     if value & (1 << (TA_VALUE_BITS - 1)):

@@ -1,6 +1,6 @@
 """Xsens MTi-100 series over serial: Xbus framing, configuration and MTData2 streaming.
 
-Protocol: ``shared/reference/sensors.md`` §5 (sources there: ethz-asl xsens
+Protocol: ``docs/reference/sensors.md`` §5 (sources there: ethz-asl xsens
 driver ``mtdef.py``/``mtdevice.py`` [XS-DEF][XS-DEV], Xsens public SDK in MRPT
 [XS-SDK]). A message is ``FA FF MID LEN DATA CS`` (``LEN = FF`` + u16 for long
 payloads); ``CS`` makes the sum of BID..CS zero mod 256; fields are big-endian;
@@ -32,14 +32,14 @@ from imustation.drivers.bus.serial_port import FramedStreamReader, Scan, SerialP
 from imustation.errors import DeviceError, SettingError
 from imustation.runfile import ChannelSpec
 
-# --- framing (sensors.md §5.1) -------------------------------------------------------
+# --- framing (docs/reference/sensors.md §5.1) ----------------------------------------
 PREAMBLE = 0xFA
 BID = 0xFF  # "master device" bus identifier
 EXT_LEN = 0xFF  # LEN byte announcing a u16 length
 MAX_SHORT_LEN = 254  # longer payloads use the extended header [XS-DEV] write_msg
 MAX_PAYLOAD = 2048  # larger lengths are taken as garbage while resynchronising
 
-# --- message IDs (sensors.md §5.2 [XS-DEF]) ------------------------------------------
+# --- message IDs (docs/reference/sensors.md §5.2 [XS-DEF]) ---------------------------
 MID_REQ_DID = 0x00
 MID_DEVICE_ID = 0x01
 MID_GOTO_MEASUREMENT = 0x10
@@ -53,7 +53,7 @@ MID_ERROR = 0x42
 MID_SET_OUTPUT_CONFIG = 0xC0
 ERROR_TEXT = {4: "invalid or not implemented message", 32: "baud rate out of range", 33: "invalid parameter"}
 
-# --- data identifiers (sensors.md §5.3 [XS-SDK]) --------------------------------------
+# --- data identifiers (docs/reference/sensors.md §5.3 [XS-SDK]) -----------------------
 ID_TEMPERATURE = 0x0810
 ID_PACKET_COUNTER = 0x1020
 ID_SAMPLE_TIME_FINE = 0x1060
@@ -62,7 +62,7 @@ ID_RATE_OF_TURN = 0x8020
 ID_STATUS_WORD = 0xE020
 PRECISION_MASK = 0x0003  # bits1:0: 00 float32, 01 fp12.20, 10 fp16.32, 11 float64
 FREQ_EVERY_PACKET = 0xFFFF  # for counters/time stamps (recorded configurations; UNCONFIRMED)
-#: SampleTimeFine tick, s (10 kHz; UNCONFIRMED in sensors.md §5.3)
+#: SampleTimeFine tick, s (10 kHz; UNCONFIRMED in docs/reference/sensors.md §5.3)
 SAMPLE_TIME_FINE_TICK_S = 1e-4
 #: the device's internal rate the output rates divide ([XS-DEV-N] max 2000 Hz for acc/gyro)
 BASE_RATE_HZ = 2000

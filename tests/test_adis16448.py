@@ -1,4 +1,4 @@
-"""ADIS16448: byte-level checks against sensors.md §4 worked examples, driver through both bridges."""
+"""ADIS16448: byte-level checks against docs/reference/sensors.md §4 worked examples, driver through both bridges."""
 
 import numpy as np
 import pytest
@@ -19,7 +19,7 @@ JC_BURST = bytes.fromhex("00 00 00 0F FF F8 00 0A FE 41 FF CC 04 56 02 27 FD A3 
 
 
 def crc_bitwise(lsb_first: bytes) -> int:
-    """Independent oracle: the bitwise loop exactly as sensors.md §4.6 states it."""
+    """Independent oracle: the bitwise loop exactly as docs/reference/sensors.md §4.6 states it."""
     crc = 0xFFFF
     for byte in lsb_first:
         for _ in range(8):

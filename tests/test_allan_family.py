@@ -7,14 +7,14 @@ from reference_data import NBS14_10_FREQ, nbs14_1000
 from imustation.analysis.allan import edf_oadev, mdev, oadev, ohdev, totdev
 from imustation.errors import InputError
 
-# SP 1065 Table 31 (7 significant figures) at m = 1, 10, 100 (noise-formulas.md sec. 1.1)
+# SP 1065 Table 31 (7 significant figures) at m = 1, 10, 100 (docs/reference/noise-formulas.md §1.1)
 NBS14_1000 = {
     oadev: [2.922319e-01, 9.159953e-02, 3.241343e-02],
     mdev: [2.922319e-01, 6.172376e-02, 2.170921e-02],
     ohdev: [2.943883e-01, 9.581083e-02, 3.237638e-02],
     totdev: [2.922319e-01, 9.134743e-02, 3.406530e-02],
 }
-# Riley test suite Table I / SP 1065, tau = 1, 2 (noise-formulas.md sec. 1.2)
+# Riley test suite Table I / SP 1065, tau = 1, 2 (docs/reference/noise-formulas.md §1.2)
 NBS14_10 = {
     oadev: [91.22945, 85.95287],
     mdev: [91.22945, 74.78849],
@@ -121,7 +121,8 @@ def test_white_noise_closed_form_and_interval():
 
 
 def test_random_walk_discrete_closed_form_over_seeds():
-    # discrete RW rate, increments gamma^2, tau0 = 1: AVAR = gamma^2 (2n^2 + 1) / (6n) (noise-formulas.md sec. 5)
+    # discrete RW rate, increments gamma^2, tau0 = 1: AVAR = gamma^2 (2n^2 + 1) / (6n)
+    # (docs/reference/noise-formulas.md §5)
     gamma, fs, n = 1e-3, 1.0, 200_000
     m = np.array([1, 4, 30])
     vals = []

@@ -1,4 +1,4 @@
-"""BMX055 accelerometer driver against sensors.md §1.5-§1.7 worked examples and its simulator."""
+"""BMX055 accelerometer driver against docs/reference/sensors.md §1.5-§1.7 worked examples and its simulator."""
 
 import numpy as np
 import pytest
@@ -15,7 +15,7 @@ from imustation.units import G0
 @pytest.mark.parametrize(
     "data,count,g",
     [
-        # sensors.md §1.7 worked examples at +-2 g
+        # docs/reference/sensors.md §1.7 worked examples at +-2 g
         ("0140", 1024, 1.000),
         ("F1FF", -1, -0.977e-3),
         ("0080", -2048, -2.000),
@@ -33,7 +33,7 @@ def test_worked_examples_12bit(data, count, g):
 
 @pytest.mark.parametrize("raw,celsius", [(0x08, 27.0), (0xF6, 18.0), (0x00, 23.0)])
 def test_worked_example_temperature(raw, celsius):
-    assert decode_temperature(raw) == celsius  # sensors.md §1.5
+    assert decode_temperature(raw) == celsius  # docs/reference/sensors.md §1.5
 
 
 def test_tables():

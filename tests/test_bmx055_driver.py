@@ -1,4 +1,4 @@
-"""BMX055 gyro driver against sensors.md §1 worked examples and its simulator."""
+"""BMX055 gyro driver against docs/reference/sensors.md §1 worked examples and its simulator."""
 
 import errno
 
@@ -17,7 +17,7 @@ from imustation.units import DEG2RAD
 
 
 def test_worked_example_rate_bytes():
-    # sensors.md §1.4: bytes "34 12" at range code 0 -> 284.146 deg/s (16.4 LSB/deg/s)
+    # docs/reference/sensors.md §1.4: bytes "34 12" at range code 0 -> 284.146 deg/s (16.4 LSB/deg/s)
     counts = decode_rates(bytes.fromhex("3412F0FF0000"))[0]
     assert counts.tolist() == [4660, -16, 0]
     scale0 = chip.range_row(2000).scale

@@ -1,4 +1,4 @@
-"""Exports for Kalibr / OpenVINS / VINS-Fusion / ORB-SLAM3 (noise-formulas.md §3)."""
+"""Exports for Kalibr / OpenVINS / VINS-Fusion / ORB-SLAM3 (docs/reference/noise-formulas.md §3)."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def _sensors():
 
 
 def test_kalibr_keys_and_values_round_trip():
-    # EuRoC ADIS16448 values (noise-formulas.md §3.1) must come back unchanged, as the largest axis
+    # EuRoC ADIS16448 values (docs/reference/noise-formulas.md §3.1) must come back unchanged, as the largest axis
     gyro, accel = _sensors()
     d = _load(export_text(gyro, accel, "kalibr", topic="/imu0"))
     assert list(d) == KALIBR_KEYS
@@ -99,7 +99,7 @@ def test_diffusion_conversion_bounds_gm_at_every_tau():
 
 
 def test_tau_b_conversion_matches_adev_at_tau_b():
-    # independent closed form: AVAR_GM(T) = q T [1 - (3 - 4/e + 1/e^2)/2] (noise-formulas.md §5)
+    # independent closed form: AVAR_GM(T) = q T [1 - (3 - 4/e + 1/e^2)/2] (docs/reference/noise-formulas.md §5)
     sigma_b, T = 2e-6, 500.0
     K = random_walk_from_params({"sigma_b": sigma_b, "tau_b": T}, "tau_b")
     ratio2 = 3.0 * (1.0 - (3.0 - 4.0 * math.exp(-1.0) + math.exp(-2.0)) / 2.0)

@@ -1,6 +1,6 @@
 """GMWM: Haar wavelet variance, model WV, the estimator, CLI and study column.
 
-Oracles: a direct MODWT Haar computation (the definition of noise-formulas.md §4,
+Oracles: a direct MODWT Haar computation (the definition of docs/reference/noise-formulas.md §4,
 written with cumulative sums here) and the identity nu^2 = AVAR(m = tau/2)/2
 against :func:`oadev`; the closed-form WV table of §4 (written out here, per-sample
 parameters) for each process; simulate-then-fit with the §4 tolerances or, where
@@ -86,7 +86,7 @@ def test_wv_with_gap_never_spans_it():
 
 
 # ---------------------------------------------------------------------------
-# model WV against the closed forms of noise-formulas.md §4 (tau in samples)
+# model WV against the closed forms of docs/reference/noise-formulas.md §4 (tau in samples)
 
 
 TAUS = 2.0 ** np.arange(1, 21)

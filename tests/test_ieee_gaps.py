@@ -20,7 +20,7 @@ def white_rrw_gm(seed, fs, n, N, K, s, T):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_ieee_recovers_N_and_K_from_white_rrw_gm(seed):
-    # noise-formulas.md sec. 5 "Check use": N within 5 %, K within 20 % (55 h at 10 Hz)
+    # docs/reference/noise-formulas.md §5 "Check use": N within 5 %, K within 20 % (55 h at 10 Hz)
     N, K, s, T, fs = 1e-4, 1e-6, 2e-5, 5.0, 10.0
     c = ieee_coefficients(oadev(white_rrw_gm(seed, fs, 2_000_000, N, K, s, T), fs))
     assert c.N == pytest.approx(N, rel=0.05)

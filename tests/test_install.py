@@ -46,32 +46,121 @@ def test_console_script_runs(tmp_path):
         assert cmd in out.stdout
 
 
-def _assemble_installed_layout(root, dest):
-    """Copy the source folders into dest as the installed package tree (package-dir mapping)."""
-    import tomllib
+def test_layer_contracts():
+    """import-linter contracts of pyproject.toml, checked on the source tree itself.
 
-    with open(os.path.join(root, "pyproject.toml"), "rb") as fh:
-        mapping = tomllib.load(fh)["tool"]["setuptools"]["package-dir"]
-    for package, folder in sorted(mapping.items(), key=lambda kv: kv[0].count(".")):
-        target = os.path.join(dest, *package.split("."))
-        shutil.copytree(
-            os.path.join(root, folder), target, dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__")
-        )
-
-
-def test_layer_contracts(tmp_path):
-    """import-linter contracts of pyproject.toml, checked on the installed layout.
-
-    grimp walks a package's own folder, which does not hold the mapped
-    subpackages of an editable install; so the tree is assembled as pip would.
+    grimp finds a package by walking its folder; the links imustation/analysis,
+    acquisition, drivers and configs (docs/architecture.md, "Source tree and
+    installed package") give the source tree the installed shape, so no copy is needed.
     """
     lint = shutil.which("lint-imports", path=os.path.dirname(sys.executable)) or shutil.which("lint-imports")
     assert lint, "import-linter not installed (pip install -e '.[test]')"
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    _assemble_installed_layout(root, tmp_path)
-    env = dict(os.environ, PYTHONPATH=str(tmp_path))
-    out = subprocess.run(
-        [lint, "--config", os.path.join(root, "pyproject.toml")], cwd=tmp_path, capture_output=True, text=True, env=env
-    )
+    out = subprocess.run([lint, "--no-cache"], cwd=root, capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "broken" not in out.stdout.lower() or "0 broken" in out.stdout.lower()
+    assert "0 broken" in out.stdout.lower(), out.stdout
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT_LINKS = ["acquisition", "analysis", "configs", "drivers"]
+
+
+def _package_dirs():
+    """pyproject's package-dir mapping: import package -> source folder."""
+    import tomllib
+
+    with open(os.path.join(ROOT, "pyproject.toml"), "rb") as fh:
+        return tomllib.load(fh)["tool"]["setuptools"]["package-dir"]
+
+
+def _source_modules(mapping):
+    """Installed path of every .py file under the mapped folders, and every package.
+
+    os.walk does not follow links, so the links inside imustation/ are not
+    counted twice; each mapped folder is walked under its own package name.
+    """
+    files, packages = set(), set()
+    for package, folder in mapping.items():
+        base = os.path.join(ROOT, folder)
+        for dirpath, dirnames, filenames in os.walk(base):
+            dirnames[:] = [d for d in dirnames if d != "__pycache__"]
+            rel = os.path.relpath(dirpath, base)
+            parts = package.split(".") + ([] if rel == "." else rel.split(os.sep))
+            if "__init__.py" in filenames:
+                packages.add(".".join(parts))
+            files.update("/".join([*parts, f]) for f in filenames if f.endswith(".py"))
+    return files, packages
+
+
+def test_root_links_give_the_source_tree_the_installed_shape():
+    for name in ROOT_LINKS:
+        link = os.path.join(ROOT, "imustation", name)
+        assert os.path.islink(link), f"imustation/{name} must be a link to ../{name}"
+        assert os.readlink(link) == os.path.join("..", name)
+        assert _package_dirs()[f"imustation.{name}"] == name
+
+
+def test_non_editable_install_imports_from_the_repository_root(tmp_path):
+    """`pip install .` (not editable) into a fresh venv, then import from the repository root.
+
+    The root folder imustation/ comes first on sys.path when Python runs there; it
+    must hold the layers too (the links), or `import imustation.analysis` fails.
+    No network: the build uses this interpreter's setuptools (--no-build-isolation)
+    and the venv borrows this interpreter's dependencies through a .pth file.
+    """
+    import sysconfig
+    import zipfile
+
+    mapping = _package_dirs()
+    src = tmp_path / "src"  # the build writes build/ and *.egg-info beside its input: build a copy
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md", *sorted(set(mapping.values()))):
+        from_path = os.path.join(ROOT, name)
+        if os.path.isdir(from_path):
+            shutil.copytree(from_path, src / name, symlinks=True, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy2(from_path, src / name)
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    build = subprocess.run(
+        [*pip, "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-w", str(tmp_path / "dist"), str(src)],
+        capture_output=True,
+        text=True,
+    )
+    assert build.returncode == 0, "wheel build failed (needs setuptools>=70.1: pip install -e '.[test]')\n" + (
+        build.stdout + build.stderr
+    )
+    (wheel,) = (tmp_path / "dist").glob("imustation-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert len(names) == len(set(names)), "duplicate entries in the wheel"
+    expected_files, packages = _source_modules(mapping)
+    assert {n for n in names if n.endswith(".py")} == expected_files
+
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    python = str(venv / "bin" / "python")
+    site = subprocess.run(
+        [python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    outer = sorted({sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]})
+    with open(os.path.join(site, "_outer_dependencies.pth"), "w") as fh:
+        fh.write("\n".join(outer) + "\n")  # plain path lines: that folder's own .pth files stay unread
+    subprocess.run([*pip, "install", "--no-deps", "--no-index", "--target", site, str(wheel)], check=True)
+
+    every = ", ".join(sorted(packages))
+    show = "import imustation.analysis as a; print(a.__file__)"
+    elsewhere = subprocess.run([python, "-c", f"import {every}; {show}"], cwd=tmp_path, capture_output=True, text=True)
+    assert elsewhere.returncode == 0, elsewhere.stderr
+    assert elsewhere.stdout.strip().startswith(site), elsewhere.stdout  # the installed copy, not the source tree
+
+    at_root = subprocess.run(
+        [python, "-c", f"import imustation.analysis, imustation.acquisition, imustation.drivers, {every}; {show}"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
+    assert at_root.returncode == 0, at_root.stderr
+    # Python puts the working folder first: from the root the source tree answers, whole
+    assert os.path.realpath(at_root.stdout.strip()) == os.path.join(os.path.realpath(ROOT), "analysis", "__init__.py")

@@ -1,4 +1,4 @@
-"""MPU-9150 / MPU-6500 drivers against sensors.md §2.4/§3 worked examples and the FIFO simulator."""
+"""MPU-9150 / MPU-6500 drivers against docs/reference/sensors.md §2.4/§3 worked examples and the FIFO simulator."""
 
 import numpy as np
 import pytest
@@ -15,7 +15,8 @@ DRIVER = {"mpu9150": MPU9150Driver, "mpu6500": MPU6500Driver}
 
 
 def test_worked_examples_data_registers():
-    # sensors.md §2.4: accel "40 00" -> 1 g (+-2 g); temp "F2 70" -> 26.32 degC; gyro "FF 7E" -> -0.992 deg/s
+    # docs/reference/sensors.md §2.4: accel "40 00" -> 1 g (+-2 g); temp "F2 70" -> 26.32 degC;
+    # gyro "FF 7E" -> -0.992 deg/s
     frame = bytes.fromhex("4000 0000 0000 F270 FF7E 0000 0000")
     accel, temp, gyro = decode_frames(frame)
     assert accel[0].tolist() == [16384, 0, 0] and temp[0] == -3472 and gyro[0].tolist() == [-130, 0, 0]
@@ -25,7 +26,7 @@ def test_worked_examples_data_registers():
 
 
 def test_worked_example_mpu6500_temperature():
-    # sensors.md §3: TEMP "06 88" -> 1672 -> 1672/333.87 + 21 = 26.008 degC
+    # docs/reference/sensors.md §3: TEMP "06 88" -> 1672 -> 1672/333.87 + 21 = 26.008 degC
     _, temp, _ = decode_frames(bytes(6) + bytes.fromhex("0688") + bytes(6))
     assert temp[0] == 1672
     assert chip.decode_temperature(1672, MPU6500) == pytest.approx(26.008, abs=5e-4)

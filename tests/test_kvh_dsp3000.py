@@ -1,4 +1,4 @@
-"""KVH DSP-3000: line parsing against sensors.md §6 vectors, resync, status 0, modes, driver on the simulator."""
+"""KVH DSP-3000: line parsing against docs/reference/sensors.md §6 vectors, resync, status 0, modes, driver on sim."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""MCP9804 thermometer: sensors.md §7 worked examples, pointer protocol, simulator, settings."""
+"""MCP9804 thermometer: docs/reference/sensors.md §7 worked examples, pointer protocol, simulator, settings."""
 
 import math
 
@@ -43,7 +43,7 @@ def sim_bus(temperature=lambda t: 22.0, address=0x18):
 
 
 def test_id_registers_at_byte_level():
-    # sensors.md §7: 0x06 -> 00 54, 0x07 -> 02 01, 0x08 -> single byte 03
+    # docs/reference/sensors.md §7: 0x06 -> 00 54, 0x07 -> 02 01, 0x08 -> single byte 03
     _, _, _, dev = sim_bus()
     assert dev.read(0x06, 2) == bytes.fromhex("0054")
     assert dev.read(0x07, 2) == bytes.fromhex("0201")

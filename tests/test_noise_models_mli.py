@@ -112,7 +112,7 @@ def test_continuous_and_discrete_avar_agree_away_from_the_sample_time():
 
 
 def test_gm_avar_peak_matches_noise_formulas():
-    """noise-formulas.md §5: peak at tau = 1.8926 T with sigma_max = 0.6174 s (s^2 = stationary var)."""
+    """docs/reference/noise-formulas.md §5: peak at tau = 1.8926 T with sigma_max = 0.6174 s (s^2 = stationary var)."""
     gm = GaussMarkov(1.0, 2.0)
     tau = np.geomspace(0.1, 100, 20001)
     adev = gm.adev(tau)

@@ -9,7 +9,8 @@ from imustation.errors import InputError
 
 
 def test_white_noise_level_one_and_two_sided():
-    # white rate noise of ARW coefficient N: two-sided S = N^2, one-sided G = 2 N^2 (IEEE 952; noise-formulas sec. 5)
+    # white rate noise of ARW coefficient N: two-sided S = N^2, one-sided G = 2 N^2
+    # (IEEE 952; docs/reference/noise-formulas.md §5)
     N, fs = 3e-4, 100.0
     y = np.random.default_rng(1).normal(0, N * np.sqrt(fs), 400_000)
     one = welch_psd(y, fs, nperseg=1024)

@@ -1,4 +1,4 @@
-"""USB-to-SPI bridges: URL grammar, CP2130/MCP2210 framing (sensors.md §4.7), pyusb errors."""
+"""USB-to-SPI bridges: URL grammar, CP2130/MCP2210 framing (docs/reference/sensors.md §4.7), pyusb errors."""
 
 import pytest
 
@@ -66,7 +66,7 @@ def test_url_grammar():
 
 
 def test_cp2130_framing_matches_sensors_md():
-    # sensors.md §4.7 example: channel 0, mode 3, CS push-pull, 1.5 MHz
+    # docs/reference/sensors.md §4.7 example: channel 0, mode 3, CS push-pull, 1.5 MHz
     spi, target, rec, _ = bridge("cp2130", "?hz=1500000")
     assert spi.transfer(bytes([0x56, 0x00])) == bytes([0x57, 0x01])
     assert (0x40, 0x31, bytes([0x00, 0x3B])) in rec.controls
@@ -119,7 +119,7 @@ def test_mcp2210_framing():
     reports = [d for _, d in rec.outs]
     assert all(len(r) == 64 for r in reports)
     settings = next(r for r in reports if r[0] == 0x40)
-    # bit rate 1e6 LE, ..., bytes per transaction 28, mode 3 (field layout of sensors.md §4.7)
+    # bit rate 1e6 LE, ..., bytes per transaction 28, mode 3 (field layout of docs/reference/sensors.md §4.7)
     assert settings[4:8] == bytes.fromhex("40 42 0F 00") and settings[18:20] == bytes([28, 0]) and settings[20] == 3
     assert settings[10] & 1 == 0 and settings[8] & 1 == 1  # GP0 active low, idle high
     chip_settings = next(r for r in reports if r[0] == 0x21)

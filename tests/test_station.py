@@ -131,7 +131,7 @@ def test_thermometers_at_their_own_rate_with_a_fault(tmp_path, monkeypatch):
         assert len(t1) + sum(e.lost for e in ev) == 300
         assert len(t2) == summary.readings["t2"] == 600
         # on the 1 s grid, except the first reading after the reconnect, which follows the
-        # re-open's wait for one conversion (250 ms at 0.0625 degC, sensors.md §7)
+        # re-open's wait for one conversion (250 ms at 0.0625 degC, docs/reference/sensors.md §7)
         gaps = np.diff(t1)
         assert np.all(gaps >= 0.25e9) and np.count_nonzero(gaps % 1_000_000_000) <= 2
         # the simulated ambient drifts slowly: 0.0625 degC steps inside a narrow band

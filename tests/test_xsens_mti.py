@@ -1,4 +1,4 @@
-"""Xsens MTi: Xbus framing against sensors.md §5 examples, MTData2 parsing, resync, driver on the simulator."""
+"""Xsens MTi: Xbus framing against docs/reference/sensors.md §5 examples, MTData2 parsing, resync, driver on sim."""
 
 import struct
 

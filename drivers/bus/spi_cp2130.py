@@ -1,6 +1,6 @@
 """Silicon Labs CP2130 USB-to-SPI bridge through pyusb (``cp2130:`` URLs).
 
-Protocol (``shared/reference/sensors.md`` §4.7, sources [CP-B] bloguetronica/cp2130
+Protocol (``docs/reference/sensors.md`` §4.7, sources [CP-B] bloguetronica/cp2130
 and [CP-R] rust-driver-cp2130): configuration by vendor control transfers on
 endpoint 0, SPI data by commands on the bulk endpoints - an 8-byte header
 ``00 00 cmd 00 len(u32 LE)`` followed by the data; for WriteRead the device
@@ -16,7 +16,7 @@ from typing import ClassVar
 from imustation.drivers.bus.spi import USBSPIBridge
 from imustation.errors import BusError, DeviceError
 
-# --- control requests, sensors.md §4.7 [CP-B][CP-R] --------------------------------
+# --- control requests, docs/reference/sensors.md §4.7 [CP-B][CP-R] --------------------
 REQTYPE_OUT = 0x40  # host-to-device | vendor | device
 REQTYPE_IN = 0xC0  # device-to-host | vendor | device
 REQ_GET_GPIO_CHIP_SELECT = 0x24
@@ -58,7 +58,7 @@ class CP2130(USBSPIBridge):
 
     NAME: ClassVar[str] = "CP2130"
     SCHEME: ClassVar[str] = "cp2130"
-    DEFAULT_VID: ClassVar[int] = 0x10C4  # sensors.md §4.7 [CP-B][CP-R]
+    DEFAULT_VID: ClassVar[int] = 0x10C4  # docs/reference/sensors.md §4.7 [CP-B][CP-R]
     DEFAULT_PID: ClassVar[int] = 0x87A0
     N_CS: ClassVar[int] = 11
 

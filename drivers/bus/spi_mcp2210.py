@@ -1,6 +1,6 @@
 """Microchip MCP2210 USB-to-SPI bridge through pyusb (``mcp2210:`` URLs).
 
-Protocol (``shared/reference/sensors.md`` §4.7, sources [MCP-B] bloguetronica/mcp2210
+Protocol (``docs/reference/sensors.md`` §4.7, sources [MCP-B] bloguetronica/mcp2210
 and [MCP-A] arachnidlabs/mcp2210): a USB HID device; each command is one 64-byte
 report on the interrupt OUT endpoint, answered by one 64-byte report on
 interrupt IN whose byte 0 echoes the command and byte 1 is a status. The kernel
@@ -58,7 +58,7 @@ MAX_CHUNK = 60  # data bytes per 0x42 report
 
 #: 0x40 payload after the 4-byte header: bit rate u32, idle CS u16, active CS u16,
 #: CS-to-data, last-data-to-CS, inter-byte delays u16 (100 us units), bytes per
-#: transaction u16, SPI mode u8 - all little-endian (sensors.md §4.7)
+#: transaction u16, SPI mode u8 - all little-endian (docs/reference/sensors.md §4.7)
 SPI_SETTINGS = struct.Struct("<BBBBIHHHHHHB")
 ALL_CS_IDLE_HIGH = (1 << N_PINS) - 1
 #: 0x42 reports before a transfer is declared stuck (a 60-byte transfer needs ~3)
@@ -72,7 +72,7 @@ class MCP2210(USBSPIBridge):
 
     NAME: ClassVar[str] = "MCP2210"
     SCHEME: ClassVar[str] = "mcp2210"
-    DEFAULT_VID: ClassVar[int] = 0x04D8  # sensors.md §4.7 [MCP-B]
+    DEFAULT_VID: ClassVar[int] = 0x04D8  # docs/reference/sensors.md §4.7 [MCP-B]
     DEFAULT_PID: ClassVar[int] = 0x00DE
     N_CS: ClassVar[int] = N_PINS
 

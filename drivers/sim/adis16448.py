@@ -1,4 +1,4 @@
-"""Byte-level simulator of the ADIS16448 on SPI (sensors.md §4).
+"""Byte-level simulator of the ADIS16448 on SPI (docs/reference/sensors.md §4).
 
 Answers 16-bit SPI frames as the chip does: a read command returns its
 register on the *next* frame, writes are one byte per frame, ``3E 00`` with CS
@@ -28,7 +28,7 @@ from imustation.drivers import adis16448 as chip
 from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.sources import SignalSource
 
-#: power-on register values; datasheet defaults are UNCONFIRMED (sensors.md §4.2)
+#: power-on register values; datasheet defaults are UNCONFIRMED (docs/reference/sensors.md §4.2)
 #: except SENS_AVG range code 100 (+-1000 deg/s) [PX4-ADIS]
 POR_REGS = {
     chip.REG_PROD_ID: chip.PROD_ID_VALUE,

@@ -1,6 +1,6 @@
 """Byte-level simulator of the BMX055 gyroscope die (BMG160 register set).
 
-Behaviour follows ``shared/reference/sensors.md`` §1: CHIP_ID 0x0F, BW reads
+Behaviour follows ``docs/reference/sensors.md`` §1: CHIP_ID 0x0F, BW reads
 back with the reserved bit 7 set, soft reset by 0xB6 to 0x14, 100-frame FIFO
 with overrun flag in stream mode, FIFO_DATA (0x3F) as a non-incrementing data
 port, little-endian s16 rates, s8 temperature (23 degC + 0.5 K/LSB).
@@ -22,7 +22,7 @@ from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.regfile import RegisterFileChip
 from imustation.drivers.sim.sources import SignalSource
 
-#: power-on BW code (datasheet reset value not in sensors.md; 0x00 = 2000 Hz/523 Hz assumed)
+#: power-on BW code (datasheet reset value not in docs/reference/sensors.md; 0x00 = 2000 Hz/523 Hz assumed)
 POR_BW_CODE = 0x00
 BW_RESERVED_BIT = 0x80  # §1.3: "A mock reading back BW should return 0x80 | code"
 

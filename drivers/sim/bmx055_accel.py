@@ -1,12 +1,12 @@
 """Byte-level simulator of the BMX055 accelerometer die (BMA2x2, chip id 0xFA).
 
-Behaviour follows ``shared/reference/sensors.md`` §1.5-§1.7: 12-bit values
+Behaviour follows ``docs/reference/sensors.md`` §1.5-§1.7: 12-bit values
 left-justified in LSB/MSB pairs with a ``new_data`` flag in bit 0 of the LSB
 (set when the axis is updated, cleared when the pair is read), soft reset by
 0xB6 to 0x14, 32-frame FIFO with overrun flag, FIFO_DATA (0x3F) as a
 non-incrementing data port, s8 temperature (23 degC + 0.5 K/LSB).
 
-Assumptions (not in sensors.md, Bosch BMA2x2 reset values): power-on PMU_RANGE
+Assumptions (not in docs/reference/sensors.md, Bosch BMA2x2 reset values): power-on PMU_RANGE
 0x03 (+-2 g), PMU_BW 0x0F, everything else 0; PMU_BW codes below 0x08 act as
 0x08 and above 0x0F as 0x0F (§1.7 "commonly documented as clamped"); FIFO
 frames carry ``new_data`` = 0; an empty FIFO reads as zeros. A burst read is one

@@ -1,6 +1,6 @@
 """Byte-level simulator of the InvenSense MPU-6050-family chips (MPU-9150, MPU-6500).
 
-Behaviour follows ``shared/reference/sensors.md`` §2-§3, with the chip
+Behaviour follows ``docs/reference/sensors.md`` §2-§3, with the chip
 differences taken from the driver's :class:`~imustation.drivers.invensense.Variant`
 rows: WHO_AM_I, a real byte FIFO of the variant's size that overflows (oldest
 bytes lost and FIFO_OFLOW_INT set; on the MPU-6500 with CONFIG.FIFO_MODE = 1 new

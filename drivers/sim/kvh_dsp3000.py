@@ -1,4 +1,4 @@
-"""KVH DSP-3000 simulator: ASCII lines at 100 Hz, 38 400 baud (sensors.md §6).
+"""KVH DSP-3000 simulator: ASCII lines at 100 Hz, 38 400 baud (docs/reference/sensors.md §6).
 
 Lines ``" <value with 6 decimals>   <flag>\\r\\n"`` in rate mode (deg/s, the
 power-up default) or incremental-angle mode (deg per output), switched by the

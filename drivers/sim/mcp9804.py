@@ -1,4 +1,4 @@
-"""Byte-level simulator of the MCP9804 thermometer (sensors.md §7).
+"""Byte-level simulator of the MCP9804 thermometer (docs/reference/sensors.md §7).
 
 A register-pointer chip with 16-bit registers (MSB first) and the 8-bit
 resolution register. Conversions complete every t_conv of the selected
@@ -8,7 +8,7 @@ T_UPPER / T_LOWER (all 0 degC at power-on, so a warm room reads with the
 >= T_CRIT and > T_UPPER flags set, as in §7's worked example ``C1 90``).
 Shutdown (CONFIG bit 8) stops conversions; T_A keeps its last value.
 
-Assumptions (UNCONFIRMED, not in sensors.md): a pointer with bits 7:4 set is
+Assumptions (UNCONFIRMED, not in docs/reference/sensors.md): a pointer with bits 7:4 set is
 ignored (the pointer keeps its value); reading more bytes than a register has
 repeats its bytes; T_A reads 0x0000 until the first conversion completes; the
 window/critical lock bits are stored but not enforced.

@@ -42,7 +42,7 @@ class CP2130Sim(SimUSBFunction):
     def __init__(self, serial: str = "0001", plan: FaultPlan | None = None):
         super().__init__(cp.CP2130.DEFAULT_VID, cp.CP2130.DEFAULT_PID, serial, plan)
         self.targets: dict[int, SPITarget] = {}
-        #: power-on SPI words (datasheet default not in sensors.md; 0 = mode 0, 12 MHz, open drain)
+        #: power-on SPI words (datasheet default not in docs/reference/sensors.md; 0 = mode 0, 12 MHz, open drain)
         self.spi_words = bytearray(cp.SPI_WORD_LEN)
         self.cs_enabled: set[int] = set()
         self._in = bytearray()

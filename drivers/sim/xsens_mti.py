@@ -1,8 +1,8 @@
-"""Xsens MTi-100 simulator: an Xbus byte stream on the station clock (sensors.md §5).
+"""Xsens MTi-100 simulator: an Xbus byte stream on the station clock (docs/reference/sensors.md §5).
 
 The device powers up in measurement mode with a default output configuration
 (PacketCounter, SampleTimeFine, Acceleration and RateOfTurn at 100 Hz - the
-real factory setting is not in sensors.md, this is a simulation choice), and
+real factory setting is not in docs/reference/sensors.md, this is a simulation choice), and
 streams MTData2 while answering GoToConfig, ReqDID, ReqProductCode, ReqFWRev,
 SetOutputConfiguration (config mode only) and GoToMeasurement with their
 acknowledgements, and anything else with Error 4. Every item is sent in every
