@@ -97,9 +97,6 @@ class BusFactory:
             return self._open_serial(dev)
         return self._i2c_device("device", dev, make_simulator)
 
-    #: the name says what it returns for any bus kind
-    transport = register_device
-
     def register_thermometer(self, th: ThermometerConfig) -> RegisterDevice:
         """The register device of a ``[[thermometer]]`` (I2C; simulated with ``simulate``)."""
         kind = THERMOMETER_DRIVERS[th.driver].bus_kind

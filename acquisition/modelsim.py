@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 
+from imustation.channels import DriverInfo
 from imustation.clock import Clock
-from imustation.drivers.base import Block, DriverInfo
+from imustation.drivers.base import Block
 from imustation.drivers.sim import device_sources, station_device_seed
 from imustation.drivers.sim.adis16448 import ACCEL_NOISE_G
 from imustation.drivers.sim.faults import FaultPlan, parse_faults

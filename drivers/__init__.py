@@ -10,8 +10,9 @@ the same driver code a real capture runs.
 ``DRIVERS`` maps the ``driver =`` name of a config to the driver class.
 """
 
+from imustation.channels import DriverInfo
 from imustation.drivers.adis16448 import ADIS16448
-from imustation.drivers.base import Block, Driver, DriverInfo
+from imustation.drivers.base import Block, Driver
 from imustation.drivers.bmx055 import BMX055Gyro
 from imustation.drivers.bmx055_accel import BMX055Accel
 from imustation.drivers.invensense import MPU6500Driver, MPU9150Driver

@@ -22,10 +22,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from imustation.drivers.base import Block, DriverInfo, Setting, Sleep, check_settings
+from imustation.channels import ChannelSpec, DriverInfo
+from imustation.drivers.base import Block, Setting, Sleep, check_settings
 from imustation.drivers.bus.spi import SPIDevice
 from imustation.errors import BusError, ChipIdMismatch, DeviceError, SettingError
-from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD, G0
 
 # --- registers (docs/reference/sensors.md §4.2); 16-bit, even addresses, low byte at the even one ---

@@ -8,7 +8,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from imustation.runfile import ChannelSpec
+from imustation.channels import DriverInfo
 
 
 @dataclass
@@ -32,20 +32,6 @@ class Block:
     @property
     def n(self) -> int:
         return len(next(iter(self.channels.values()))) if self.channels else 0
-
-
-@dataclass(frozen=True)
-class DriverInfo:
-    """Static description a driver gives before streaming starts."""
-
-    model: str
-    identity: str
-    rate_hz: float
-    settings: Mapping[str, Any]
-    channels: tuple[ChannelSpec, ...]
-    has_counter: bool = False
-    #: how often the station should poll, s (FIFO depth / rate with margin)
-    poll_interval_s: float = 0.1
 
 
 class Driver(Protocol):

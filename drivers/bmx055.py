@@ -16,11 +16,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from imustation.drivers.base import Block, DriverInfo, Setting, Sleep, check_settings
+from imustation.channels import ChannelSpec, DriverInfo
+from imustation.drivers.base import Block, Setting, Sleep, check_settings
 from imustation.drivers.bus.base import RegisterDevice
 from imustation.drivers.regs import Field, write_field
 from imustation.errors import ChipIdMismatch, DeviceError
-from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD
 
 # --- registers (docs/reference/sensors.md §1.2) ------------------------------

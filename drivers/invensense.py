@@ -28,11 +28,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from imustation.drivers.base import Block, DriverInfo, Setting, Sleep, check_settings
+from imustation.channels import ChannelSpec, DriverInfo
+from imustation.drivers.base import Block, Setting, Sleep, check_settings
 from imustation.drivers.bus.base import RegisterDevice
 from imustation.drivers.regs import Field
 from imustation.errors import ChipIdMismatch, DeviceError, SettingError
-from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD, G0
 
 # --- registers (docs/reference/sensors.md §2, §3) --------------------------------

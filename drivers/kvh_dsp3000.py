@@ -25,10 +25,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from imustation.drivers.base import Block, DriverInfo, Setting, Sleep, check_settings
+from imustation.channels import ChannelSpec, DriverInfo
+from imustation.drivers.base import Block, Setting, Sleep, check_settings
 from imustation.drivers.bus.serial_port import FramedStreamReader, Scan, SerialPort
 from imustation.errors import DeviceError, SettingError
-from imustation.runfile import ChannelSpec
 from imustation.units import DEG2RAD
 
 EOL = b"\r\n"

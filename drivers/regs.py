@@ -33,10 +33,6 @@ class Field:
         return (byte & self.mask) >> self.lsb
 
 
-def read_field(dev: RegisterDevice, field: Field) -> int:
-    return field.decode(dev.read(field.reg, 1)[0])
-
-
 def write_field(dev: RegisterDevice, field: Field, value: int) -> None:
     """Read-modify-write ``field`` (a full-width field is written directly)."""
     if field.width == 8:

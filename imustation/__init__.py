@@ -3,7 +3,8 @@
 The importable layers are ``imustation.drivers`` (chips and buses),
 ``imustation.acquisition`` (station, capture) and ``imustation.analysis``
 (Allan, PSD, ML_i ...). The root package holds what belongs to no layer:
-errors, units, clocks, the run-file format and the CLI.
+errors, units, clocks, channel descriptions (``imustation.channels``), the
+run-file format (``imustation.runfile``) and the CLI.
 """
 
 from importlib.metadata import PackageNotFoundError, version

@@ -18,7 +18,7 @@ DEV = DeviceSpec(
 
 def test_blocks_reach_disk_within_the_flush_interval(tmp_path, monkeypatch):
     now = [1000.0]
-    monkeypatch.setattr("imustation.runfile.time.monotonic", lambda: now[0])
+    monkeypatch.setattr("imustation.runfile.writer.time.monotonic", lambda: now[0])
     path = tmp_path / "f.h5"
     w = RunWriter(path, station="s", config_text="", simulated=True, devices=[DEV], flush_interval_s=1.0)
     block = np.ones((10, 3), dtype=np.int16)

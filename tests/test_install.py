@@ -10,6 +10,7 @@ import pytest
 
 SUBPACKAGES = [
     "imustation",
+    "imustation.runfile",
     "imustation.cli",
     "imustation.configs",
     "imustation.acquisition",

@@ -199,7 +199,7 @@ def test_nothing_but_the_whitelist_is_served_and_nothing_changes(live):
     for path in (
         "/static/../watcher.py",
         "/static/..%2fwatcher.py",
-        "/static/%2e%2e/%2e%2e/runfile.py",
+        "/static/%2e%2e/%2e%2e/errors.py",
         "/static/index.html/../../server.py",
         "/static/__init__.py",
         "/static/",

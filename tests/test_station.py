@@ -11,8 +11,9 @@ from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.recorder import part_path
 from imustation.acquisition.station import DeviceState, Station
+from imustation.channels import DriverInfo
 from imustation.clock import MonotonicClock, VirtualClock
-from imustation.drivers.base import Block, DriverInfo
+from imustation.drivers.base import Block
 from imustation.runfile import RunWriter, open_run
 
 GYRO = {"driver": "bmx055", "rate_hz": 400, "bandwidth_hz": 47}

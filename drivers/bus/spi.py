@@ -50,16 +50,6 @@ class SPIDevice(Protocol):
     def close(self) -> None: ...
 
 
-def words_be(words: Sequence[int]) -> bytes:
-    """16-bit words -> bytes, MSB first (the order SPI chips such as the ADIS16448 use)."""
-    return b"".join(int(w & 0xFFFF).to_bytes(2, "big") for w in words)
-
-
-def words_from_be(data: bytes) -> list[int]:
-    """Bytes -> unsigned 16-bit words, MSB first."""
-    return [int.from_bytes(data[i : i + 2], "big") for i in range(0, len(data) - 1, 2)]
-
-
 #: pyusb/libusb errnos that mean the device is gone (unplugged, re-enumerated)
 _GONE = {errno.ENODEV, errno.ENOENT, errno.ESHUTDOWN}
 #: default attempts per transfer before an error is raised (as the I2C bus)

@@ -1,13 +1,6 @@
-"""Run-file format, version 1: names, schema, writer and reader in one place.
+"""Writing run files: :class:`RunWriter`, the one writer of the format.
 
-One HDF5 file per capture (see ``docs/runfile.md`` for the full description).
-Raw integer counts are stored, never only converted floats: the conversion is
-kept as attributes (``value = raw * scale + offset``, SI units), so nothing is
-lost and files stay small.
-
-The recorder (``imustation.acquisition``) writes through :class:`RunWriter`;
-the analysis and ``imustation inspect`` read through :func:`open_run`. Nothing
-else touches the HDF5 layout.
+The recorder (``imustation.acquisition``) writes through it.
 
 Crash safety: the file is written in HDF5 SWMR mode (``libver="latest"``):
 every dataset exists before recording starts, data are appended in blocks and
@@ -18,13 +11,10 @@ while it is being written. ``ended_utc`` is set only by a clean close.
 
 from __future__ import annotations
 
-import datetime as _dt
-import errno
 import os
 import socket
 import time
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import h5py
@@ -32,27 +22,20 @@ import numpy as np
 
 from imustation import __version__
 from imustation.errors import DiskFullError, ImustationError, RunFileError
-
-FORMAT = "imustation-run"
-FORMAT_VERSION = 1
-
-DEVICES = "devices"
-THERMOMETERS = "thermometers"
-EVENTS = "events"
-TIME = "t"  # int64 ns since started_utc, host monotonic clock
-COUNTER = "counter"  # int64 device sample counter, where the device has one
-CELSIUS = "celsius"
-
-#: kinds of event a run file may hold (design.md, run-file format)
-EVENT_KINDS = ("gap", "resync", "reconnect", "overrun", "checksum", "config", "note", "fault")
-EVENT_DTYPE = np.dtype(
-    [
-        ("t", "<i8"),  # ns since started_utc
-        ("source", "S64"),  # device or thermometer name, or "station"
-        ("kind", "S16"),  # one of EVENT_KINDS
-        ("lost", "<i8"),  # samples lost (gaps, overruns); 0 when not applicable
-        ("detail", "S256"),  # free text, truncated to 256 bytes
-    ]
+from imustation.runfile.disk import fsync_dir, is_enospc, make_ballast
+from imustation.runfile.schema import (
+    CELSIUS,
+    COUNTER,
+    DEVICES,
+    EVENT_DTYPE,
+    EVENT_KINDS,
+    EVENTS,
+    FORMAT,
+    FORMAT_VERSION,
+    THERMOMETERS,
+    TIME,
+    DeviceSpec,
+    utc_now_iso,
 )
 
 #: HDF5 storage options for every appendable dataset; gzip-1 + shuffle packs
@@ -69,41 +52,6 @@ DEFAULT_BALLAST_BYTES = 4 * 2**20
 #: a file locked by a reader while the writer reopens it to mark it complete: tries and pause (s)
 CLOSE_RETRIES = 50
 CLOSE_RETRY_S = 0.1
-
-
-@dataclass(frozen=True)
-class ChannelSpec:
-    """One recorded quantity of a device: ``gyro``, ``accel`` or ``temp``.
-
-    ``value [units] = raw * scale + offset``; ``axes`` is ``("x", "y", "z")``
-    for vector channels and ``()`` for scalars.
-    """
-
-    name: str
-    dtype: str
-    units: str
-    scale: float
-    offset: float = 0.0
-    axes: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class DeviceSpec:
-    """What the recorder knows about a device before the first sample."""
-
-    name: str
-    driver: str
-    model: str
-    bus: str
-    identity: str
-    rate_hz: float
-    settings: Mapping[str, Any]
-    channels: tuple[ChannelSpec, ...]
-    has_counter: bool = False
-
-
-def utc_now_iso() -> str:
-    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _attr_value(value: Any) -> Any:
@@ -173,7 +121,7 @@ class RunWriter:
         creating = self.path + CREATING_SUFFIX
         self._ballast = self.path + BALLAST_SUFFIX if ballast_bytes > 0 else None
         if self._ballast is not None:
-            _make_ballast(self._ballast, ballast_bytes)
+            make_ballast(self._ballast, ballast_bytes)
         try:
             self._f = h5py.File(creating, "w", libver="latest")
         except OSError as exc:
@@ -243,7 +191,7 @@ class RunWriter:
         if self.fsync:
             os.fsync(f.id.get_vfd_handle())
         os.replace(creating, self.path)
-        _fsync_dir(self.path)
+        fsync_dir(self.path)
         self._last_flush = time.monotonic()
 
     # -- creation -----------------------------------------------------------
@@ -362,7 +310,7 @@ class RunWriter:
             if self.fsync:
                 os.fsync(self._f.id.get_vfd_handle())
         except (OSError, RuntimeError) as exc:  # h5py raises RuntimeError for a failed H5Fflush
-            if not _is_enospc(exc):
+            if not is_enospc(exc):
                 raise
             if self._drop_ballast() and self._roll_back(extents, events):
                 raise DiskFullError(
@@ -506,244 +454,3 @@ class RunWriter:
             self.close()
         else:
             self.abort()
-
-
-def _make_ballast(path: str, size: int) -> None:
-    try:
-        fd = os.open(path, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
-        try:
-            os.posix_fallocate(fd, 0, size)
-        finally:
-            os.close(fd)
-    except OSError as exc:
-        try:
-            os.unlink(path)
-        except OSError:
-            pass
-        if exc.errno == errno.ENOSPC:
-            raise DiskFullError(f"{path}: disk full before the capture started") from None
-        raise RunFileError(f"{path}: cannot create: {exc.strerror}") from None
-
-
-def _fsync_dir(path: str) -> None:
-    """Make a rename durable (the directory entry is on disk after power loss)."""
-    fd = os.open(os.path.dirname(os.path.abspath(path)), os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _is_enospc(exc: Exception) -> bool:
-    """HDF5 reports write failures as OSError/RuntimeError with the errno only in the message."""
-    return getattr(exc, "errno", None) == errno.ENOSPC or "No space left" in str(exc) or "errno = 28" in str(exc)
-
-
-# ---------------------------------------------------------------------------
-# reading
-
-
-@dataclass(frozen=True)
-class ChannelInfo:
-    name: str
-    dtype: np.dtype
-    units: str
-    scale: float
-    offset: float
-    axes: tuple[str, ...]
-    n: int
-
-
-@dataclass(frozen=True)
-class DeviceInfo:
-    name: str
-    driver: str
-    model: str
-    bus: str
-    identity: str
-    rate_hz: float
-    settings: dict[str, Any]
-    channels: dict[str, ChannelInfo]
-    #: rows every dataset of the device holds (the shortest one: see ``rows``)
-    n: int
-    has_counter: bool
-    #: rows per dataset; they differ only in a file cut off while a flush was
-    #: being written (a torn last block), and readers use the first ``n`` rows
-    rows: dict[str, int] = field(default_factory=dict)
-
-    @property
-    def torn(self) -> bool:
-        return any(r != self.n for r in self.rows.values())
-
-
-@dataclass(frozen=True)
-class Event:
-    t_ns: int
-    source: str
-    kind: str
-    lost: int
-    detail: str
-
-
-_DEVICE_CORE_ATTRS = {"driver", "model", "bus", "identity"}
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, bytes):
-        return value.decode()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-@dataclass
-class RunFile:
-    """An open run file (read-only). Use :func:`open_run`; close or use ``with``."""
-
-    path: str
-    h5: h5py.File
-    attrs: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def complete(self) -> bool:
-        """True when the capture closed cleanly (``ended_utc`` present)."""
-        return "ended_utc" in self.attrs
-
-    @property
-    def devices(self) -> dict[str, DeviceInfo]:
-        out = {}
-        for name, g in self.h5.get(DEVICES, {}).items():
-            attrs = {k: _plain(v) for k, v in g.attrs.items()}
-            channels = {}
-            for cname, ds in g.items():
-                if cname in (TIME, COUNTER):
-                    continue
-                axes = _plain(ds.attrs.get("axes", ""))
-                channels[cname] = ChannelInfo(
-                    name=cname,
-                    dtype=ds.dtype,
-                    units=_plain(ds.attrs.get("units", "")),
-                    scale=float(ds.attrs.get("scale", 1.0)),
-                    offset=float(ds.attrs.get("offset", 0.0)),
-                    axes=tuple(axes.split(",")) if axes else (),
-                    n=ds.shape[0],
-                )
-            settings = {k: v for k, v in attrs.items() if k not in _DEVICE_CORE_ATTRS}
-            out[name] = DeviceInfo(
-                name=name,
-                driver=attrs.get("driver", ""),
-                model=attrs.get("model", ""),
-                bus=attrs.get("bus", ""),
-                identity=str(attrs.get("identity", "")),
-                rate_hz=float(attrs.get("rate_hz", float("nan"))),
-                settings=settings,
-                channels=channels,
-                n=min((ds.shape[0] for ds in g.values()), default=0),
-                has_counter=COUNTER in g,
-                rows={k: ds.shape[0] for k, ds in g.items()},
-            )
-        return out
-
-    @property
-    def thermometers(self) -> list[str]:
-        return list(self.h5.get(THERMOMETERS, {}).keys())
-
-    def events(self) -> list[Event]:
-        if EVENTS not in self.h5:
-            return []
-        rows = self.h5[EVENTS][()]
-        return [
-            Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
-            for r in rows
-        ]
-
-    def dataset(self, device: str, name: str) -> h5py.Dataset:
-        try:
-            return self.h5[f"{DEVICES}/{device}/{name}"]
-        except KeyError:
-            raise RunFileError(f"{self.path}: no dataset {device}/{name}") from None
-
-    def rows(self, device: str) -> int:
-        """Rows every dataset of ``device`` holds (a torn last block is left out)."""
-        g = self.h5.get(f"{DEVICES}/{device}")
-        if g is None:
-            raise RunFileError(f"{self.path}: no device {device}")
-        return min((ds.shape[0] for ds in g.values()), default=0)
-
-    def read(self, device: str, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Raw rows ``start:stop`` of ``devices/<device>/<name>`` (at most :meth:`rows`)."""
-        n = self.rows(device)
-        return self.dataset(device, name)[start : n if stop is None else min(stop, n)]
-
-    def iter_chunks(self, device: str, name: str, rows: int = 1 << 22, stop: int | None = None) -> Iterator[np.ndarray]:
-        """Read a dataset in blocks of ``rows`` so memory stays bounded."""
-        ds = self.dataset(device, name)
-        n = self.rows(device) if stop is None else min(stop, self.rows(device))
-        for i in range(0, n, rows):
-            yield ds[i : min(i + rows, n)]
-
-    def temperatures(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """Thermometer ``name``: times (ns) and readings (degC), equal lengths."""
-        g = self.h5[f"{THERMOMETERS}/{name}"]
-        n = min(g[TIME].shape[0], g[CELSIUS].shape[0])
-        return g[TIME][:n], g[CELSIUS][:n]
-
-    def refresh(self) -> None:
-        """SWMR reader: see what the writer flushed since the file was opened (or last refreshed).
-
-        Refreshes every dataset's extent (devices, thermometers, events); a file
-        opened without SWMR is left as it is.
-        """
-        if not self.h5.swmr_mode:
-            return
-        for gname in (DEVICES, THERMOMETERS):
-            for g in self.h5.get(gname, {}).values():
-                for ds in g.values():
-                    ds.refresh()
-        if EVENTS in self.h5:
-            self.h5[EVENTS].refresh()
-
-    def close(self) -> None:
-        self.h5.close()
-
-    def __enter__(self) -> RunFile:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
-    """Open a run file read-only (also while it is being written).
-
-    ``live=True`` (a reader kept beside a running capture, e.g. the monitor):
-    SWMR read only, never the plain read-only fallback, which holds a shared
-    file lock that would keep the capture from marking the file complete.
-
-    Raises :class:`RunFileError` with a one-line reason for a missing file,
-    a file that is not HDF5, not an imustation run, or of an unknown version.
-    """
-    p = os.fspath(path)
-    if not os.path.exists(p):
-        raise RunFileError(f"{p}: no such file")
-    try:
-        # a live reader takes no file lock at all: even the short one HDF5 holds while
-        # opening could make the capture's final reopen (to set ended_utc) fail
-        h5 = h5py.File(p, "r", libver="latest", swmr=True, **({"locking": False} if live else {}))
-    except OSError as first:
-        if live:
-            raise RunFileError(f"{p}: not a readable SWMR run file ({first.__class__.__name__})") from None
-        try:  # a file written without SWMR (e.g. by another tool) still opens
-            h5 = h5py.File(p, "r")
-        except OSError as exc:
-            raise RunFileError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__})") from None
-    attrs = {k: _plain(v) for k, v in h5.attrs.items()}
-    fmt = attrs.get("format")
-    if fmt != FORMAT:
-        h5.close()
-        raise RunFileError(f"{p}: not an imustation run file (format attribute is {fmt!r})")
-    version = attrs.get("format_version")
-    if version != FORMAT_VERSION:
-        h5.close()
-        raise RunFileError(f"{p}: run-file format version {version} is not supported (this is v1)")
-    return RunFile(path=p, h5=h5, attrs=attrs)

@@ -1,0 +1,75 @@
+"""Run-file format, version 1: one HDF5 file per capture (``docs/runfile.md``).
+
+Raw integer counts are stored, never only converted floats: the conversion is
+kept as attributes (``value = raw * scale + offset``, SI units), so nothing is
+lost and files stay small.
+
+- :mod:`~imustation.runfile.schema`: the layout's names and :class:`DeviceSpec`;
+- :mod:`~imustation.runfile.writer`: :class:`RunWriter`, through which the
+  recorder (``imustation.acquisition``) writes;
+- :mod:`~imustation.runfile.reader`: :func:`open_run`, through which the
+  analysis, ``imustation inspect`` and the monitor read;
+- :mod:`~imustation.runfile.disk`: durable renames and the full-disk ballast.
+
+Nothing else touches the HDF5 layout. Every name is importable from
+``imustation.runfile`` itself; :class:`ChannelSpec` is defined in
+:mod:`imustation.channels` (drivers use it without the file format).
+"""
+
+from imustation.channels import ChannelSpec
+from imustation.runfile.reader import ChannelInfo, DeviceInfo, Event, RunFile, open_run
+from imustation.runfile.schema import (
+    CELSIUS,
+    COUNTER,
+    DEVICES,
+    EVENT_DTYPE,
+    EVENT_KINDS,
+    EVENTS,
+    FORMAT,
+    FORMAT_VERSION,
+    THERMOMETERS,
+    TIME,
+    DeviceSpec,
+    utc_now_iso,
+)
+from imustation.runfile.writer import (
+    BALLAST_SUFFIX,
+    CHUNK_ROWS,
+    CLOSE_RETRIES,
+    CLOSE_RETRY_S,
+    CREATING_SUFFIX,
+    DEFAULT_BALLAST_BYTES,
+    DEFAULT_MIN_FREE_BYTES,
+    H5_OPTS,
+    RunWriter,
+)
+
+__all__ = [
+    "BALLAST_SUFFIX",
+    "CELSIUS",
+    "CHUNK_ROWS",
+    "CLOSE_RETRIES",
+    "CLOSE_RETRY_S",
+    "COUNTER",
+    "CREATING_SUFFIX",
+    "DEFAULT_BALLAST_BYTES",
+    "DEFAULT_MIN_FREE_BYTES",
+    "DEVICES",
+    "EVENTS",
+    "EVENT_DTYPE",
+    "EVENT_KINDS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "H5_OPTS",
+    "THERMOMETERS",
+    "TIME",
+    "ChannelInfo",
+    "ChannelSpec",
+    "DeviceInfo",
+    "DeviceSpec",
+    "Event",
+    "RunFile",
+    "RunWriter",
+    "open_run",
+    "utc_now_iso",
+]
