@@ -15,7 +15,7 @@ from procs import wait_for_file
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.simworkers import _picklable, bus_groups, partition
+from imustation.acquisition.workers import _picklable, bus_groups, partition
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.errors import BusError, ChipIdMismatch, DeviceError, DiskFullError, InputError

@@ -9,10 +9,11 @@ import pytest
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.recorder import part_path
-from imustation.acquisition.station import DeviceState, Station
-from imustation.clock import MonotonicClock, VirtualClock
-from imustation.drivers.base import Block, DriverInfo
+from imustation.acquisition.recorder import part_path, run_file_device
+from imustation.acquisition.station import Station
+from imustation.acquisition.timeline import Timeline
+from imustation.clock import MonotonicClock
+from imustation.drivers.base import Block
 from imustation.runfile import RunWriter, open_run
 
 GYRO = {"driver": "bmx055", "rate_hz": 400, "bandwidth_hz": 47}
@@ -47,7 +48,12 @@ def test_threaded_readers_on_a_real_clock_lose_nothing(tmp_path, monkeypatch):
     station = Station(cfg, simulate=True, clock=MonotonicClock())
     specs = station.open()
     with RunWriter(
-        tmp_path / "rt.h5", station="t", config_text="", simulated=True, devices=specs, thermometers=["amb"]
+        tmp_path / "rt.h5",
+        station="t",
+        config_text="",
+        simulated=True,
+        devices=[run_file_device(d) for d in specs],
+        thermometers=["amb"],
     ) as writer:
         station.start(writer)
         # samples produced before recording started, less those still waiting in the FIFO
@@ -153,28 +159,16 @@ def test_same_seed_same_file_contents(tmp_path, monkeypatch):
         assert ra.events() == rb.events() and len(ra.events()) >= 2
 
 
-class _CounterDriver:
-    """Hands out scripted blocks (the station's counter logic under test)."""
-
-    def __init__(self, blocks):
-        self.blocks = list(blocks)
-
-    def read_block(self) -> Block:
-        return self.blocks.pop(0)
-
-
-class _ListSink:
-    def __init__(self):
-        self.events, self.rows = [], 0
-
-    def append(self, device, t_ns, channels, counter):
-        self.rows += len(t_ns)
-
-    def append_temperature(self, name, t_ns, celsius):
-        pass
-
-    def event(self, t_ns, source, kind, detail="", lost=0):
-        self.events.append((kind, lost, detail))
+def _place(timeline: Timeline, blocks, every_ns: int):
+    """Place ``blocks`` on ``timeline``, one read every ``every_ns``: (events as (kind, lost, detail), rows)."""
+    events, rows = [], 0
+    for i, block in enumerate(blocks, start=1):
+        placed = timeline.place(block, i * every_ns)
+        if placed.event is not None:
+            events.append((placed.event.kind, placed.event.lost, placed.event.detail))
+        if placed.t_ns is not None:
+            rows += len(placed.t_ns)
+    return events, rows
 
 
 def _counter_block(values):
@@ -191,34 +185,19 @@ def _counter_block(values):
     ],
 )
 def test_counter_jumps_are_logged_with_their_loss(blocks, modulus, expected):
-    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
-    station = Station(cfg, simulate=True, clock=VirtualClock())
-    settings = {"counter_modulus": modulus} if modulus else {}
-    info = DriverInfo("fake", "id", 100.0, settings, (), has_counter=True)
-    st = DeviceState(cfg.devices[0], _CounterDriver(_counter_block(b) for b in blocks), info, 1e7, 10**8)
-    station.devices["g"] = st
-    sink = _ListSink()
-    for _ in blocks:
-        station.clock.sleep(0.03)
-        station._poll_device(sink, st)
-    assert [(k, lost) for k, lost, _ in sink.events] == expected
-    assert st.lost == sum(lost for _, lost in expected)
-    assert sink.rows == sum(len(b) for b in blocks)
+    timeline = Timeline(1e7, modulus)  # 100 Hz
+    events, rows = _place(timeline, [_counter_block(b) for b in blocks], every_ns=30_000_000)
+    assert [(k, lost) for k, lost, _ in events] == expected
+    assert timeline.lost == sum(lost for _, lost in expected)
+    assert rows == sum(len(b) for b in blocks)
 
 
 def test_counter_going_back_is_a_resync_measured_from_time():
-    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
-    station = Station(cfg, simulate=True, clock=VirtualClock())
-    info = DriverInfo("fake", "id", 100.0, {}, (), has_counter=True)
-    blocks = [_counter_block(range(100, 110)), _counter_block(range(0, 10))]
-    st = DeviceState(cfg.devices[0], _CounterDriver(blocks), info, 1e7, 10**8)
-    station.devices["g"] = st
-    sink = _ListSink()
-    station.clock.sleep(0.1)
-    station._poll_device(sink, st)
-    station.clock.sleep(0.5)  # 50 periods later, 10 samples delivered: 40 lost
-    station._poll_device(sink, st)
-    assert [(k, lost) for k, lost, _ in sink.events] == [("resync", 40)]
+    timeline = Timeline(1e7)  # 100 Hz
+    timeline.place(_counter_block(range(100, 110)), 100_000_000)
+    # 50 periods later, 10 samples delivered: 40 lost
+    placed = timeline.place(_counter_block(range(0, 10)), 600_000_000)
+    assert (placed.event.kind, placed.event.lost) == ("resync", 40)
 
 
 def test_rotation_makes_complete_parts_with_continuous_times(tmp_path):
