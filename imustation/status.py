@@ -194,9 +194,10 @@ def device_status_from_run(run: RunFile, info: DeviceInfo, tally: EventTally, ro
     """A device of an open run file (``info``: ``run.devices[name]``): its first ``rows`` samples (default: all)
     and its events.
 
-    Rates: ``rate_hz`` = sample intervals per second between the first and the last
-    sample; ``rate_recent_hz`` the same over the last ``RATE_WINDOW_S`` of station
-    time (None with fewer than two samples). ``temp_c``: the last row of the
+    Rates: ``rate_hz`` = samples per second of the time they cover (:attr:`DeviceStatus.duration_s`),
+    so that with logged losses ``rate_hz / rate_cfg_hz`` = written / (written + lost);
+    ``rate_recent_hz``: sample intervals per second over the last ``RATE_WINDOW_S`` of
+    station time (None with fewer than two samples there). ``temp_c``: the last row of the
     ``temp`` channel (mean over its axes), converted. ``state`` is left "ok": only
     the reader knows whether the file still grows.
     """
@@ -215,8 +216,7 @@ def device_status_from_run(run: RunFile, info: DeviceInfo, tally: EventTally, ro
     recent = t[t >= t_last - int(RATE_WINDOW_S * 1e9)]
     if len(recent) > 1 and recent[-1] > recent[0]:
         d.rate_recent_hz = (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
-    if t_last > first:
-        d.rate_hz = (n - 1) / ((t_last - first) * 1e-9)
+    d.rate_hz = n / d.duration_s
     if "temp" in info.channels:
         ch = info.channels["temp"]
         d.temp_c = float(np.mean(run.read(name, "temp", n - 1, n))) * ch.scale + ch.offset
