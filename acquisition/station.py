@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -376,25 +377,12 @@ class Station:
 
     def _pollers(self) -> list[Poller]:
         """This process's devices and thermometers (not those a worker process polls), in config order."""
-
-        def device(st: DeviceState) -> Callable[[Sink], int]:
-            def poll(sink: Sink) -> int:
-                self._poll_device(sink, st)
-                return st.poll_ns
-
-            return poll
-
-        def thermometer(th: ThermometerState) -> Callable[[Sink], int]:
-            def poll(sink: Sink) -> int:
-                self._poll_thermometer(sink, th)
-                return th.period_ns
-
-            return poll
-
         return [
-            Poller(n, st.config.bus, st.poll_ns, device(st)) for n, st in self.devices.items() if st.driver is not None
+            Poller(n, st.config.bus, st.poll_ns, partial(self._poll_device, st=st))
+            for n, st in self.devices.items()
+            if st.driver is not None
         ] + [
-            Poller(n, th.config.bus, th.period_ns, thermometer(th))
+            Poller(n, th.config.bus, th.period_ns, partial(self._poll_thermometer, th=th))
             for n, th in self.thermometers.items()
             if th.driver is not None
         ]
@@ -422,7 +410,8 @@ class Station:
                 self._store(sink, st, block, st.last_poll_ns)
 
     # -- one poll ---------------------------------------------------------------------
-    def _poll_device(self, sink: Sink, st: DeviceState) -> None:
+    def _poll_device(self, sink: Sink, st: DeviceState) -> int:
+        """One read of a device (a failed one is re-opened first); returns the interval to its next poll, ns."""
         name = st.config.name
         clock = self.clock
         if st.failed:
@@ -430,7 +419,7 @@ class Station:
                 st.info = st.driver.open()
             except (BusError, DeviceError):
                 st.failed_attempts += 1
-                return
+                return st.poll_ns
             sink.event(
                 clock.now_ns() - self.t0,
                 name,
@@ -442,9 +431,11 @@ class Station:
         try:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:
-            return self._fault(sink, st, str(exc))
+            self._fault(sink, st, str(exc))
+            return st.poll_ns
         t_read = st.last_poll_ns = clock.now_ns() - self.t0
         self._store(sink, st, block, t_read)
+        return st.poll_ns
 
     def _store(self, sink: Sink, st: DeviceState, block: Block, t_read: int) -> None:
         """Log a block's loss and append its samples, dated by the device's timeline from ``t_read`` (ns)."""
@@ -469,8 +460,11 @@ class Station:
         st.failed_attempts = 0
         sink.event(self.clock.now_ns() - self.t0, st.config.name, "fault", why)
 
-    def _poll_thermometer(self, sink: Sink, th: ThermometerState) -> None:
-        """One reading; a failed reading is one lost reading, logged with the fault and the reconnect."""
+    def _poll_thermometer(self, sink: Sink, th: ThermometerState) -> int:
+        """One reading; a failed reading is one lost reading, logged with the fault and the reconnect.
+
+        Returns the interval to the next reading, ns.
+        """
         name = th.config.name
         now = self.clock.now_ns() - self.t0
         try:
@@ -492,11 +486,12 @@ class Station:
                 th.failed = True
                 sink.event(now, name, "fault", str(exc))
             th.failed_attempts += 1
-            return
+            return th.period_ns
         t = self.clock.now_ns() - self.t0
         sink.append_temperature(name, np.array([t], dtype=np.int64), np.array([celsius]))
         th.readings += 1
         th.celsius = celsius
+        return th.period_ns
 
     # -- status -------------------------------------------------------------------------
     def counts(self) -> tuple[dict[str, DeviceStatus], dict[str, ThermometerStatus]]:
