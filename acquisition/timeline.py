@@ -15,7 +15,10 @@ during a run"):
 * losses: counted by the chip (``Block.lost`` > 0), by the device's sample
   counter (jumps between consecutive samples, a wrap is no jump), or measured
   from time (``Block.lost`` < 0, after a fault, a counter that went back): the
-  samples the period fits since the newest sample, less those in the block.
+  samples the period fits since the samples already accounted for, less those
+  in the block. A loss is counted once: a block without samples that reports a
+  loss moves the accounted time on by the samples it counted, so the next one
+  counts from there, not again from the last sample read.
 """
 
 from __future__ import annotations
@@ -70,6 +73,8 @@ class Timeline:
         self.last_t_ns: int | None = None
         #: the device's counter at that sample (None: no counter, or it restarted)
         self.last_counter: int | None = None
+        #: station time up to which every sample is placed or counted lost, ns
+        self._accounted_ns = 0
         #: the device was re-opened: the next samples' loss is measured from time
         self._resync = False
         #: block length -> time offsets of its samples before the newest, ns (reused every read)
@@ -99,9 +104,10 @@ class Timeline:
                 lost, note = -1, "device counter went back (device restarted?): resync"
         if lost:
             if lost < 0:
-                # the chip cannot count them: samples expected since the last one, minus those read
-                last = self.last_t_ns if self.last_t_ns is not None else 0
-                lost = max(0, int(round((t_new - last) / self.period_ns)) - k)
+                # the chip cannot count them: samples expected since those accounted for, minus those read
+                lost = max(0, int(round((t_new - self._accounted_ns) / self.period_ns)) - k)
+            if k == 0:
+                self._accounted_ns += int(round(lost * self.period_ns))
             self.lost += lost
             self.gaps += 1
             low = note.lower()
@@ -111,7 +117,7 @@ class Timeline:
             return Placed(None, event)
         self.samples += k
         t = self._times(k, t_new)
-        self.last_t_ns = t_new
+        self.last_t_ns = self._accounted_ns = t_new
         if counter is not None:
             self.last_counter = int(counter[-1])
         return Placed(t, event)

@@ -12,9 +12,10 @@ from imustation.acquisition.config import parse_config
 from imustation.acquisition.recorder import part_path, run_file_device
 from imustation.acquisition.station import Station
 from imustation.acquisition.timeline import Timeline
-from imustation.clock import MonotonicClock
-from imustation.drivers.base import Block
-from imustation.runfile import RunWriter, open_run
+from imustation.clock import MonotonicClock, VirtualClock
+from imustation.drivers import DRIVERS
+from imustation.drivers.base import Block, DriverInfo
+from imustation.runfile import ChannelSpec, RunWriter, open_run
 
 GYRO = {"driver": "bmx055", "rate_hz": 400, "bandwidth_hz": 47}
 
@@ -229,3 +230,47 @@ def test_a_duration_that_is_a_whole_number_of_parts_makes_no_part_after_the_end(
     assert not os.path.exists(part_path(str(out), 4))
     with open_run(summary.paths[-1]) as run:
         assert run.complete and run.devices["g"].n == 10 * 400
+
+
+def _overrunning(clock: VirtualClock, start_s: float, stop_s: float):
+    """A 100 Hz device (polled every 0.1 s) whose FIFO overflows at every read in [start_s, stop_s) of the
+    clock: such a read drops what the FIFO holds and returns no samples and an unknown loss, as the
+    InvenSense driver does after an overflow. Registered in place of a driver class."""
+
+    class Overrunning:
+        bus_kind = "i2c"
+
+        def __init__(self, regs, settings, sleep):
+            self.produced = 0
+
+        def open(self) -> DriverInfo:
+            gyro = ChannelSpec("gyro", "int16", "rad/s", 1e-3, 0.0, ("x", "y", "z"))
+            return DriverInfo("scripted", "id", 100.0, {}, (gyro,), poll_interval_s=0.1)
+
+        def read_block(self) -> Block:
+            now = clock.now_ns()
+            due = now // 10_000_000  # samples made since the clock's start
+            n, self.produced = due - self.produced, due
+            if start_s * 1e9 <= now < stop_s * 1e9:
+                return Block({"gyro": np.zeros((0, 3), np.int16)}, lost=-1, note="FIFO overrun; FIFO reset")
+            return Block({"gyro": np.zeros((n, 3), np.int16)})
+
+        def close(self) -> None:
+            pass
+
+    return Overrunning
+
+
+def test_an_overrun_at_every_poll_counts_each_lost_sample_once(tmp_path, monkeypatch):
+    """Ten empty overrun reads in a row (1.1 s .. 2.0 s) lose 10 samples each, not 10, 20, ... 100 (issue 25)."""
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    clock = VirtualClock()
+    monkeypatch.setitem(DRIVERS, "bmx055", _overrunning(clock, 1.05, 2.05))
+    out = tmp_path / "o.h5"
+    summary = capture(cfg, out, 5.0, simulate=True, clock=clock)
+    with open_run(out) as run:
+        events = [e for e in run.events() if e.source == "g"]
+        n = run.devices["g"].n
+    assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 10
+    # written + logged losses = the samples of 5 s at 100 Hz, exactly
+    assert n + sum(e.lost for e in events) == 500 == summary.samples["g"] + summary.lost["g"]
