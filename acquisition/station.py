@@ -97,9 +97,9 @@ class DeviceState:
             samples=tl.samples,
             gaps=tl.gaps,
             lost=tl.lost,
-            faults=self.faults,
+            faults=self.faults + tl.stalls,
             temp_c=finite(self.temp_c),
-            state="failed" if self.failed else "ok",
+            state="failed" if self.failed else "stalled" if tl.stalled else "ok",
         )
 
 
@@ -427,7 +427,7 @@ class Station:
                 f"device re-initialised with the same settings after {st.failed_attempts} failed attempt(s)",
             )
             st.failed, st.failed_attempts = False, 0
-            st.timeline.restart()
+            st.timeline.restart(clock.now_ns() - self.t0)
         try:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:

@@ -19,6 +19,10 @@ during a run"):
   in the block. A loss is counted once: a block without samples that reports a
   loss moves the accounted time on by the samples it counted, so the next one
   counts from there, not again from the last sample read.
+* a device that answers every poll but delivers no samples for ``SILENCE_S``
+  (a FIFO that never fills or never drains, every read an overrun) is reported
+  once, as a fault, and is ``stalled``: its empty reads count nothing more; when
+  samples come back, what it lost meanwhile is measured from time, once.
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ from imustation.drivers.base import Block
 _MAX_CACHED_OFFSETS = 512
 #: number of first counter jumps of a block quoted in the event text
 _QUOTED_JUMPS = 3
+#: station seconds without a sample after which a device that still answers is reported stalled
+SILENCE_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -60,9 +66,10 @@ class Timeline:
     period_ns : the device's output period, ns.
     counter_modulus : the value at which the device's sample counter wraps
         (e.g. 65536 for a u16 counter), or None/0 when it does not.
+    silence_s : station seconds without samples after which the device is stalled.
     """
 
-    def __init__(self, period_ns: float, counter_modulus: int | None = None):
+    def __init__(self, period_ns: float, counter_modulus: int | None = None, silence_s: float = SILENCE_S):
         self.period_ns = float(period_ns)
         self.counter_modulus = int(counter_modulus) if counter_modulus else 0
         #: samples placed, samples lost, loss events
@@ -75,19 +82,49 @@ class Timeline:
         self.last_counter: int | None = None
         #: station time up to which every sample is placed or counted lost, ns
         self._accounted_ns = 0
+        self.silence_ns = int(round(silence_s * 1e9))
+        #: no samples for ``silence_s`` although the device answers (reported once per stall)
+        self.stalled = False
+        self.stalls = 0
+        #: station time of the last read that delivered samples (or of the start, a re-open), ns
+        self._data_ns = 0
+        #: reads that reported a loss without samples since then
+        self._empty_losses = 0
         #: the device was re-opened: the next samples' loss is measured from time
         self._resync = False
         #: block length -> time offsets of its samples before the newest, ns (reused every read)
         self._offsets: dict[int, np.ndarray] = {}
 
-    def restart(self) -> None:
-        """The device was re-opened after a fault: what it lost meanwhile is measured at its next samples."""
+    def restart(self, t_ns: int) -> None:
+        """The device was re-opened after a fault at ``t_ns`` (ns): what it lost meanwhile is measured at its
+        next samples; a stall it was in ends (a new one is reported after another ``silence_s``)."""
         self._resync = True
+        self.stalled = False
+        self._data_ns = t_ns
+        self._empty_losses = 0
 
     def place(self, block: Block, t_read: int) -> Placed:
         """Date ``block``'s samples (newest at ``t_read``, ns of station time, less its age) and account its loss."""
         k = block.n
         lost, note = block.lost, block.note
+        if k == 0:
+            if self.stalled:
+                return Placed(None, None)  # counted when samples return
+            self._empty_losses += bool(lost)
+            silent_ns = t_read - self._data_ns
+            if silent_ns >= self.silence_ns:
+                self.stalled = True
+                self.stalls += 1
+                losses = f", {self._empty_losses} of its reads reporting lost samples" if self._empty_losses else ""
+                detail = (
+                    f"no samples for {silent_ns / 1e9:.1f} s although the device answers{losses}: stalled; "
+                    "what it loses is counted when samples return"
+                )
+                return Placed(None, TimelineEvent("fault", detail))
+        elif self.stalled:
+            self.stalled = False
+            again = f"samples again after {(t_read - self._data_ns) / 1e9:.1f} s without any"
+            lost, note = -1, f"{again}; {note}" if note else again
         if self._resync and not lost:
             if k == 0:
                 return Placed(None, None)  # measure the loss at the first samples (a driver may be holding them)
@@ -118,6 +155,7 @@ class Timeline:
         self.samples += k
         t = self._times(k, t_new)
         self.last_t_ns = self._accounted_ns = t_new
+        self._data_ns, self._empty_losses = t_read, 0
         if counter is not None:
             self.last_counter = int(counter[-1])
         return Placed(t, event)

@@ -50,7 +50,9 @@ class DeviceStatus:
     ``rate_hz``: samples per second achieved over the run (Hz); ``rate_recent_hz``:
     over a recent window (None where not measured); ``rate_cfg_hz``: configured.
     ``gaps``: loss events; ``lost``: samples they lost; ``faults``: bus/device
-    faults; ``temp_c``: the device's last temperature (degC) or None.
+    faults (a stall included); ``temp_c``: the device's last temperature (degC) or None.
+    ``state``: "ok"; "failed" while it is re-opened after a fault; "stalled" while it
+    answers without delivering samples (live only; a run file's reader sets its own).
     From a run file only: ``events`` (all events of the device) and the times of
     its first and last sample (``first_t_s``, ``last_t_s``, s since the start).
     """

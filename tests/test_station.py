@@ -274,3 +274,35 @@ def test_an_overrun_at_every_poll_counts_each_lost_sample_once(tmp_path, monkeyp
     assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 10
     # written + logged losses = the samples of 5 s at 100 Hz, exactly
     assert n + sum(e.lost for e in events) == 500 == summary.samples["g"] + summary.lost["g"]
+
+
+def _overrun_capture(tmp_path, monkeypatch, stop_s: float, duration_s: float):
+    """The overrunning device of ``_overrunning`` from 1.05 s to ``stop_s``: (its events, rows, last status)."""
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    clock = VirtualClock()
+    monkeypatch.setitem(DRIVERS, "bmx055", _overrunning(clock, 1.05, stop_s))
+    statuses = []
+    out = tmp_path / "s.h5"
+    capture(cfg, out, duration_s, simulate=True, clock=clock, on_status=statuses.append)
+    with open_run(out) as run:
+        return [e for e in run.events() if e.source == "g"], run.devices["g"].n, statuses[-1]["devices"]["g"]
+
+
+def test_a_device_that_never_delivers_again_is_one_fault_not_a_growing_loss(tmp_path, monkeypatch):
+    """Overruns at every read from 1.1 s to the end: 10 s after the last samples (read at 1.0 s) one fault,
+    and the device is stalled: nothing more is counted (issue 25)."""
+    events, n, final = _overrun_capture(tmp_path, monkeypatch, stop_s=1e9, duration_s=60.0)
+    assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 99 + [("fault", 0)]
+    assert events[-1].t_ns == 11_000_000_000 and "no samples for 10.0 s" in events[-1].detail
+    assert n == 100
+    assert final["state"] == "stalled" and final["faults"] == 1 and final["lost"] == 990
+
+
+def test_a_stalled_device_that_delivers_again_counts_its_loss_once(tmp_path, monkeypatch):
+    """Overruns from 1.1 s to 15.0 s: the fault at 11 s, then samples again at 15.1 s with the loss since the
+    last one counted (10.9 s .. 15.1 s, less the 10 samples read) in one gap; written + lost is exact."""
+    events, n, final = _overrun_capture(tmp_path, monkeypatch, stop_s=15.05, duration_s=20.0)
+    assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 99 + [("fault", 0), ("gap", 410)]
+    assert events[-1].t_ns == 15_100_000_000 and "samples again after 14.1 s" in events[-1].detail
+    assert n + sum(e.lost for e in events) == 20 * 100
+    assert final["state"] == "ok" and final["faults"] == 1 and final["gaps"] == 100

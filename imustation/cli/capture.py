@@ -32,7 +32,7 @@ def format_status(status: dict) -> str:
     for name, d in status["devices"].items():
         rate = d["rate_recent_hz"] if d.get("rate_recent_hz") is not None else d["rate_hz"]
         temp = f" {d['temp_c']:.1f}C" if d.get("temp_c") is not None else ""
-        state = " FAILED" if d["state"] != "ok" else ""
+        state = f" {d['state'].upper()}" if d["state"] != "ok" else ""
         parts.append(
             f"{name}: {d['samples']} @ {rate:.1f}/{d['rate_cfg_hz']:g} Hz gaps {d['gaps']}"
             + (f" (-{d['lost']})" if d["lost"] else "")
