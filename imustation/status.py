@@ -93,7 +93,7 @@ class ThermometerStatus:
     faults: int = 0
     celsius: float | None = None
     state: str = "ok"
-    first_t_s: float | None = None
+    #: time of the last reading (s since the start; from a run file only)
     last_t_s: float | None = None
 
 
@@ -230,8 +230,7 @@ def thermometer_status(name: str, t_s: np.ndarray, celsius: np.ndarray, tally: E
     s = tally.of(name)
     th = ThermometerStatus(readings=len(t_s), lost=s.lost_any, faults=s.faults)
     if len(t_s):
-        th.celsius = float(celsius[-1])
-        th.first_t_s, th.last_t_s = float(t_s[0]), float(t_s[-1])
+        th.celsius, th.last_t_s = float(celsius[-1]), float(t_s[-1])
     return th
 
 
