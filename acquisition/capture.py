@@ -16,11 +16,12 @@ from collections.abc import Callable
 from typing import Any
 
 from imustation.acquisition.config import StationConfig
+from imustation.acquisition.modes import check_options
 from imustation.acquisition.recorder import Recorder
-from imustation.acquisition.station import SIM_LEVELS, STATUS_INTERVAL_S, CaptureSummary, Station
+from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
 from imustation.clock import Clock
 from imustation.drivers.bus.trace import Trace, TraceWriter
-from imustation.errors import DiskFullError, InputError
+from imustation.errors import DiskFullError
 from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
 
 #: opens every part file of a model-level simulated capture
@@ -78,7 +79,7 @@ def capture(
     replay : answer every driver from this trace instead of a bus (virtual clock);
         the drivers must ask exactly what they asked when it was recorded.
     workers : simulation on the virtual clock only: processes to poll the bus
-        groups in (see :mod:`~imustation.acquisition.simworkers`); 1 = this one.
+        groups in (see :mod:`~imustation.acquisition.workers`); 1 = this one.
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
@@ -98,23 +99,15 @@ def capture(
         ballast_bytes=ballast_bytes,
         note=MODEL_LEVEL_NOTE if simulate and sim_level == "model" else "",
     )
-    if trace is not None and replay is not None:
-        raise InputError("--trace and --replay exclude each other")
-    if workers > 1 and rotate_s is not None:
-        raise InputError(
-            f"--workers {workers} with --rotate: parts would not end at their times for every process; use --workers 1"
-        )
-    # worker processes and the model level both need a simulation on its own virtual clock
-    virtual_sim = simulate and clock is None and trace is None and replay is None
-    if workers > 1 and not virtual_sim:
-        raise InputError(
-            f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "
-            "uses worker processes (a real capture has a reader thread per bus)"
-        )
-    if sim_level not in SIM_LEVELS:
-        raise InputError(f"--sim-level {sim_level!r}: {' or '.join(SIM_LEVELS)}")
-    if sim_level == "model" and not virtual_sim:
-        raise InputError("--sim-level model: only a simulated capture on its virtual clock, without --trace/--replay")
+    check_options(
+        simulate=simulate,
+        sim_level=sim_level,
+        workers=workers,
+        virtual_clock=clock is None,  # an imposed clock is a test's
+        trace=trace is not None,
+        replay=replay is not None,
+        rotate=rotate_s is not None,
+    )
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()
     try:

@@ -81,8 +81,8 @@ class ModelStream:
 
     Parameters
     ----------
-    spec : what the driver reported for the simulated chip (a ``DriverInfo`` or the
-        run file's ``DeviceSpec``): ``channels``, ``rate_hz`` (Hz), ``settings``, ``has_counter``.
+    spec : what the driver reported for the simulated chip (its ``DriverInfo``):
+        ``channels``, ``rate_hz`` (Hz), ``settings``, ``has_counter``.
     dev : the device's config entry (``name``, ``driver``, ``sim``).
     station_seed : the config's ``station.seed``.
     """

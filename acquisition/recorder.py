@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from imustation.acquisition.station import OpenedDevice
 from imustation.errors import RunFileError
 from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
 
@@ -63,6 +64,23 @@ class OutputLock:
             pass
         os.close(self._fd)
         self._fd = None
+
+
+def run_file_device(dev: OpenedDevice) -> DeviceSpec:
+    """The run file's description of an opened device: its config name, driver and bus, and what
+    its driver reported (model, identity, rate, settings, channels, counter). Made here only."""
+    cfg, info = dev.config, dev.info
+    return DeviceSpec(
+        name=cfg.name,
+        driver=cfg.driver,
+        model=info.model,
+        bus=cfg.bus + (f"@0x{cfg.address:02X}" if cfg.address is not None else ""),
+        identity=info.identity,
+        rate_hz=info.rate_hz,
+        settings=info.settings,
+        channels=info.channels,
+        has_counter=info.has_counter,
+    )
 
 
 def part_path(output: str, part: int) -> str:
@@ -122,8 +140,9 @@ class Recorder:
                     self.lock.release()
                     raise RunFileError(f"{p}: file exists; choose another name or --overwrite")
 
-    def start(self, devices: Sequence[DeviceSpec], thermometers: Sequence[str]) -> None:
-        self.devices = list(devices)
+    def start(self, devices: Sequence[OpenedDevice], thermometers: Sequence[str]) -> None:
+        """Create the first part for the opened ``devices`` and the ``thermometers`` (names)."""
+        self.devices = [run_file_device(d) for d in devices]
         self.thermometers = list(thermometers)
         self.started_utc = utc_now_iso()
         self.run_id = uuid.uuid4().hex if self.rotate_s else ""

@@ -1,99 +1,111 @@
-"""The station: opens every configured device and thermometer and polls them.
+"""The station: opens every configured device and thermometer, and runs the capture loop.
 
-Two schedulers share one per-device poll routine (:meth:`Station._poll_device`,
-:meth:`Station._poll_thermometer`):
+Opening: each device's driver identifies and configures its chip (on a real or a
+simulated bus) and reports it (:class:`OpenedDevice`); the run file's device
+description is made from that report (:func:`~imustation.acquisition.recorder.run_file_device`).
 
-* **virtual clock** (simulation): one thread and one event queue (a heap of due
-  times) for every device; sleeping only advances the clock, so hours are
-  recorded in seconds, and the same seed gives the same file contents.
-* **real clock**: one reader thread per bus URL (the devices of one I2C adapter
-  share the thread, hence the bus; other buses run in parallel, so a slow bus
-  cannot starve another) and the calling thread as the single writer that owns
-  the HDF5 file (h5py is not thread-safe): readers hand their blocks and events
-  over a queue.
-
-Every device is polled at its own interval (about 40 % of its FIFO depth),
-every thermometer at its ``rate_hz``. Times are ns since the start of the run
-on the station clock. Losses are logged as events with their sample count:
-FIFO overruns and resyncs (measured from time), counter jumps (from the device
-counter), missed thermometer readings.
+Running: every device is polled at its own interval (about 40 % of its FIFO
+depth), every thermometer at its ``rate_hz``, by one of the two schedulers of
+:mod:`~imustation.acquisition.scheduler` (a virtual-clock event queue in
+simulations and replays, a reader thread per bus on the real clock). Times are
+ns since the start of the run on the station clock. Each device's
+:class:`~imustation.acquisition.timeline.Timeline` dates its samples and
+accounts its losses, which are logged as events with their sample count (FIFO
+overruns and resyncs measured from time, counter jumps from the device
+counter); a device that stops answering is logged once as a fault and re-opened
+at its polls until it answers; missed thermometer readings are logged at the
+reconnect. With worker processes (:mod:`~imustation.acquisition.workers`) the
+bus groups of other processes are opened and polled there, and this station
+writes what they send.
 """
 
 from __future__ import annotations
 
-import heapq
-import queue
-import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from functools import partial
+from typing import Any
 
 import numpy as np
 
-from imustation.acquisition import simworkers
 from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
+from imustation.acquisition.modes import check_options
+from imustation.acquisition.scheduler import Poller, run_threaded, run_virtual
+from imustation.acquisition.sinks import Sink, tick_of
+from imustation.acquisition.timeline import Timeline
+from imustation.acquisition.workers import WorkerPool, bus_groups, partition
 from imustation.clock import Clock, MonotonicClock, VirtualClock
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS, DriverInfo
 from imustation.drivers.base import Block
 from imustation.drivers.bus.trace import Trace, TraceWriter
 from imustation.errors import BusError, DeviceError, DiskFullError
-from imustation.runfile import DeviceSpec
+from imustation.status import DeviceStatus, ThermometerStatus, capture_status, finite
 
 #: wall seconds between status reports (default)
 STATUS_INTERVAL_S = 1.0
-#: how long the writer thread waits for a block before doing its periodic work, s
-WRITER_WAKEUP_S = 0.05
-#: distinct block lengths whose sample-time offsets a device keeps
-_MAX_CACHED_OFFSETS = 512
-#: number of first counter jumps of a block quoted in the event text
-_QUOTED_JUMPS = 3
-#: with worker processes: how often the main process takes in their data (wall s), and how far
-#: (station time) it may run ahead of the slowest
-WORKER_PUMP_S = 0.02
-WORKER_LEAD_NS = 10_000_000_000
 
 
-#: simulation levels (``capture --simulate --sim-level``): chip simulators behind the bus code,
-#: or devices at the noise-model level (:mod:`~imustation.acquisition.modelsim`)
-SIM_LEVELS = ("bus", "model")
+@dataclass(frozen=True)
+class OpenedDevice:
+    """A device as the station opened it: its config entry and its driver's report of the chip."""
 
+    config: DeviceConfig
+    info: DriverInfo
 
-class Sink(Protocol):
-    """Where polled data go: the run-file recorder, or a queue to it."""
-
-    def append(self, device: str, t_ns: np.ndarray, channels: Mapping[str, np.ndarray], counter) -> None: ...
-
-    def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None: ...
-
-    def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None: ...
+    @property
+    def name(self) -> str:
+        return self.config.name
 
 
 @dataclass
 class DeviceState:
+    """A device of the capture: polled by this process (``driver``), or by a worker process (``driver`` None)."""
+
     config: DeviceConfig
     driver: Any
     info: DriverInfo
-    period_ns: float
-    poll_ns: int = 0
-    samples: int = 0
-    lost: int = 0
-    gaps: int = 0
+    #: poll interval, ns
+    poll_ns: int
+    timeline: Timeline
     faults: int = 0
-    last_t_ns: int | None = None
-    last_counter: int | None = None
     temp_c: float = float("nan")
     failed: bool = False
-    #: after a fault: the next block's loss is measured from time
-    resync: bool = False
     failed_attempts: int = 0
     #: samples seen in the current status window (for the recent rate)
     window_samples: int = 0
-    #: block length -> time offsets of its samples before the newest, ns (reused every poll)
-    offsets: dict[int, np.ndarray] = field(default_factory=dict)
     #: station time of the last poll, ns (what a driver's ``drain`` dates its samples from)
     last_poll_ns: int = 0
+
+    @property
+    def samples(self) -> int:
+        return self.timeline.samples
+
+    @property
+    def lost(self) -> int:
+        return self.timeline.lost
+
+    @property
+    def gaps(self) -> int:
+        return self.timeline.gaps
+
+    def counts(self) -> DeviceStatus:
+        tl = self.timeline
+        return DeviceStatus(
+            rate_cfg_hz=self.info.rate_hz,
+            samples=tl.samples,
+            gaps=tl.gaps,
+            lost=tl.lost,
+            faults=self.faults + tl.stalls,
+            temp_c=finite(self.temp_c),
+            state="failed" if self.failed else "stalled" if tl.stalled else "ok",
+        )
+
+
+def _device_state(config: DeviceConfig, driver: Any, info: DriverInfo) -> DeviceState:
+    timeline = Timeline(1e9 / info.rate_hz, info.settings.get("counter_modulus"))
+    return DeviceState(config, driver, info, int(info.poll_interval_s * 1e9), timeline)
 
 
 @dataclass
@@ -108,6 +120,15 @@ class ThermometerState:
     celsius: float = float("nan")
     failed: bool = False
     failed_attempts: int = 0
+
+    def counts(self) -> ThermometerStatus:
+        return ThermometerStatus(
+            readings=self.readings,
+            lost=self.lost,
+            faults=self.faults,
+            celsius=finite(self.celsius),
+            state="failed" if self.failed else "ok",
+        )
 
 
 @dataclass
@@ -125,34 +146,6 @@ class CaptureSummary:
     paths: list[str] = field(default_factory=list)
 
 
-class _QueueSink:
-    """A reader thread's sink: hands everything to the writer thread."""
-
-    def __init__(self, q: queue.SimpleQueue):
-        self._put = q.put
-
-    def append(self, device, t_ns, channels, counter) -> None:
-        self._put(("append", device, t_ns, channels, counter))
-
-    def append_temperature(self, name, t_ns, celsius) -> None:
-        self._put(("temperature", name, t_ns, celsius))
-
-    def event(self, t_ns, source, kind, detail="", lost=0) -> None:
-        self._put(("event", t_ns, source, kind, detail, lost))
-
-
-def _dispatch(recorder: Sink, item: tuple) -> None:
-    kind = item[0]
-    if kind == "append":
-        recorder.append(*item[1:])
-    elif kind == "temperature":
-        recorder.append_temperature(*item[1:])
-    elif kind == "event":
-        recorder.event(*item[1:])
-    elif kind == "error":
-        raise item[1]
-
-
 class Station:
     """Devices and thermometers of a config, opened on real or simulated buses.
 
@@ -163,6 +156,11 @@ class Station:
     clock : override the clock (tests); default virtual when simulating,
         monotonic otherwise. A virtual clock selects the single-threaded event
         queue, any other clock the threaded readers.
+    trace, replay : record every bus transaction / answer the drivers from a trace.
+    workers : processes a simulated capture may poll its bus groups in.
+    sim_level : ``"bus"`` (chip simulators behind the real bus code) or ``"model"``
+        (devices polled at the noise-model level, :mod:`~imustation.acquisition.modelsim`).
+        :func:`~imustation.acquisition.modes.check_options` says what combines.
     """
 
     def __init__(
@@ -178,21 +176,19 @@ class Station:
     ):
         self.config = config
         self.simulate = simulate
-        if workers < 1:
-            raise ValueError(f"workers = {workers}: at least 1")
-        if sim_level not in SIM_LEVELS:
-            raise ValueError(f"sim_level = {sim_level!r}: {' or '.join(SIM_LEVELS)}")
-        if sim_level == "model" and (not simulate or trace is not None or replay is not None):
-            raise ValueError("sim_level = 'model' needs a simulated capture without trace or replay")
-        #: "bus": chip simulators behind the real bus code; "model": devices polled at the
-        #: noise-model level (:mod:`~imustation.acquisition.modelsim`)
-        self.sim_level = sim_level
-        #: processes a simulated capture may use (bus groups polled in worker processes)
-        self.workers = workers
-        self._workers: list[Any] = []
-        self._trace, self._replay = trace, replay
         # a replayed trace, like a simulation, runs on a virtual clock
         self.clock: Clock = clock or (VirtualClock() if simulate or replay else MonotonicClock())
+        check_options(
+            simulate=simulate,
+            sim_level=sim_level,
+            workers=workers,
+            virtual_clock=self.virtual,
+            trace=trace is not None,
+            replay=replay is not None,
+        )
+        self.sim_level = sim_level
+        self.workers = workers
+        self._pool: WorkerPool | None = None
         self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed, trace=trace, replay=replay)
         self.devices: dict[str, DeviceState] = {}
         self.thermometers: dict[str, ThermometerState] = {}
@@ -200,80 +196,69 @@ class Station:
         self._started = False
         self._wall0 = time.monotonic()
         self._window_wall = self._wall0
+        self._on_status: Callable[[dict[str, Any]], None] | None = None
+        self._recorder: Any = None
+        self._duration_s = 0.0
 
     @property
     def virtual(self) -> bool:
         return bool(getattr(self.clock, "virtual", False))
 
-    def open(self) -> list[DeviceSpec]:
-        """Identify and configure every device and thermometer; return the devices' run-file descriptions.
+    def elapsed_ns(self) -> int:
+        """Station time since the start of the recording, ns."""
+        return self.clock.now_ns() - self.t0
 
-        With ``workers`` > 1 on a virtual clock, the bus groups other than this
-        process's share are opened (and later polled) by worker processes.
+    # -- opening ------------------------------------------------------------------------
+    def open(self) -> list[OpenedDevice]:
+        """Identify and configure every device and thermometer; return the devices as opened, in config order.
+
+        With ``workers`` > 1 the bus groups other than this process's share are
+        opened (and later polled) by worker processes.
         """
         local = None
-        if self.workers > 1 and len(simworkers.bus_groups(self.config)) > 1:
-            if not self.virtual or self._trace is not None or self._replay is not None:
-                raise ValueError("workers > 1 needs a simulated capture without trace or replay")
-            shares = simworkers.partition(self.config, self.workers, self.sim_level)
+        if self.workers > 1 and len(bus_groups(self.config)) > 1:
+            shares = partition(self.config, self.workers, self.sim_level)
             local = set(shares[0])
-            self._workers = [
-                simworkers.Worker(simworkers.subset(self.config, share), i, self.sim_level)
-                for i, share in enumerate(shares[1:], 1)
-            ]
-        specs = {}
+            self._pool = WorkerPool(self.config, shares[1:], self.sim_level, type(self))
+        opened: dict[str, OpenedDevice] = {}
         for dev in self.config.devices:
-            if local is not None and dev.name not in local:
-                continue
-            driver_cls = DRIVERS[dev.driver]
-            regs = self.buses.register_device(dev)
-            driver = driver_cls(regs, dev.settings, sleep=self.clock.sleep)
-            info = driver.open()
-            if self.sim_level == "model":
-                from imustation.acquisition.modelsim import ModelDevice
-
-                # the driver has identified and configured its chip simulator: its report stands,
-                # the samples come from the noise model
-                driver.close()
-                driver = ModelDevice(dev, info, self.clock, self.config.seed, self.config.path)
-                info = driver.open()
-            st = DeviceState(dev, driver, info, 1e9 / info.rate_hz, int(info.poll_interval_s * 1e9))
-            self.devices[dev.name] = st
-            specs[dev.name] = DeviceSpec(
-                name=dev.name,
-                driver=dev.driver,
-                model=info.model,
-                bus=dev.bus + (f"@0x{dev.address:02X}" if dev.address is not None else ""),
-                identity=info.identity,
-                rate_hz=info.rate_hz,
-                settings=info.settings,
-                channels=info.channels,
-                has_counter=info.has_counter,
-            )
+            if local is None or dev.name in local:
+                driver, info = self._open_device(dev)
+                self.devices[dev.name] = _device_state(dev, driver, info)
+                opened[dev.name] = OpenedDevice(dev, info)
         for th in self.config.thermometers:
-            if local is not None and th.name not in local:
-                continue
-            driver_cls = THERMOMETER_DRIVERS[th.driver]
-            regs = self.buses.register_thermometer(th)
-            driver = driver_cls(regs, th.settings, sleep=self.clock.sleep)
-            identity = driver.open()
-            period = int(round(1e9 / float(th.settings.get("rate_hz", 1.0))))
-            self.thermometers[th.name] = ThermometerState(th, driver, str(identity), period)
-        for w in self._workers:
-            w_specs, infos, thermos = w.opened()
-            for spec in w_specs:
-                specs[spec.name] = spec
-            for dev in w.config.devices:
-                info = infos[dev.name]
-                poll = int(info.poll_interval_s * 1e9)
-                self.devices[dev.name] = DeviceState(dev, None, info, 1e9 / info.rate_hz, poll)
-            for th in w.config.thermometers:
-                identity, period = thermos[th.name]
-                self.thermometers[th.name] = ThermometerState(th, None, identity, period)
+            if local is None or th.name in local:
+                regs = self.buses.register_thermometer(th)
+                driver = THERMOMETER_DRIVERS[th.driver](regs, th.settings, sleep=self.clock.sleep)
+                identity = driver.open()
+                period = int(round(1e9 / float(th.settings.get("rate_hz", 1.0))))
+                self.thermometers[th.name] = ThermometerState(th, driver, str(identity), period)
+        if self._pool is not None:
+            by_name = {d.name: d for d in (*self.config.devices, *self.config.thermometers)}
+            for _, devices, thermos in self._pool.opened():
+                for od in devices:
+                    self.devices[od.name] = _device_state(by_name[od.name], None, od.info)
+                    opened[od.name] = od
+                for name, (identity, period) in thermos.items():
+                    self.thermometers[name] = ThermometerState(by_name[name], None, identity, period)
         # config order, whichever process polls them
         self.devices = {d.name: self.devices[d.name] for d in self.config.devices}
         self.thermometers = {t.name: self.thermometers[t.name] for t in self.config.thermometers}
-        return [specs[d.name] for d in self.config.devices]
+        return [opened[d.name] for d in self.config.devices]
+
+    def _open_device(self, dev: DeviceConfig) -> tuple[Any, DriverInfo]:
+        driver = DRIVERS[dev.driver](self.buses.register_device(dev), dev.settings, sleep=self.clock.sleep)
+        info = driver.open()
+        if self.sim_level == "model":
+            # imported here: the noise sources load for a model-level simulation only
+            from imustation.acquisition.modelsim import ModelDevice
+
+            # the driver has identified and configured its chip simulator: its report stands,
+            # the samples come from the noise model
+            driver.close()
+            driver = ModelDevice(dev, info, self.clock, self.config.seed, self.config.path)
+            info = driver.open()
+        return driver, info
 
     def close(self) -> None:
         for obj in [*self.devices.values(), *self.thermometers.values()]:
@@ -284,13 +269,10 @@ class Station:
             except Exception:  # noqa: BLE001 - closing must not mask the capture's outcome
                 pass
         self.buses.close()
-        for w in self._workers:
-            try:
-                w.close()
-            except Exception:  # noqa: BLE001 - closing must not mask the capture's outcome
-                pass
+        if self._pool is not None:
+            self._pool.close()
 
-    # -- scheduling ---------------------------------------------------------------
+    # -- the run loop -------------------------------------------------------------------
     def run(
         self,
         recorder: Any,
@@ -320,16 +302,37 @@ class Station:
         self._recorder = recorder
         end = self.t0 + int(round(duration_s * 1e9))
         reason = ""
-        for w in self._workers:
-            w.start(duration_s, pace)
+        pool = self._pool
+        if pool is not None:
+            pool.start(duration_s, pace)
+        tick = tick_of(recorder)
+        pollers = self._pollers()
         try:
             if self.virtual:
-                reason = self._run_virtual(recorder, end, should_stop, pace)
+                hook = pool.keep_pace(recorder, tick, should_stop) if pool is not None else tick
+                reason = run_virtual(
+                    self.clock,
+                    pollers,
+                    recorder,
+                    t0=self.t0,
+                    end=end,
+                    between=self._between(hook),
+                    should_stop=should_stop,
+                    pace=pace,
+                )
             else:
-                reason = self._run_threaded(recorder, end, should_stop)
+                reason = run_threaded(
+                    self.clock,
+                    pollers,
+                    recorder,
+                    t0=self.t0,
+                    end=end,
+                    between=self._between(tick),
+                    should_stop=should_stop,
+                )
             self._drain(recorder)
-            if self._workers:
-                reason = self._finish_workers(recorder, should_stop, reason)
+            if pool is not None:
+                reason = pool.finish(recorder, should_stop, reason, tick, self._status_if_due)
         except DiskFullError as exc:
             reason = f"disk full: {exc}"
             raise
@@ -360,216 +363,39 @@ class Station:
         self.t0 = self.clock.now_ns()
 
     def summary(self, reason: str = "") -> CaptureSummary:
+        devices, thermometers = self.counts()
         return CaptureSummary(
-            duration_s=(self.clock.now_ns() - self.t0) / 1e9,
-            samples={n: s.samples for n, s in self.devices.items()},
-            lost={n: s.lost for n, s in self.devices.items()},
-            gaps={n: s.gaps for n, s in self.devices.items()},
+            duration_s=self.elapsed_ns() / 1e9,
+            samples={n: d.samples for n, d in devices.items()},
+            lost={n: d.lost for n, d in devices.items()},
+            gaps={n: d.gaps for n, d in devices.items()},
             wall_s=time.monotonic() - self._wall0,
             stopped_early=bool(reason),
-            readings={n: s.readings for n, s in self.thermometers.items()},
+            readings={n: t.readings for n, t in thermometers.items()},
             stop_reason=reason,
         )
 
-    def _pollers(self, names: list[tuple[str, str]]) -> list[tuple[int, int, str, str]]:
-        """Initial heap entries ``(due, seq, kind, name)`` for devices and thermometers."""
-        heap = []
-        for seq, (kind, name) in enumerate(names):
-            interval = self.devices[name].poll_ns if kind == "device" else self.thermometers[name].period_ns
-            heap.append((self.t0 + interval, seq, kind, name))
-        heapq.heapify(heap)
-        return heap
-
-    def _all_pollers(self) -> list[tuple[str, str]]:
-        """This process's devices and thermometers (not those a worker process polls)."""
-        return [("device", n) for n, st in self.devices.items() if st.driver is not None] + [
-            ("thermometer", n) for n, th in self.thermometers.items() if th.driver is not None
+    def _pollers(self) -> list[Poller]:
+        """This process's devices and thermometers (not those a worker process polls), in config order."""
+        return [
+            Poller(n, st.config.bus, st.poll_ns, partial(self._poll_device, st=st))
+            for n, st in self.devices.items()
+            if st.driver is not None
+        ] + [
+            Poller(n, th.config.bus, th.period_ns, partial(self._poll_thermometer, th=th))
+            for n, th in self.thermometers.items()
+            if th.driver is not None
         ]
 
-    def _poll(self, sink: Sink, kind: str, name: str) -> int:
-        """Poll one device or thermometer; return its poll interval, ns."""
-        if kind == "device":
-            st = self.devices[name]
-            self._poll_device(sink, st)
-            return st.poll_ns
-        th = self.thermometers[name]
-        self._poll_thermometer(sink, th)
-        return th.period_ns
+    def _between(self, tick: Callable[[int], None] | None) -> Callable[[int], None]:
+        """What runs between polls: the recorder's (or the worker pool's) hook, then the status when due."""
 
-    def _run_virtual(self, recorder: Any, end: int, should_stop: Callable[[], bool], pace: float | None) -> str:
-        clock = self.clock
-        heap = self._pollers(self._all_pollers())
-        tick = _ticker(recorder)
-        if self._workers:
-            tick = self._pumping(recorder, tick, should_stop)
-        heappop, heappush = heapq.heappop, heapq.heappush
-        wall0 = time.monotonic()
-        while heap:
-            due, seq, kind, name = heappop(heap)
-            if due > end:
-                break
-            if should_stop():
-                return "stopped by signal"
-            now = clock.now_ns()
-            if due > now:
-                clock.advance_to(due)  # type: ignore[attr-defined]
-            if pace is not None:
-                ahead = (due - self.t0) / 1e9 / pace - (time.monotonic() - wall0)
-                if ahead > 0:
-                    time.sleep(ahead)
-            interval = self._poll(recorder, kind, name)
-            heappush(heap, (due + interval, seq, kind, name))
-            if tick is not None:
-                tick(clock.now_ns() - self.t0)
-            if self._on_status is not None and time.monotonic() >= self._next_status:
-                self._emit_status()
-        if clock.now_ns() < end:
-            clock.advance_to(end)  # type: ignore[attr-defined]
-        return ""
-
-    # -- worker processes (simulated captures on several cores) ---------------------------
-    def _pump(self, recorder: Any, timeout: float = 0.0) -> bool:
-        """Write what the workers sent; True if anything came."""
-        got = False
-        for w in self._workers:
-            got |= w.pump(lambda item: _dispatch(recorder, item), self._mirror, timeout)
-        return got
-
-    def _mirror(self, counts: dict[str, dict[str, tuple]]) -> None:
-        for name, (samples, lost, gaps, faults, temp_c, failed) in counts["devices"].items():
-            st = self.devices[name]
-            st.samples, st.lost, st.gaps, st.faults, st.temp_c, st.failed = samples, lost, gaps, faults, temp_c, failed
-        for name, (readings, lost, faults, celsius, failed) in counts["thermometers"].items():
-            th = self.thermometers[name]
-            th.readings, th.lost, th.faults, th.celsius, th.failed = readings, lost, faults, celsius, failed
-
-    def _workers_t_ns(self) -> int | None:
-        """Station time every running worker has reached (None: all done)."""
-        running = [w.t_ns for w in self._workers if not w.done]
-        return min(running) if running else None
-
-    def _pumping(self, recorder: Any, tick: Callable[[int], None] | None, should_stop: Callable[[], bool]):
-        """The virtual loop's between-polls hook with workers: take in their data, stay in step with them.
-
-        This process runs at most ``WORKER_LEAD_NS`` of station time ahead of the
-        slowest worker, so the data of all processes reach the file together
-        (bounded memory, coherent status).
-        """
-        next_pump = 0.0
-
-        def hook(t_ns: int) -> None:
-            nonlocal next_pump
-            now = time.monotonic()
-            if now >= next_pump:
-                self._pump(recorder)
-                next_pump = now + WORKER_PUMP_S
-            behind = self._workers_t_ns()
-            while behind is not None and t_ns > behind + WORKER_LEAD_NS and not should_stop():
-                self._pump(recorder, timeout=WORKER_PUMP_S)
-                behind = self._workers_t_ns()
+        def between(t_ns: int) -> None:
             if tick is not None:
                 tick(t_ns)
+            self._status_if_due()
 
-        return hook
-
-    def _finish_workers(self, recorder: Any, should_stop: Callable[[], bool], reason: str) -> str:
-        """After this process's share: stop the workers if stopping, and write what they still send."""
-        stopping = bool(reason)
-        if stopping:
-            for w in self._workers:
-                w.stop()
-        tick = _ticker(recorder)
-        while not all(w.done for w in self._workers):
-            if not stopping and should_stop():
-                stopping, reason = True, "stopped by signal"
-                for w in self._workers:
-                    w.stop()
-            for w in self._workers:
-                if w.overdue():
-                    w.done, w.reason = True, "stopped"
-                    recorder.event(
-                        self._workers_t_ns() or 0,
-                        "station",
-                        "note",
-                        f"simulation worker for {', '.join(w.names)} did not stop in time: killed",
-                    )
-            self._pump(recorder, timeout=WORKER_PUMP_S)
-            behind = self._workers_t_ns()
-            if tick is not None and behind is not None:
-                tick(behind)
-            if self._on_status is not None and time.monotonic() >= self._next_status:
-                self._emit_status()
-        return reason or next((w.reason for w in self._workers if w.reason), "")
-
-    def _run_threaded(self, recorder: Any, end: int, should_stop: Callable[[], bool]) -> str:
-        q: queue.SimpleQueue = queue.SimpleQueue()
-        stop = threading.Event()
-        groups: dict[str, list[tuple[str, str]]] = {}
-        for kind, name in self._all_pollers():
-            cfg = self.devices[name].config if kind == "device" else self.thermometers[name].config
-            groups.setdefault(cfg.bus, []).append((kind, name))
-        threads = [
-            threading.Thread(
-                target=self._reader, args=(pollers, _QueueSink(q), end, stop), name=f"reader {bus}", daemon=True
-            )
-            for bus, pollers in groups.items()
-        ]
-        for th in threads:
-            th.start()
-        tick = _ticker(recorder)
-        reason = ""
-        try:
-            while True:
-                try:
-                    item = q.get(timeout=WRITER_WAKEUP_S)
-                except queue.Empty:
-                    item = None
-                while item is not None:
-                    _dispatch(recorder, item)
-                    try:
-                        item = q.get_nowait()
-                    except queue.Empty:
-                        item = None
-                now = self.clock.now_ns()
-                if tick is not None:
-                    tick(now - self.t0)
-                if self._on_status is not None and time.monotonic() >= self._next_status:
-                    self._emit_status()
-                if should_stop():
-                    reason = "stopped by signal"
-                    break
-                if now >= end and not any(th.is_alive() for th in threads):
-                    break
-        finally:
-            stop.set()
-            for th in threads:
-                th.join()
-        # the readers are gone: hand over what they left in the queue
-        while True:
-            try:
-                _dispatch(recorder, q.get_nowait())
-            except queue.Empty:
-                break
-        return reason
-
-    def _reader(self, pollers: list[tuple[str, str]], sink: _QueueSink, end: int, stop: threading.Event) -> None:
-        """One bus: poll its devices and thermometers at their intervals until ``end`` or ``stop``."""
-        try:
-            heap = self._pollers(pollers)
-            clock = self.clock
-            while heap and not stop.is_set():
-                due, seq, kind, name = heap[0]
-                if due > end:
-                    return
-                wait = (due - clock.now_ns()) / 1e9
-                if wait > 0 and stop.wait(wait):
-                    return
-                heapq.heappop(heap)
-                interval = self._poll(sink, kind, name)
-                # a late poll is not made up for: the next one is one interval later
-                heapq.heappush(heap, (max(due + interval, clock.now_ns()), seq, kind, name))
-        except BaseException as exc:  # noqa: BLE001 - a bug in a reader must stop the capture, not vanish
-            sink._put(("error", exc))
+        return between
 
     def _drain(self, sink: Sink) -> None:
         """Hand the samples drivers still hold to ``sink``, dated from each device's last poll."""
@@ -584,7 +410,8 @@ class Station:
                 self._store(sink, st, block, st.last_poll_ns)
 
     # -- one poll ---------------------------------------------------------------------
-    def _poll_device(self, sink: Sink, st: DeviceState) -> None:
+    def _poll_device(self, sink: Sink, st: DeviceState) -> int:
+        """One read of a device (a failed one is re-opened first); returns the interval to its next poll, ns."""
         name = st.config.name
         clock = self.clock
         if st.failed:
@@ -592,104 +419,39 @@ class Station:
                 st.info = st.driver.open()
             except (BusError, DeviceError):
                 st.failed_attempts += 1
-                return
+                return st.poll_ns
             sink.event(
                 clock.now_ns() - self.t0,
                 name,
                 "reconnect",
                 f"device re-initialised with the same settings after {st.failed_attempts} failed attempt(s)",
             )
-            st.failed, st.failed_attempts, st.resync = False, 0, True
+            st.failed, st.failed_attempts = False, 0
+            st.timeline.restart(clock.now_ns() - self.t0)
         try:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:
-            return self._fault(sink, st, str(exc))
+            self._fault(sink, st, str(exc))
+            return st.poll_ns
         t_read = st.last_poll_ns = clock.now_ns() - self.t0
         self._store(sink, st, block, t_read)
+        return st.poll_ns
 
     def _store(self, sink: Sink, st: DeviceState, block: Block, t_read: int) -> None:
-        """Log a block's losses and append its samples, the newest dated ``t_read`` (ns) less its age."""
+        """Log a block's loss and append its samples, dated by the device's timeline from ``t_read`` (ns)."""
         name = st.config.name
-        k = block.n
-        if st.resync and not block.lost:
-            if k == 0:
-                return  # measure the loss at the first samples (a driver may be holding them)
-            block.lost, block.note = -1, "samples lost while the device was failing"
-            st.last_counter = None  # the device restarted its counter
-        st.resync = False
-        # the newest sample's time: the read, less the periods it was held
-        t_new = t_read - int(round(block.age * st.period_ns))
-        counter = block.counter
-        if counter is not None and k and not block.lost and self._check_counter(sink, st, counter, t_read):
-            block.lost, block.note = -1, "device counter went back (device restarted?): resync"
-        if block.lost:
-            lost = block.lost
-            if lost < 0:
-                # the chip cannot count them: samples expected since the last one, minus those read
-                last = st.last_t_ns if st.last_t_ns is not None else 0
-                lost = max(0, int(round((t_new - last) / st.period_ns)) - k)
-            st.lost += lost
-            st.gaps += 1
-            note = block.note.lower()
-            kind = "overrun" if "overrun" in note else "resync" if "resync" in note else "gap"
-            sink.event(t_read, name, kind, block.note or "samples lost", lost=lost)
-        if k == 0:
+        placed = st.timeline.place(block, t_read)
+        ev = placed.event
+        if ev is not None:
+            sink.event(t_read, name, ev.kind, ev.detail, lost=ev.lost)
+        if placed.t_ns is None:
             return
-        # sample times: the last sample is the newest (at read time unless held), spaced by the ODR
-        offsets = st.offsets.get(k)
-        if offsets is None:
-            offsets = (np.arange(k - 1, -1, -1, dtype=np.float64) * st.period_ns).round().astype(np.int64)
-            if len(st.offsets) < _MAX_CACHED_OFFSETS:
-                st.offsets[k] = offsets
-        t = t_new - offsets
-        last = st.last_t_ns
-        if last is not None and t[0] <= last:
-            # the host read late last time (or early now): the block holds more samples than
-            # the ODR fits in the time since the last read; spread them evenly over that time
-            # so sample times stay strictly increasing and still end at this read
-            t = last + ((t_new - last) * np.arange(1, k + 1, dtype=np.float64) / k).astype(np.int64)
-        sink.append(name, t, block.channels, counter)
-        st.samples += k
-        st.window_samples += k
-        st.last_t_ns = t_new
-        if counter is not None:
-            st.last_counter = int(counter[-1])
+        sink.append(name, placed.t_ns, block.channels, block.counter)
+        st.window_samples += block.n
         temp = block.channels.get("temp")
         if temp is not None:
-            spec = _channel(st.info, "temp")
+            spec = next(c for c in st.info.channels if c.name == "temp")
             st.temp_c = float(temp[-1]) * spec.scale + spec.offset
-
-    def _check_counter(self, sink: Sink, st: DeviceState, counter: np.ndarray, t_read: int) -> bool:
-        """Counter jumps within a block and since the last one: log the samples they skipped.
-
-        The counter counts output samples; a driver whose counter wraps gives
-        ``counter_modulus`` in its settings (e.g. 65536 for a u16 counter).
-        Returns True when the counter went back (the device restarted): the
-        caller then measures the block's loss from time instead.
-        """
-        c = np.asarray(counter, dtype=np.int64)
-        if st.last_counter is not None:
-            c = np.concatenate(([st.last_counter], c))
-        if len(c) < 2:
-            return False
-        steps = np.diff(c)
-        modulus = st.info.settings.get("counter_modulus")
-        if modulus:
-            steps %= int(modulus)
-        bad = np.flatnonzero(steps != 1)
-        if not len(bad):
-            return False
-        back = steps[bad] <= 0
-        if back.any():
-            return True
-        jumps = steps[bad]
-        if len(jumps):
-            lost = int(np.sum(jumps - 1))
-            where = ", ".join(f"{c[i]}->{c[i + 1]}" for i in bad[:_QUOTED_JUMPS])
-            st.lost += lost
-            st.gaps += 1
-            sink.event(t_read, st.config.name, "gap", f"counter jump {where}", lost=lost)
-        return False
 
     def _fault(self, sink: Sink, st: DeviceState, why: str) -> None:
         """Log a device fault once; the device is re-opened at its next polls until it answers."""
@@ -698,8 +460,11 @@ class Station:
         st.failed_attempts = 0
         sink.event(self.clock.now_ns() - self.t0, st.config.name, "fault", why)
 
-    def _poll_thermometer(self, sink: Sink, th: ThermometerState) -> None:
-        """One reading; a failed reading is one lost reading, logged with the fault and the reconnect."""
+    def _poll_thermometer(self, sink: Sink, th: ThermometerState) -> int:
+        """One reading; a failed reading is one lost reading, logged with the fault and the reconnect.
+
+        Returns the interval to the next reading, ns.
+        """
         name = th.config.name
         now = self.clock.now_ns() - self.t0
         try:
@@ -721,87 +486,61 @@ class Station:
                 th.failed = True
                 sink.event(now, name, "fault", str(exc))
             th.failed_attempts += 1
-            return
+            return th.period_ns
         t = self.clock.now_ns() - self.t0
         sink.append_temperature(name, np.array([t], dtype=np.int64), np.array([celsius]))
         th.readings += 1
         th.celsius = celsius
+        return th.period_ns
 
     # -- status -------------------------------------------------------------------------
-    def _emit_status(self) -> None:
-        assert self._on_status is not None
-        self._on_status(self.status())
-        self._next_status = time.monotonic() + self._status_interval
+    def counts(self) -> tuple[dict[str, DeviceStatus], dict[str, ThermometerStatus]]:
+        """Every device's and thermometer's counts (those a worker polls as it last sent them)."""
+        remote_dev = self._pool.devices if self._pool is not None else {}
+        remote_th = self._pool.thermometers if self._pool is not None else {}
+        devices = {}
+        for name, st in self.devices.items():
+            if st.driver is not None:
+                devices[name] = st.counts()
+            else:
+                devices[name] = remote_dev.get(name) or DeviceStatus(rate_cfg_hz=st.info.rate_hz)
+        thermometers = {}
+        for name, th in self.thermometers.items():
+            if th.driver is not None:
+                thermometers[name] = th.counts()
+            else:
+                thermometers[name] = remote_th.get(name) or ThermometerStatus()
+        return devices, thermometers
+
+    def _status_if_due(self) -> None:
+        if self._on_status is not None and time.monotonic() >= self._next_status:
+            self._on_status(self.status())
+            self._next_status = time.monotonic() + self._status_interval
 
     def status(self, *, final: bool = False, reason: str = "") -> dict[str, Any]:
-        """The live status (see docs/capture.md for the JSON keys)."""
-        own_s = (self.clock.now_ns() - self.t0) / 1e9  # this process's station time
-        behind = self._workers_t_ns() if self._workers else None
+        """The live status document (:func:`imustation.status.capture_status`; docs/capture.md)."""
+        own_s = self.elapsed_ns() / 1e9  # this process's station time
+        behind = self._pool.t_ns() if self._pool is not None else None
         elapsed = own_s if behind is None else min(own_s, behind / 1e9)
         wall_now = time.monotonic()
-        wall = wall_now - self._wall0
         window = wall_now - self._window_wall
-        duration = self._duration_s
-        speed = elapsed / wall if wall > 0 else None
+        station_s = self._pool.station_s() if self._pool is not None else {}  # each worker's station time
+        counts, thermometers = self.counts()
         devices = {}
-        own = {n: w.t_ns / 1e9 for w in self._workers for n in w.names}  # each worker's station time
         for name, st in self.devices.items():
-            recent = None
-            if window > 0 and not self.virtual:
-                recent = st.window_samples / window
+            # a simulation's wall-clock rate says nothing about the device
+            recent = None if self.virtual else st.window_samples
             st.window_samples = 0
-            t_dev = own.get(name, own_s)
-            devices[name] = {
-                "state": "failed" if st.failed else "ok",
-                "samples": st.samples,
-                "rate_hz": st.samples / t_dev if t_dev > 0 else 0.0,
-                "rate_recent_hz": recent,
-                "rate_cfg_hz": st.info.rate_hz,
-                "gaps": st.gaps,
-                "lost": st.lost,
-                "faults": st.faults,
-                "temp_c": _finite(st.temp_c),
-            }
+            devices[name] = counts[name].live(station_s.get(name, own_s), recent, window)
         self._window_wall = wall_now
-        status = {
-            "format": "imustation-status",
-            "version": 1,
-            "state": ("stopped" if reason else "done") if final else "recording",
-            "reason": reason,
-            "elapsed_s": elapsed,
-            "duration_s": duration,
-            "remaining_s": max(0.0, duration - elapsed),
-            "wall_s": wall,
-            "speed": speed,
-            "devices": devices,
-            "thermometers": {
-                name: {
-                    "state": "failed" if th.failed else "ok",
-                    "readings": th.readings,
-                    "lost": th.lost,
-                    "faults": th.faults,
-                    "celsius": _finite(th.celsius),
-                }
-                for name, th in self.thermometers.items()
-            },
-        }
         file_status = getattr(self._recorder, "status", None)
-        if callable(file_status):
-            status.update(file_status())
-        return status
-
-
-def _ticker(recorder: Any) -> Callable[[int], None] | None:
-    """The recorder's between-polls hook: ``tick(t_ns)``, or a plain writer's ``flush_if_due``."""
-    tick = getattr(recorder, "tick", None)
-    if tick is None and hasattr(recorder, "flush_if_due"):
-        return lambda t_ns: recorder.flush_if_due()
-    return tick
-
-
-def _channel(info: DriverInfo, name: str):
-    return next(c for c in info.channels if c.name == name)
-
-
-def _finite(x: float) -> float | None:
-    return x if x == x and abs(x) != float("inf") else None
+        return capture_status(
+            devices,
+            thermometers,
+            state=("stopped" if reason else "done") if final else "recording",
+            reason=reason,
+            elapsed_s=elapsed,
+            duration_s=self._duration_s,
+            wall_s=wall_now - self._wall0,
+            file=file_status() if callable(file_status) else None,
+        )

@@ -30,6 +30,7 @@ import numpy as np
 
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.modelsim import ModelStream
+from imustation.acquisition.recorder import run_file_device
 from imustation.acquisition.station import Station
 from imustation.clock import VirtualClock
 from imustation.drivers.sim import make_thermometer_simulator, station_device_seed
@@ -62,12 +63,11 @@ def synthesize(
     """
     station = Station(config, simulate=True)
     try:
-        specs = station.open()  # the drivers' own specs of the simulated chips
+        opened = station.open()  # the drivers' own reports of the simulated chips
         thermo_cfg = list(config.thermometers)
     finally:
         station.close()
-    by_name = {d.name: d for d in config.devices}
-    streams = [ModelStream(s, by_name[s.name], config.seed) for s in specs]
+    streams = {d.name: ModelStream(d.info, d.config, config.seed) for d in opened}
     ambients = []
     for th in thermo_cfg:
         sim, _ = make_thermometer_simulator(
@@ -81,7 +81,7 @@ def synthesize(
         station=config.name,
         config_text=config.text,
         simulated=True,
-        devices=specs,
+        devices=[run_file_device(d) for d in opened],
         thermometers=[a[0] for a in ambients],
         flush_interval_s=config.flush_interval_s,
         overwrite=overwrite,
@@ -96,11 +96,11 @@ def synthesize(
         t = 0.0
         while t < duration_s:
             t_end = min(duration_s, t + BLOCK_S)
-            for st in streams:
+            for name, st in streams.items():
                 n = int(math.floor(t_end * st.spec.rate_hz + 1e-9)) - st.n
                 if n > 0:
                     t_ns, chans, counter = st.block(n)
-                    writer.append(st.spec.name, t_ns, chans, counter)
+                    writer.append(name, t_ns, chans, counter)
             for name, rate, ambient, res in ambients:
                 k0 = summary.readings.get(name, 0)
                 k1 = int(math.floor(t_end * rate + 1e-9))
@@ -113,5 +113,5 @@ def synthesize(
             t = t_end
             if progress is not None:
                 progress(t / duration_s)
-    summary.samples = {st.spec.name: st.n for st in streams}
+    summary.samples = {name: st.n for name, st in streams.items()}
     return summary

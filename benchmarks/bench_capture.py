@@ -33,8 +33,8 @@ from _common import best_of
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.simworkers import bus_groups, default_workers
 from imustation.acquisition.synthesize import synthesize
+from imustation.acquisition.workers import bus_groups, default_workers
 from imustation.configs import config_path
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate

@@ -8,6 +8,7 @@ from click.testing import CliRunner
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.config import parse_config
+from imustation.acquisition.recorder import run_file_device
 from imustation.acquisition.station import Station
 from imustation.cli import cli
 from imustation.configs import config_path
@@ -26,7 +27,7 @@ def _record(cfg, path, seconds: float, **kw):
             station=cfg.name,
             config_text="",
             simulated=True,
-            devices=specs,
+            devices=[run_file_device(d) for d in specs],
             thermometers=list(station.thermometers),
         ) as writer:
             summary = station.run(writer, seconds)
@@ -267,7 +268,7 @@ def test_every_part_of_a_rotated_model_level_capture_names_the_level(tmp_path):
 
 
 def test_the_cli_offers_the_station_levels():
-    from imustation.acquisition.station import SIM_LEVELS
+    from imustation.acquisition.modes import SIM_LEVELS
     from imustation.cli.capture import capture as command
 
     (option,) = [p for p in command.params if p.name == "sim_level"]

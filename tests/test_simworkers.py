@@ -5,7 +5,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
@@ -15,7 +14,7 @@ from procs import wait_for_file
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.simworkers import _picklable, bus_groups, partition
+from imustation.acquisition.workers import _picklable, bus_groups, partition
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.errors import BusError, ChipIdMismatch, DeviceError, DiskFullError, InputError
@@ -84,12 +83,25 @@ def test_a_worker_device_that_cannot_open_stops_the_capture_with_its_error(tmp_p
 
 
 def test_sigterm_stops_every_process_and_finishes_the_file(tmp_path):
-    timer = threading.Timer(4.0, os.kill, (os.getpid(), signal.SIGTERM))
-    timer.start()
-    try:
-        summary = capture(two_buses(), tmp_path / "s.h5", 3600.0, simulate=True, workers=2, pace=20.0)
-    finally:
-        timer.cancel()
+    sent = []
+
+    def on_status(status):
+        # SIGTERM once both processes have recorded (a timer would race the workers' start on a loaded machine)
+        if not sent and all(d["samples"] > 0 for d in status["devices"].values()):
+            sent.append(status)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    summary = capture(
+        two_buses(),
+        tmp_path / "s.h5",
+        3600.0,
+        simulate=True,
+        workers=2,
+        pace=20.0,
+        on_status=on_status,
+        status_interval_s=0.05,
+    )
+    assert sent
     assert summary.stop_reason == "stopped by signal SIGTERM"
     with open_run(tmp_path / "s.h5") as run:
         assert run.complete

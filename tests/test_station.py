@@ -9,10 +9,12 @@ import pytest
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.recorder import part_path
-from imustation.acquisition.station import DeviceState, Station
-from imustation.channels import DriverInfo
+from imustation.acquisition.recorder import part_path, run_file_device
+from imustation.acquisition.station import Station
+from imustation.acquisition.timeline import Timeline
+from imustation.channels import ChannelSpec, DriverInfo
 from imustation.clock import MonotonicClock, VirtualClock
+from imustation.drivers import DRIVERS
 from imustation.drivers.base import Block
 from imustation.runfile import RunWriter, open_run
 
@@ -48,7 +50,12 @@ def test_threaded_readers_on_a_real_clock_lose_nothing(tmp_path, monkeypatch):
     station = Station(cfg, simulate=True, clock=MonotonicClock())
     specs = station.open()
     with RunWriter(
-        tmp_path / "rt.h5", station="t", config_text="", simulated=True, devices=specs, thermometers=["amb"]
+        tmp_path / "rt.h5",
+        station="t",
+        config_text="",
+        simulated=True,
+        devices=[run_file_device(d) for d in specs],
+        thermometers=["amb"],
     ) as writer:
         station.start(writer)
         # samples produced before recording started, less those still waiting in the FIFO
@@ -154,28 +161,16 @@ def test_same_seed_same_file_contents(tmp_path, monkeypatch):
         assert ra.events() == rb.events() and len(ra.events()) >= 2
 
 
-class _CounterDriver:
-    """Hands out scripted blocks (the station's counter logic under test)."""
-
-    def __init__(self, blocks):
-        self.blocks = list(blocks)
-
-    def read_block(self) -> Block:
-        return self.blocks.pop(0)
-
-
-class _ListSink:
-    def __init__(self):
-        self.events, self.rows = [], 0
-
-    def append(self, device, t_ns, channels, counter):
-        self.rows += len(t_ns)
-
-    def append_temperature(self, name, t_ns, celsius):
-        pass
-
-    def event(self, t_ns, source, kind, detail="", lost=0):
-        self.events.append((kind, lost, detail))
+def _place(timeline: Timeline, blocks, every_ns: int):
+    """Place ``blocks`` on ``timeline``, one read every ``every_ns``: (events as (kind, lost, detail), rows)."""
+    events, rows = [], 0
+    for i, block in enumerate(blocks, start=1):
+        placed = timeline.place(block, i * every_ns)
+        if placed.event is not None:
+            events.append((placed.event.kind, placed.event.lost, placed.event.detail))
+        if placed.t_ns is not None:
+            rows += len(placed.t_ns)
+    return events, rows
 
 
 def _counter_block(values):
@@ -192,34 +187,19 @@ def _counter_block(values):
     ],
 )
 def test_counter_jumps_are_logged_with_their_loss(blocks, modulus, expected):
-    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
-    station = Station(cfg, simulate=True, clock=VirtualClock())
-    settings = {"counter_modulus": modulus} if modulus else {}
-    info = DriverInfo("fake", "id", 100.0, settings, (), has_counter=True)
-    st = DeviceState(cfg.devices[0], _CounterDriver(_counter_block(b) for b in blocks), info, 1e7, 10**8)
-    station.devices["g"] = st
-    sink = _ListSink()
-    for _ in blocks:
-        station.clock.sleep(0.03)
-        station._poll_device(sink, st)
-    assert [(k, lost) for k, lost, _ in sink.events] == expected
-    assert st.lost == sum(lost for _, lost in expected)
-    assert sink.rows == sum(len(b) for b in blocks)
+    timeline = Timeline(1e7, modulus)  # 100 Hz
+    events, rows = _place(timeline, [_counter_block(b) for b in blocks], every_ns=30_000_000)
+    assert [(k, lost) for k, lost, _ in events] == expected
+    assert timeline.lost == sum(lost for _, lost in expected)
+    assert rows == sum(len(b) for b in blocks)
 
 
 def test_counter_going_back_is_a_resync_measured_from_time():
-    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
-    station = Station(cfg, simulate=True, clock=VirtualClock())
-    info = DriverInfo("fake", "id", 100.0, {}, (), has_counter=True)
-    blocks = [_counter_block(range(100, 110)), _counter_block(range(0, 10))]
-    st = DeviceState(cfg.devices[0], _CounterDriver(blocks), info, 1e7, 10**8)
-    station.devices["g"] = st
-    sink = _ListSink()
-    station.clock.sleep(0.1)
-    station._poll_device(sink, st)
-    station.clock.sleep(0.5)  # 50 periods later, 10 samples delivered: 40 lost
-    station._poll_device(sink, st)
-    assert [(k, lost) for k, lost, _ in sink.events] == [("resync", 40)]
+    timeline = Timeline(1e7)  # 100 Hz
+    timeline.place(_counter_block(range(100, 110)), 100_000_000)
+    # 50 periods later, 10 samples delivered: 40 lost
+    placed = timeline.place(_counter_block(range(0, 10)), 600_000_000)
+    assert (placed.event.kind, placed.event.lost) == ("resync", 40)
 
 
 def test_rotation_makes_complete_parts_with_continuous_times(tmp_path):
@@ -251,3 +231,79 @@ def test_a_duration_that_is_a_whole_number_of_parts_makes_no_part_after_the_end(
     assert not os.path.exists(part_path(str(out), 4))
     with open_run(summary.paths[-1]) as run:
         assert run.complete and run.devices["g"].n == 10 * 400
+
+
+def _overrunning(clock: VirtualClock, start_s: float, stop_s: float):
+    """A 100 Hz device (polled every 0.1 s) whose FIFO overflows at every read in [start_s, stop_s) of the
+    clock: such a read drops what the FIFO holds and returns no samples and an unknown loss, as the
+    InvenSense driver does after an overflow. Registered in place of a driver class."""
+
+    class Overrunning:
+        bus_kind = "i2c"
+
+        def __init__(self, regs, settings, sleep):
+            self.produced = 0
+
+        def open(self) -> DriverInfo:
+            gyro = ChannelSpec("gyro", "int16", "rad/s", 1e-3, 0.0, ("x", "y", "z"))
+            return DriverInfo("scripted", "id", 100.0, {}, (gyro,), poll_interval_s=0.1)
+
+        def read_block(self) -> Block:
+            now = clock.now_ns()
+            due = now // 10_000_000  # samples made since the clock's start
+            n, self.produced = due - self.produced, due
+            if start_s * 1e9 <= now < stop_s * 1e9:
+                return Block({"gyro": np.zeros((0, 3), np.int16)}, lost=-1, note="FIFO overrun; FIFO reset")
+            return Block({"gyro": np.zeros((n, 3), np.int16)})
+
+        def close(self) -> None:
+            pass
+
+    return Overrunning
+
+
+def test_an_overrun_at_every_poll_counts_each_lost_sample_once(tmp_path, monkeypatch):
+    """Ten empty overrun reads in a row (1.1 s .. 2.0 s) lose 10 samples each, not 10, 20, ... 100 (issue 25)."""
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    clock = VirtualClock()
+    monkeypatch.setitem(DRIVERS, "bmx055", _overrunning(clock, 1.05, 2.05))
+    out = tmp_path / "o.h5"
+    summary = capture(cfg, out, 5.0, simulate=True, clock=clock)
+    with open_run(out) as run:
+        events = [e for e in run.events() if e.source == "g"]
+        n = run.devices["g"].n
+    assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 10
+    # written + logged losses = the samples of 5 s at 100 Hz, exactly
+    assert n + sum(e.lost for e in events) == 500 == summary.samples["g"] + summary.lost["g"]
+
+
+def _overrun_capture(tmp_path, monkeypatch, stop_s: float, duration_s: float):
+    """The overrunning device of ``_overrunning`` from 1.05 s to ``stop_s``: (its events, rows, last status)."""
+    cfg = _config([{"name": "g", "bus": "i2c:1", **GYRO}])
+    clock = VirtualClock()
+    monkeypatch.setitem(DRIVERS, "bmx055", _overrunning(clock, 1.05, stop_s))
+    statuses = []
+    out = tmp_path / "s.h5"
+    capture(cfg, out, duration_s, simulate=True, clock=clock, on_status=statuses.append)
+    with open_run(out) as run:
+        return [e for e in run.events() if e.source == "g"], run.devices["g"].n, statuses[-1]["devices"]["g"]
+
+
+def test_a_device_that_never_delivers_again_is_one_fault_not_a_growing_loss(tmp_path, monkeypatch):
+    """Overruns at every read from 1.1 s to the end: 10 s after the last samples (read at 1.0 s) one fault,
+    and the device is stalled: nothing more is counted (issue 25)."""
+    events, n, final = _overrun_capture(tmp_path, monkeypatch, stop_s=1e9, duration_s=60.0)
+    assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 99 + [("fault", 0)]
+    assert events[-1].t_ns == 11_000_000_000 and "no samples for 10.0 s" in events[-1].detail
+    assert n == 100
+    assert final["state"] == "stalled" and final["faults"] == 1 and final["lost"] == 990
+
+
+def test_a_stalled_device_that_delivers_again_counts_its_loss_once(tmp_path, monkeypatch):
+    """Overruns from 1.1 s to 15.0 s: the fault at 11 s, then samples again at 15.1 s with the loss since the
+    last one counted (10.9 s .. 15.1 s, less the 10 samples read) in one gap; written + lost is exact."""
+    events, n, final = _overrun_capture(tmp_path, monkeypatch, stop_s=15.05, duration_s=20.0)
+    assert [(e.kind, e.lost) for e in events] == [("overrun", 10)] * 99 + [("fault", 0), ("gap", 410)]
+    assert events[-1].t_ns == 15_100_000_000 and "samples again after 14.1 s" in events[-1].detail
+    assert n + sum(e.lost for e in events) == 20 * 100
+    assert final["state"] == "ok" and final["faults"] == 1 and final["gaps"] == 100

@@ -32,7 +32,7 @@ def format_status(status: dict) -> str:
     for name, d in status["devices"].items():
         rate = d["rate_recent_hz"] if d.get("rate_recent_hz") is not None else d["rate_hz"]
         temp = f" {d['temp_c']:.1f}C" if d.get("temp_c") is not None else ""
-        state = " FAILED" if d["state"] != "ok" else ""
+        state = f" {d['state'].upper()}" if d["state"] != "ok" else ""
         parts.append(
             f"{name}: {d['samples']} @ {rate:.1f}/{d['rate_cfg_hz']:g} Hz gaps {d['gaps']}"
             + (f" (-{d['lost']})" if d["lost"] else "")
@@ -57,7 +57,7 @@ def _write_status_file(path: str, status: dict) -> None:
 def _workers(value: str, cfg, can: bool) -> int:
     """``--workers``: a count, or auto (cores, at most one per bus group; 1 where workers cannot help)."""
     if value == "auto":
-        from imustation.acquisition.simworkers import default_workers
+        from imustation.acquisition.workers import default_workers
 
         return default_workers(cfg) if can else 1
     try:
@@ -121,7 +121,7 @@ def _workers(value: str, cfg, can: bool) -> int:
 )
 @click.option(
     "--sim-level",
-    type=click.Choice(["bus", "model"]),  # acquisition.station.SIM_LEVELS (not imported: --help stays light)
+    type=click.Choice(["bus", "model"]),  # acquisition.modes.SIM_LEVELS (not imported: --help stays light)
     default="bus",
     show_default=True,
     help="--simulate: bus = chip simulators answer the drivers byte by byte through the real bus code "
@@ -160,6 +160,7 @@ def capture(
     """
     from imustation.acquisition import capture as run_capture
     from imustation.acquisition import load_config
+    from imustation.acquisition.modes import check_options, workers_possible
     from imustation.monitor.launcher import MonitorProcess
 
     cfg = load_config(config)
@@ -169,9 +170,9 @@ def capture(
         raise InputError(f"--status-interval {status_interval}: must be > 0 s")
     if sim_speed is not None and not sim_speed > 0:
         raise InputError(f"--sim-speed {sim_speed}: must be > 0")
-    if sim_level != "bus" and not simulate:
-        raise InputError(f"--sim-level {sim_level}: needs --simulate")
-    n_workers = _workers(workers, cfg, simulate and not trace_file and not replay_file and not rotate)
+    given = {"trace": trace_file is not None, "replay": replay_file is not None, "rotate": rotate_s is not None}
+    n_workers = _workers(workers, cfg, workers_possible(simulate=simulate, **given))
+    check_options(simulate=simulate, sim_level=sim_level, workers=n_workers, cli=True, **given)
     tty = sys.stderr.isatty()
     live = not quiet and not json_status
     launcher = MonitorProcess(monitor_host, monitor_port, note=lambda msg: click.echo(msg, err=True))

@@ -71,8 +71,8 @@ def demo(
         raise InputError(f"-o {output}: the run file needs an .h5 name (e.g. {output}.h5)")
     from imustation.acquisition import capture as run_capture
     from imustation.acquisition import load_config
-    from imustation.acquisition.simworkers import bus_groups
     from imustation.acquisition.synthesize import synthesize
+    from imustation.acquisition.workers import bus_groups
     from imustation.analysis.loaders import load_inputs
     from imustation.analysis.pipeline import analyze_channel
     from imustation.drivers.sim import simulated_truth

@@ -15,6 +15,7 @@ def inspect(run: str) -> None:
     import numpy as np
 
     from imustation.runfile import open_run
+    from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, thermometer_status
 
     with open_run(run) as rf:
         a = rf.attrs
@@ -32,22 +33,20 @@ def inspect(run: str) -> None:
         if a.get("stopped"):
             click.echo(f"  stopped early: {a['stopped']}")
         events = rf.events()
+        tally = EventTally()
+        tally.add(events)
         for dev in rf.devices.values():
-            t = rf.dataset(dev.name, "t")
-            duration = (t[-1] - t[0]) / 1e9 + 1.0 / dev.rate_hz if dev.n else 0.0
-            achieved = dev.n / duration if duration > 0 else float("nan")
-            dev_events = [e for e in events if e.source == dev.name]
-            gaps = [e for e in dev_events if e.kind in ("gap", "overrun")]
-            lost = sum(e.lost for e in gaps)
+            d = device_status_from_run(rf, dev, tally)
             click.echo(f"  device {dev.name}: {dev.model} ({dev.driver}) on {dev.bus}, {dev.identity}")
             settings = ", ".join(f"{k}={v}" for k, v in sorted(dev.settings.items()))
             click.echo(f"    settings: {settings}")
             if dev.torn:
                 rows = ", ".join(f"{k} {v}" for k, v in sorted(dev.rows.items()))
                 click.echo(f"    torn last block (cut off while flushing): rows {rows}; reading the first {dev.n}")
+            rate = d.rate_hz if d.rate_hz is not None else float("nan")
             click.echo(
-                f"    samples {dev.n}, duration {format_duration(duration)}, "
-                f"rate {achieved:.3f} Hz (configured {dev.rate_hz:g}), gaps {len(gaps)} ({lost} samples lost)"
+                f"    samples {d.samples}, duration {format_duration(d.duration_s)}, "
+                f"rate {rate:.3f} Hz (configured {d.rate_cfg_hz:g}), gaps {d.gaps} ({d.lost} samples lost)"
             )
             for ch in dev.channels.values():
                 axes = f" axes {','.join(ch.axes)}" if ch.axes else ""
@@ -62,10 +61,10 @@ def inspect(run: str) -> None:
                 click.echo(f"    temperature {np.min(c):.2f} .. {np.max(c):.2f} degC")
         for name in rf.thermometers:
             t, c = rf.temperatures(name)
+            th = thermometer_status(name, t * 1e-9, c, tally)
             span = f"{c.min():.3f} .. {c.max():.3f} degC" if len(c) else "no readings"
-            missed = sum(e.lost for e in events if e.source == name)
-            click.echo(f"  thermometer {name}: {len(c)} readings, {span}, {missed} missed")
-        other = [e for e in events if e.kind not in ("gap", "overrun")]
+            click.echo(f"  thermometer {name}: {th.readings} readings, {span}, {th.lost} missed")
+        other = [e for e in events if e.kind not in LOSS_KINDS]
         click.echo(f"  events: {len(events)} ({len(events) - len(other)} gaps/overruns)")
         for e in events[:20]:
             lost = f" lost={e.lost}" if e.lost else ""

@@ -38,9 +38,8 @@ from imustation.analysis.temperature import TEMP_READ_HZ, detect_warmup
 from imustation.errors import ImustationError
 from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
 from imustation.runfile import Event, RunFile, open_run
+from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, elapsed_from_run, thermometer_status
 
-#: station seconds over which ``rate_recent_hz`` is measured
-RATE_WINDOW_S = 10.0
 #: a device whose row count has not grown for this many wall seconds is reported stalled
 STALL_S = 10.0
 #: events kept for the page (newest last)
@@ -52,8 +51,6 @@ STEADY_C_PER_H = 1.0
 MAX_READ_ROWS = 1 << 22
 #: rows per HDF5 read
 READ_BLOCK = 1 << 20
-#: event kinds that mean lost samples
-LOSS_KINDS = ("gap", "overrun")
 
 
 def _utc() -> str:
@@ -97,10 +94,6 @@ class _Device:
     grew_wall: float = field(default_factory=time.monotonic)
     temp: _Series | None = None
     gyro: GyroBuffer | None = None
-    gaps: int = 0
-    lost: int = 0
-    faults: int = 0
-    events: int = 0
     loss_events: list[Event] = field(default_factory=list)
     breaks_checked: int = 0
 
@@ -190,6 +183,7 @@ class Monitor:
         self._devices: dict[str, _Device] = {}
         self._thermo: dict[str, _Series] = {}
         self._events_pos = 0
+        self._tally = EventTally()
         self._events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENTS_KEPT)
         self._station_events = 0
         self._polls = 0
@@ -295,22 +289,20 @@ class Monitor:
             return
         rows = ds[self._events_pos :]
         self._events_pos += len(rows)
-        for r in rows:  # events are rare (one per gap or fault), not per sample
-            ev = Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
+        events = [  # events are rare (one per gap or fault), not per sample
+            Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
+            for r in rows
+        ]
+        self._tally.add(events)
+        for ev in events:
             self._events.append(
                 {"t_s": ev.t_ns * 1e-9, "source": ev.source, "kind": ev.kind, "lost": ev.lost, "detail": ev.detail}
             )
             dev = self._devices.get(ev.source)
             if dev is None:
                 self._station_events += 1
-                continue
-            dev.events += 1
-            if ev.kind in LOSS_KINDS:
-                dev.gaps += 1
-                dev.lost += ev.lost
+            elif ev.kind in LOSS_KINDS:
                 dev.loss_events.append(ev)
-            elif ev.kind == "fault":
-                dev.faults += 1
 
     def _read_device_temp(self, run: RunFile, dev: _Device, info) -> None:
         """Block means of the device's temperature channel, about TEMP_READ_HZ readings per s."""
@@ -352,52 +344,32 @@ class Monitor:
         started = str(run.attrs.get("started_utc", ""))
         complete = "ended_utc" in run.attrs
         devices: dict[str, Any] = {}
-        last_t = []
+        models = {}
         for name, dev in self._devices.items():
             info = infos[name]
-            n = dev.rows
-            d: dict[str, Any] = {
+            d = models[name] = device_status_from_run(run, info, self._tally, rows=dev.rows)
+            stalled_s = now - dev.grew_wall
+            devices[name] = {
                 "driver": info.driver,
                 "model": info.model,
-                "rate_cfg_hz": info.rate_hz,
-                "samples": n,
-                "rate_hz": None,
-                "rate_recent_hz": None,
-                "gaps": dev.gaps,
-                "lost": dev.lost,
-                "faults": dev.faults,
-                "events": dev.events,
-                "temp_c": None,
-                "last_t_s": None,
-                "stalled_s": now - dev.grew_wall,
+                "rate_cfg_hz": d.rate_cfg_hz,
+                "samples": d.samples,
+                "rate_hz": d.rate_hz,
+                "rate_recent_hz": d.rate_recent_hz,
+                "gaps": d.gaps,
+                "lost": d.lost,
+                "faults": d.faults,
+                "events": d.events,
+                "temp_c": d.temp_c,
+                "last_t_s": d.last_t_s,
+                "stalled_s": stalled_s,
+                "state": "done" if complete else ("stalled" if stalled_s > max(STALL_S, 3 * self.poll_s) else "ok"),
             }
-            if n > 0:
-                k = min(n, int(info.rate_hz * RATE_WINDOW_S * 2) + 16)
-                t = run.read(name, "t", n - k, n).astype(np.int64)
-                t_last = int(t[-1])
-                last_t.append(t_last)
-                d["last_t_s"] = t_last * 1e-9
-                recent = t[t >= t_last - int(RATE_WINDOW_S * 1e9)]
-                if len(recent) > 1 and recent[-1] > recent[0]:
-                    d["rate_recent_hz"] = (len(recent) - 1) / ((recent[-1] - recent[0]) * 1e-9)
-                first = int(run.read(name, "t", 0, 1)[0])
-                if t_last > first:
-                    d["rate_hz"] = (n - 1) / ((t_last - first) * 1e-9)
-                if "temp" in info.channels:
-                    ch = info.channels["temp"]
-                    d["temp_c"] = float(np.mean(run.read(name, "temp", n - 1, n))) * ch.scale + ch.offset
-            d["state"] = "done" if complete else ("stalled" if d["stalled_s"] > max(STALL_S, 3 * self.poll_s) else "ok")
-            devices[name] = d
-        thermometers: dict[str, Any] = {}
-        for name, series in self._thermo.items():
-            t, c = series.arrays()
-            thermometers[name] = {
-                "readings": series.pos,
-                "celsius": float(c[-1]) if len(c) else None,
-                "last_t_s": float(t[-1]) if len(t) else None,
-            }
-            if len(t):
-                last_t.append(int(t[-1] * 1e9))
+        thermos = {name: thermometer_status(name, *s.arrays(), self._tally) for name, s in self._thermo.items()}
+        thermometers = {
+            name: {"readings": th.readings, "celsius": th.celsius, "last_t_s": th.last_t_s}
+            for name, th in thermos.items()
+        }
         try:
             size = os.path.getsize(self.path)
         except OSError:
@@ -413,7 +385,7 @@ class Monitor:
             "ended_utc": run.attrs.get("ended_utc"),
             "stopped": run.attrs.get("stopped"),
             "part": run.attrs.get("part"),
-            "elapsed_s": max(last_t) * 1e-9 if last_t else 0.0,
+            "elapsed_s": elapsed_from_run(models.values(), thermos.values()),
             "wall_elapsed_s": _wall_since(started),
             "file_bytes": size,
             "devices": devices,

@@ -4,10 +4,14 @@ A simulated capture is CPU-bound - chip simulators, bridges, buses and
 drivers all run in Python on the virtual clock - and devices on different
 buses share nothing. ``capture --simulate --workers N`` therefore splits the
 config's bus groups (the same groups the real capture gives one reader thread
-each) over N processes. Each worker runs a :class:`Station` of its own over
-its devices, on its own virtual clock, and sends what it polled (blocks,
-temperatures, events) and its device counters through a pipe to the main
-process, which polls its own share and alone writes the run file.
+each) over N processes. Each worker runs a station of its own over its devices,
+on its own virtual clock, and sends what it polled (blocks, temperatures,
+events, in the message form of :mod:`~imustation.acquisition.sinks`) and its
+device counts through a pipe to the main process, which polls its own share
+and alone writes the run file (:class:`WorkerPool` is the main side of it).
+
+The station class a worker runs is handed in (:class:`WorkerPool` takes it), so
+this module does not import the station that uses it.
 
 Every device keeps its seed (derived from the station seed and its name), so
 its turn-on biases and noise parameters are those of a one-process capture,
@@ -33,17 +37,14 @@ import time
 import traceback
 from collections.abc import Callable, Mapping
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Any
-
-import numpy as np
+from typing import Any, Protocol
 
 from imustation.acquisition.config import StationConfig
+from imustation.acquisition.sinks import MessageSink, Sink, deliver
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate
 from imustation.errors import ImustationError
-
-if TYPE_CHECKING:
-    from imustation.acquisition.station import Station
+from imustation.status import DeviceStatus, ThermometerStatus
 
 #: rough wall cost of one simulated sample by bus kind, us (benchmarks/bench_capture.py --devices:
 #: ADIS16448 on a CP2130 ~35, MTi ~12, FIFO devices on I2C ~3-20); balances the split
@@ -62,6 +63,10 @@ OPEN_TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 10.0
 #: what an operator sends to stop a capture; the main process handles them for every process
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+#: with worker processes: how often the main process takes in their data (wall s), and how far
+#: (station time) it may run ahead of the slowest
+PUMP_S = 0.02
+LEAD_NS = 10_000_000_000
 
 
 def bus_groups(config: StationConfig) -> dict[str, list[str]]:
@@ -120,56 +125,50 @@ def subset(config: StationConfig, names: list[str]) -> StationConfig:
 
 
 # -- worker side ---------------------------------------------------------------------------
-class _PipeSink:
-    """A worker's recorder: batches of polled items plus the device counters, sent through the pipe."""
+class LocalStation(Protocol):
+    """What a worker process runs: the station class handed to :class:`WorkerPool` (``Station``)."""
 
-    def __init__(self, conn: Connection, station: Station):
-        self._conn = conn
-        self._station = station
+    thermometers: Mapping[str, Any]
+
+    def open(self) -> list: ...
+
+    def run(self, recorder: Any, duration_s: float, *, should_stop: Callable[[], bool], pace: float | None) -> Any: ...
+
+    def elapsed_ns(self) -> int: ...
+
+    def counts(self) -> tuple[dict[str, DeviceStatus], dict[str, ThermometerStatus]]: ...
+
+    def close(self) -> None: ...
+
+
+class _PipeSink(MessageSink):
+    """A worker's recorder: batches of sink messages plus the station's counts, sent through the pipe."""
+
+    def __init__(self, conn: Connection, counts: Callable[[], tuple]):
         self._items: list[tuple] = []
+        super().__init__(self._items.append)
+        self._conn = conn
+        self._counts = counts
         self._next_send = time.monotonic() + SEND_INTERVAL_S
         self.stop_requested = False
-
-    def append(
-        self, device: str, t_ns: np.ndarray, channels: Mapping[str, np.ndarray], counter: np.ndarray | None
-    ) -> None:
-        self._items.append(("append", device, t_ns, dict(channels), counter))
-
-    def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None:
-        self._items.append(("temperature", name, t_ns, celsius))
-
-    def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None:
-        self._items.append(("event", t_ns, source, kind, detail, lost))
 
     def tick(self, t_ns: int) -> None:
         if len(self._items) >= SEND_ITEMS or time.monotonic() >= self._next_send:
             self.send("items", t_ns)
 
     def send(self, kind: str, t_ns: int, *extra: Any) -> None:
-        items, self._items = self._items, []
-        self._conn.send((kind, items, counters(self._station), t_ns, *extra))
+        self._conn.send((kind, self._items, self._counts(), t_ns, *extra))
+        self._items.clear()  # pickled by send: the list is free again
         self._next_send = time.monotonic() + SEND_INTERVAL_S
         while self._conn.poll():
             if self._conn.recv()[0] == "stop":
                 self.stop_requested = True
 
 
-def counters(station: Station) -> dict[str, dict[str, tuple]]:
-    """What the main process mirrors of a worker's devices and thermometers."""
-    return {
-        "devices": {
-            n: (st.samples, st.lost, st.gaps, st.faults, st.temp_c, st.failed) for n, st in station.devices.items()
-        },
-        "thermometers": {
-            n: (th.readings, th.lost, th.faults, th.celsius, th.failed) for n, th in station.thermometers.items()
-        },
-    }
-
-
-def worker_main(conn: Connection, config: StationConfig, sim_level: str = "bus") -> None:
+def worker_main(
+    conn: Connection, config: StationConfig, sim_level: str, station_cls: Callable[..., LocalStation]
+) -> None:
     """Open the devices of ``config``, report them, record when told, report the end."""
-    from imustation.acquisition.station import Station
-
     # Ctrl-C and a group-wide SIGTERM (systemd, kill -- -PGID) reach the workers too: the main
     # process stops them itself. Both were blocked since before this process existed.
     for sig in STOP_SIGNALS:
@@ -177,23 +176,16 @@ def worker_main(conn: Connection, config: StationConfig, sim_level: str = "bus")
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
     station = None
     try:
-        station = Station(config, simulate=True, sim_level=sim_level)
-        specs = station.open()
-        conn.send(
-            (
-                "opened",
-                specs,
-                {n: st.info for n, st in station.devices.items()},
-                {n: (th.identity, th.period_ns) for n, th in station.thermometers.items()},
-            )
-        )
+        station = station_cls(config, simulate=True, sim_level=sim_level)
+        devices = station.open()
+        conn.send(("opened", devices, {n: (th.identity, th.period_ns) for n, th in station.thermometers.items()}))
         msg = conn.recv()
         if msg[0] != "run":
             return
         _, duration_s, pace = msg
-        sink = _PipeSink(conn, station)
+        sink = _PipeSink(conn, station.counts)
         summary = station.run(sink, duration_s, should_stop=lambda: sink.stop_requested, pace=pace)
-        sink.send("done", station.clock.now_ns() - station.t0, summary.stop_reason)
+        sink.send("done", station.elapsed_ns(), summary.stop_reason)
     except (BrokenPipeError, EOFError, ConnectionResetError):
         return  # the main process is gone (killed): nothing to report to
     except BaseException as exc:  # noqa: BLE001 - every failure must reach the main process
@@ -238,13 +230,16 @@ class WorkerError(ImustationError):
 class Worker:
     """One worker process as the main station sees it."""
 
-    def __init__(self, config: StationConfig, index: int, sim_level: str = "bus"):
+    def __init__(self, config: StationConfig, index: int, sim_level: str, station_cls: Callable[..., LocalStation]):
         ctx = mp.get_context("spawn")  # nothing of the parent's open files, threads or HDF5 state
         self.config = config
         self.names = [d.name for d in config.devices] + [t.name for t in config.thermometers]
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(
-            target=worker_main, args=(child, config, sim_level), name=f"imustation-sim-{index}", daemon=True
+            target=worker_main,
+            args=(child, config, sim_level, station_cls),
+            name=f"imustation-sim-{index}",
+            daemon=True,
         )
         # the child inherits the mask: no stop signal can kill it before it ignores them
         old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
@@ -254,18 +249,18 @@ class Worker:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         child.close()
         self.stop_sent: float | None = None
-        #: station time the worker has reached, ns; None once it is done
+        #: station time the worker has reached, ns
         self.t_ns: int = 0
         self.done = False
         self.reason = ""
 
-    def opened(self) -> tuple[list, dict, dict]:
-        """Wait for the worker to open its devices: (specs, driver infos, thermometer (identity, period))."""
+    def opened(self) -> tuple[list, dict[str, tuple[str, int]]]:
+        """Wait for the worker to open its devices: (its opened devices, thermometer (identity, period ns))."""
         if not self.conn.poll(OPEN_TIMEOUT_S):
             who = ", ".join(self.names)
             raise WorkerError(f"simulation worker for {who} did not open them in {OPEN_TIMEOUT_S:g} s")
         msg = self._recv()
-        return msg[1], msg[2], msg[3]
+        return msg[1], msg[2]
 
     def start(self, duration_s: float, pace: float | None) -> None:
         self.conn.send(("run", duration_s, pace))
@@ -282,8 +277,9 @@ class Worker:
         """Told to stop more than ``STOP_TIMEOUT_S`` ago and still not done."""
         return not self.done and self.stop_sent is not None and time.monotonic() - self.stop_sent > STOP_TIMEOUT_S
 
-    def pump(self, dispatch: Callable[[tuple], None], mirror: Callable[[dict], None], timeout: float = 0.0) -> bool:
-        """Hand over whatever the worker sent (waiting up to ``timeout`` s for something); True if anything came."""
+    def pump(self, sink: Sink, mirror: Callable[[tuple], None], timeout: float = 0.0) -> bool:
+        """Hand what the worker sent to ``sink`` and its counts to ``mirror`` (waiting up to ``timeout`` s
+        for something); True if anything came."""
         got = False
         while not self.done and self.conn.poll(timeout):
             try:
@@ -296,7 +292,7 @@ class Worker:
             got = True
             timeout = 0.0
             for item in msg[1]:
-                dispatch(item)
+                deliver(sink, item)
             mirror(msg[2])
             self.t_ns = msg[3]
             if msg[0] == "done":
@@ -328,3 +324,138 @@ class Worker:
             self.process.kill()
             self.process.join(timeout=5.0)
         self.conn.close()
+
+
+class WorkerPool:
+    """The worker processes of a simulated capture: start, take in their data, keep pace, finish.
+
+    Parameters
+    ----------
+    config : the whole station config.
+    shares : device/thermometer names per worker process (see :func:`partition`).
+    sim_level : the capture's simulation level.
+    station_cls : the station class each worker runs over its share.
+
+    The pool keeps the latest counts each worker sent (``devices``,
+    ``thermometers``: :class:`~imustation.status.DeviceStatus` and
+    :class:`~imustation.status.ThermometerStatus` by name).
+    """
+
+    def __init__(
+        self,
+        config: StationConfig,
+        shares: list[list[str]],
+        sim_level: str,
+        station_cls: Callable[..., LocalStation],
+    ):
+        self.workers: list[Worker] = []
+        try:
+            for i, share in enumerate(shares, 1):
+                self.workers.append(Worker(subset(config, share), i, sim_level, station_cls))
+        except BaseException:
+            self.close()
+            raise
+        self.devices: dict[str, DeviceStatus] = {}
+        self.thermometers: dict[str, ThermometerStatus] = {}
+
+    def opened(self) -> list[tuple[Worker, list, dict[str, tuple[str, int]]]]:
+        """Wait for every worker to open its share: (worker, opened devices, thermometers) each."""
+        return [(w, *w.opened()) for w in self.workers]
+
+    def start(self, duration_s: float, pace: float | None) -> None:
+        for w in self.workers:
+            w.start(duration_s, pace)
+
+    def stop(self) -> None:
+        for w in self.workers:
+            w.stop()
+
+    def close(self) -> None:
+        for w in self.workers:
+            try:
+                w.close()
+            except Exception:  # noqa: BLE001 - closing must not mask the capture's outcome
+                pass
+
+    def t_ns(self) -> int | None:
+        """Station time every running worker has reached, ns (None: all done)."""
+        running = [w.t_ns for w in self.workers if not w.done]
+        return min(running) if running else None
+
+    def station_s(self) -> dict[str, float]:
+        """Station time of the worker polling each device/thermometer, s."""
+        return {n: w.t_ns / 1e9 for w in self.workers for n in w.names}
+
+    def pump(self, sink: Sink, timeout: float = 0.0) -> bool:
+        """Hand what the workers sent to ``sink``; True if anything came."""
+        got = False
+        for w in self.workers:
+            got |= w.pump(sink, self._mirror, timeout)
+        return got
+
+    def _mirror(self, counts: tuple[dict[str, DeviceStatus], dict[str, ThermometerStatus]]) -> None:
+        self.devices.update(counts[0])
+        self.thermometers.update(counts[1])
+
+    def keep_pace(
+        self, sink: Sink, tick: Callable[[int], None] | None, should_stop: Callable[[], bool]
+    ) -> Callable[[int], None]:
+        """The main process's between-polls hook: take in the workers' data and stay in step with them.
+
+        The main process runs at most ``LEAD_NS`` of station time ahead of the
+        slowest worker, so the data of all processes reach the file together
+        (bounded memory, coherent status). ``tick``: the recorder's own hook, called after.
+        """
+        next_pump = 0.0
+
+        def hook(t_ns: int) -> None:
+            nonlocal next_pump
+            now = time.monotonic()
+            if now >= next_pump:
+                self.pump(sink)
+                next_pump = now + PUMP_S
+            behind = self.t_ns()
+            while behind is not None and t_ns > behind + LEAD_NS and not should_stop():
+                self.pump(sink, timeout=PUMP_S)
+                behind = self.t_ns()
+            if tick is not None:
+                tick(t_ns)
+
+        return hook
+
+    def finish(
+        self,
+        sink: Sink,
+        should_stop: Callable[[], bool],
+        reason: str,
+        tick: Callable[[int], None] | None,
+        waiting: Callable[[], None],
+    ) -> str:
+        """After the main process's share: stop the workers if stopping, and write what they still send.
+
+        ``reason``: why the main process stopped early ("" at the end of the duration);
+        ``tick``: the recorder's hook, at the slowest worker's time; ``waiting``: called
+        at every wait (status). Returns why the capture stopped, "" when it did not.
+        """
+        stopping = bool(reason)
+        if stopping:
+            self.stop()
+        while not all(w.done for w in self.workers):
+            if not stopping and should_stop():
+                stopping, reason = True, "stopped by signal"
+                self.stop()
+            for w in self.workers:
+                if w.overdue():
+                    w.done, w.reason = True, "stopped"
+                    sink.event(
+                        self.t_ns() or 0,
+                        "station",
+                        "note",
+                        f"simulation worker for {', '.join(w.names)} did not stop in time: killed",
+                    )
+            self.pump(sink, timeout=PUMP_S)
+            behind = self.t_ns()
+            if tick is not None and behind is not None:
+                tick(behind)
+            waiting()
+        return reason or next((w.reason for w in self.workers if w.reason), "")

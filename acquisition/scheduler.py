@@ -1,0 +1,168 @@
+"""When each device and thermometer is polled: two schedulers over the same per-device polls.
+
+* :func:`run_virtual` (simulation, replay): one thread and one event queue (a heap
+  of due times) for every device; sleeping only advances the clock, so hours are
+  recorded in seconds, and the same seed gives the same file contents.
+* :func:`run_threaded` (real clock): one reader thread per bus URL (the devices of
+  one I2C adapter share the thread, hence the bus; other buses run in parallel,
+  so a slow bus cannot starve another) and the calling thread as the single
+  writer that owns the HDF5 file (h5py is not thread-safe): readers hand their
+  data over a queue as :mod:`~imustation.acquisition.sinks` messages.
+
+A :class:`Poller` is one device or thermometer: ``poll(sink)`` reads it once and
+returns the interval to its next poll. Times are ns on the station clock.
+"""
+
+from __future__ import annotations
+
+import heapq
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from imustation.acquisition.sinks import MessageSink, Sink, deliver
+from imustation.clock import Clock
+
+#: how long the writer thread waits for data before doing its periodic work, s
+WRITER_WAKEUP_S = 0.05
+
+
+@dataclass(frozen=True)
+class Poller:
+    """One device or thermometer: its bus (threads are per bus), its first interval (ns) and its poll."""
+
+    name: str
+    bus: str
+    interval_ns: int
+    #: read the device once into the sink; return the interval to its next poll, ns
+    poll: Callable[[Sink], int]
+
+
+def _heap(pollers: Sequence[Poller], t0: int) -> list[tuple[int, int]]:
+    """Initial entries ``(due, index)``; the index also breaks ties in config order."""
+    heap = [(t0 + p.interval_ns, i) for i, p in enumerate(pollers)]
+    heapq.heapify(heap)
+    return heap
+
+
+def run_virtual(
+    clock: Clock,
+    pollers: Sequence[Poller],
+    sink: Sink,
+    *,
+    t0: int,
+    end: int,
+    between: Callable[[int], None],
+    should_stop: Callable[[], bool],
+    pace: float | None = None,
+) -> str:
+    """Poll everything due, in time order, on a virtual clock until ``end`` (ns); return why it stopped early.
+
+    ``between(t_ns)`` runs after every poll (flushes, rotation, status, workers),
+    with the station time reached (ns since ``t0``). ``pace``: at most this many
+    virtual seconds per wall second.
+    """
+    heap = _heap(pollers, t0)
+    heappop, heappush = heapq.heappop, heapq.heappush
+    wall0 = time.monotonic()
+    while heap:
+        due, i = heappop(heap)
+        if due > end:
+            break
+        if should_stop():
+            return "stopped by signal"
+        if due > clock.now_ns():
+            clock.advance_to(due)  # type: ignore[attr-defined]
+        if pace is not None:
+            ahead = (due - t0) / 1e9 / pace - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)
+        interval = pollers[i].poll(sink)
+        heappush(heap, (due + interval, i))
+        between(clock.now_ns() - t0)
+    if clock.now_ns() < end:
+        clock.advance_to(end)  # type: ignore[attr-defined]
+    return ""
+
+
+def run_threaded(
+    clock: Clock,
+    pollers: Sequence[Poller],
+    sink: Sink,
+    *,
+    t0: int,
+    end: int,
+    between: Callable[[int], None],
+    should_stop: Callable[[], bool],
+) -> str:
+    """Poll every bus in a reader thread of its own until ``end`` (ns); write into ``sink`` from this thread.
+
+    ``between(t_ns)`` runs at every wake-up of this (writer) thread, at least
+    every ``WRITER_WAKEUP_S``. Returns why it stopped early ("" at ``end``). An
+    exception in a reader stops the capture and is raised here.
+    """
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    stop = threading.Event()
+    groups: dict[str, list[Poller]] = {}
+    for p in pollers:
+        groups.setdefault(p.bus, []).append(p)
+    threads = [
+        threading.Thread(
+            target=_reader, args=(clock, group, MessageSink(q.put), t0, end, stop), name=f"reader {bus}", daemon=True
+        )
+        for bus, group in groups.items()
+    ]
+    for th in threads:
+        th.start()
+    reason = ""
+    try:
+        while True:
+            try:
+                item = q.get(timeout=WRITER_WAKEUP_S)
+            except queue.Empty:
+                item = None
+            while item is not None:
+                deliver(sink, item)
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    item = None
+            now = clock.now_ns()
+            between(now - t0)
+            if should_stop():
+                reason = "stopped by signal"
+                break
+            if now >= end and not any(th.is_alive() for th in threads):
+                break
+    finally:
+        stop.set()
+        for th in threads:
+            th.join()
+    # the readers are gone: hand over what they left in the queue
+    while True:
+        try:
+            deliver(sink, q.get_nowait())
+        except queue.Empty:
+            break
+    return reason
+
+
+def _reader(clock: Clock, pollers: list[Poller], sink: MessageSink, t0: int, end: int, stop: threading.Event) -> None:
+    """One bus: poll its devices and thermometers at their intervals until ``end`` or ``stop``."""
+    try:
+        heap = _heap(pollers, t0)
+        while heap and not stop.is_set():
+            due, i = heap[0]
+            if due > end:
+                return
+            wait = (due - clock.now_ns()) / 1e9
+            if wait > 0 and stop.wait(wait):
+                return
+            heapq.heappop(heap)
+            interval = pollers[i].poll(sink)
+            # a late poll is not made up for: the next one is one interval later
+            heapq.heappush(heap, (max(due + interval, clock.now_ns()), i))
+    except BaseException as exc:  # noqa: BLE001 - a bug in a reader must stop the capture, not vanish
+        sink.error(exc)
