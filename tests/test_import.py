@@ -11,10 +11,9 @@ from bagmaker import write_imu_bag
 from click.testing import CliRunner
 from test_bad_input import assert_one_line_error
 
-from imustation.analysis.field_import import import_recording, text_mapping
+from imustation.acquisition.importers import check_stamps, import_recording, text_mapping
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.pipeline import analyze_channel
-from imustation.analysis.timestamps import check_stamps
 from imustation.analysis.verdict import data_verdict
 from imustation.cli import cli
 from imustation.runfile import open_run
@@ -122,7 +121,7 @@ def test_check_stamps_jitter_and_rate():
     assert 400 < rep.jitter_ns < 1000
     assert rep.gaps == 0 and rep.monotonic
     # streaming in blocks gives the same counts
-    from imustation.analysis.timestamps import StampChecker
+    from imustation.acquisition.importers import StampChecker
 
     t2 = np.delete(t, [100, 5000, 5001])
     c = StampChecker()
@@ -228,11 +227,11 @@ def test_verdict_rules():
     assert json.dumps(nofit.as_dict())
 
 
-# --- the streaming ROS 1 reader (analysis/rosbag1_stream.py) -------------------
+# --- the streaming ROS 1 reader (acquisition/importers/rosbag1.py, ros1.py) -----
 
 
 def _read_all(path, reader, topics):
-    from imustation.analysis.field_import import iter_bag
+    from imustation.acquisition.importers.bags import iter_bag
 
     got = {t: [] for t in topics}
     for t, blk in iter_bag(str(path), topics, block=1000, reader=reader):
@@ -245,8 +244,8 @@ def test_ros1_stream_equals_rosbags_reader(tmp_path, compression):
     from bagmaker import write_big_imu_bag
     from rosbags.rosbag1 import Reader
 
-    from imustation.analysis.field_import import bag_topics
-    from imustation.analysis.rosbag1_stream import Ros1Bag
+    from imustation.acquisition.importers.bags import bag_topics
+    from imustation.acquisition.importers.rosbag1 import Ros1Bag
 
     topics = ["/imu/data", "/imu2/data_raw"]  # two Imu topics (frame_ids of two lengths) and a String topic
     src = write_big_imu_bag(tmp_path / "multi.bag", 1500, compression=compression, topics=topics, extra_every=7,
@@ -314,7 +313,7 @@ def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
 def _traced_peak(path, reader):
     import tracemalloc
 
-    from imustation.analysis.field_import import bag_topics, iter_bag
+    from imustation.acquisition.importers.bags import bag_topics, iter_bag
 
     tracemalloc.start()
     try:
@@ -356,7 +355,7 @@ def test_numpy_imu_decoders_equal_rosbags(fmt):
     from bagmaker import _one
     from rosbags.typesys import Stores, get_typestore
 
-    from imustation.analysis.imu_decode import decode_imu_cdr, decode_imu_ros1
+    from imustation.acquisition.importers.messages import decode_imu_cdr, decode_imu_ros1
 
     store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
     de = store.deserialize_ros1 if fmt == "ros1" else store.deserialize_cdr
@@ -387,11 +386,11 @@ def test_numpy_imu_decoders_equal_rosbags(fmt):
 def test_ros2_numpy_path_equals_rosbags_deserialiser(tmp_path, fmt, monkeypatch):
     from bagmaker import write_big_imu_bag
 
-    from imustation.analysis import field_import
-    from imustation.analysis.imu_decode import decode_imu_cdr
+    from imustation.acquisition.importers import ros2
+    from imustation.acquisition.importers.messages import decode_imu_cdr
 
     decoded = []
-    monkeypatch.setattr(field_import, "decode_imu_cdr", lambda raws: decoded.append(len(raws)) or decode_imu_cdr(raws))
+    monkeypatch.setattr(ros2, "decode_imu_cdr", lambda raws: decoded.append(len(raws)) or decode_imu_cdr(raws))
 
     topics = ["/imu/data", "/imu2/data_raw"]
     src = write_big_imu_bag(tmp_path / "r2", 1500, fmt=fmt, topics=topics, extra_every=5, block=1000)

@@ -11,8 +11,8 @@ import click
 
 from imustation.analysis import choices
 from imustation.cli import cli
+from imustation.cli._field import field_options, run_import, text_options
 from imustation.cli._parallel import cluster_options, execute, report_failures
-from imustation.cli.importcmd import field_options, run_import, text_options
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
 
@@ -149,7 +149,7 @@ def analyze(
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
-    from imustation.analysis.field_import import is_field_input
+    from imustation.acquisition.importers import is_field_input
     from imustation.analysis.mli import DEFAULT_COMPARISON
     from imustation.analysis.parallel import AnalysisOptions
 
