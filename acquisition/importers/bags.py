@@ -44,7 +44,7 @@ def bag_topics(path: str, topic: str | None = None, reader: str = "new") -> list
     return imu_topics(path, topic, bag_connections(path, reader))
 
 
-def count_messages(conns: list[tuple[str, str, int]], types: tuple[str, ...]) -> dict[str, int]:
+def _count_messages(conns: list[tuple[str, str, int]], types: tuple[str, ...]) -> dict[str, int]:
     """Messages per topic of the connections of ``types`` (``(topic, msgtype, count)`` of every connection)."""
     out: dict[str, int] = {}
     for tp, mt, n in conns:
@@ -55,7 +55,7 @@ def count_messages(conns: list[tuple[str, str, int]], types: tuple[str, ...]) ->
 
 def imu_topics(path: str, topic: str | None, conns: list[tuple[str, str, int]]) -> list[tuple[str, int]]:
     """Imu topics and their message counts from ``(topic, msgtype, count)`` of every connection."""
-    imu = count_messages(conns, IMU_TYPES)
+    imu = _count_messages(conns, IMU_TYPES)
     if topic is not None:
         if topic not in imu:
             have = ", ".join(sorted(imu)) or "none"
@@ -69,7 +69,7 @@ def imu_topics(path: str, topic: str | None, conns: list[tuple[str, str, int]]) 
 
 def temperature_topics(conns: list[tuple[str, str, int]]) -> list[str]:
     """The sensor_msgs/Temperature topics, sorted."""
-    return sorted(count_messages(conns, TEMP_TYPES))
+    return sorted(_count_messages(conns, TEMP_TYPES))
 
 
 def iter_bag(

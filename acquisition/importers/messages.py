@@ -1,11 +1,12 @@
-"""Vectorised decoding of serialised ``sensor_msgs/Imu`` and ``/Temperature`` messages (ROS 1, CDR) with numpy.
+"""Vectorised decoding of serialised ``sensor_msgs/Imu`` (ROS 1, CDR) and ``/Temperature`` (ROS 1) with numpy.
 
 Both layouts are a header (stamp, frame_id string) followed by 37 float64:
 orientation (4), its covariance (9), angular_velocity (3), covariance (9),
 linear_acceleration (3), covariance (9). Only the stamp, angular_velocity and
 linear_acceleration are read. ``sensor_msgs/Temperature``: the header, then
-temperature and variance (float64). A message whose length does not fit the layout
-raises ValueError (the caller then falls back to a full deserialiser or reports it).
+temperature and variance (float64); in ROS 2 bags rosbags deserialises them (:mod:`.ros2`).
+A message whose length does not fit the layout raises ValueError (the caller then
+falls back to a full deserialiser or reports it).
 
 Also the shape every reader of the importer hands out (:data:`Block`).
 """
@@ -111,12 +112,4 @@ def decode_temperature_ros1(buf, start, length) -> tuple[np.ndarray, np.ndarray]
     if len(start) == 0:
         return np.empty(0, np.int64), np.empty(0)
     b, t, tail = _ros1_head(buf, start, length, 16)
-    return t, _temperature(b, tail)
-
-
-def decode_temperature_cdr(raws: list) -> tuple[np.ndarray, np.ndarray]:
-    """The same for CDR messages."""
-    if not raws:
-        return np.empty(0, np.int64), np.empty(0)
-    b, t, tail = _cdr_head(raws, 16)
     return t, _temperature(b, tail)

@@ -24,7 +24,7 @@ def _stamp_ns(msg) -> int:
     return int(st.sec) * 1_000_000_000 + int(st.nanosec)
 
 
-def open_bag(path: str):
+def _open_bag(path: str):
     """An open rosbags ``AnyReader`` of ``path``; InputError when it is not a readable bag."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
@@ -39,7 +39,7 @@ def open_bag(path: str):
 
 def rosbags_connections(path: str) -> list[tuple[str, str, int]]:
     """``(topic, msgtype, message count)`` of every connection, as rosbags lists them."""
-    bag = open_bag(path)
+    bag = _open_bag(path)
     try:
         return [(c.topic, c.msgtype, int(c.msgcount)) for c in bag.connections]
     finally:
@@ -55,7 +55,7 @@ def iter_rosbags(
     temp_topics: tuple[str, ...] | list[str] = (),
 ) -> Iterator[tuple[str, Block]]:
     """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
-    bag = open_bag(path)
+    bag = _open_bag(path)
     try:
         conns = [c for c in bag.connections if c.topic in topics and c.msgtype in IMU_TYPES]
         tconns = [c for c in bag.connections if c.topic in temp_topics and c.msgtype in TEMP_TYPES]

@@ -42,7 +42,6 @@ class Connection:
     topic: str
     msgtype: str  # as in the bag: "sensor_msgs/Imu"
     md5sum: str
-    msgdef: str
 
 
 @dataclass
@@ -112,7 +111,6 @@ def _connection(fields: dict[str, bytes], data: bytes) -> Connection:
         normalize_topic(topic.decode()),
         d.get("type", b"").decode(),
         d.get("md5sum", b"").decode(),
-        d.get("message_definition", b"").decode(errors="replace"),
     )
 
 
@@ -145,7 +143,6 @@ class Ros1Bag:
         try:
             if self.fh.read(len(MAGIC)) != MAGIC:
                 raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
-            self.data_start = self.fh.tell()
             hdr = self._header()
             if _op(hdr) != OP_BAGHEADER:
                 raise BagFormatError("first record is not the bag header")

@@ -118,9 +118,9 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
         probe[t].append(ts)
     heads = {t: np.concatenate(v) if v else np.empty(0, np.int64) for t, v in probe.items()}
     fmt = bag_format(source)
-    devices = {t: device_spec(device_name(t), probe_rate(source, h), source, t, fmt, True) for t, h in heads.items()}
+    devices = {t: _device_spec(_device_name(t), _probe_rate(source, h), source, t, fmt, True) for t, h in heads.items()}
     t0 = min(int(v.min()) for v in heads.values())
-    thermometers = {t: device_name(t) for t in temps}
+    thermometers = {t: _device_name(t) for t in temps}
     notes: list[str] = []
 
     def blocks() -> Iterator[tuple[str, int | None, Block]]:
@@ -144,17 +144,17 @@ def _open_log(
     if first is None:
         raise InputError(f"{source}: no samples")
     t = first[1][0]
-    spec = device_spec("imu", probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, with_accel)
+    spec = _device_spec("imu", _probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, with_accel)
     keyed = (("", pos, blk) for pos, blk in chain([first], blocks))
     return Recording(source, fmt, int(t.min()), {"": spec}, keyed, total)
 
 
-def device_name(topic: str) -> str:
+def _device_name(topic: str) -> str:
     """A topic as a device (or thermometer) name: ``/imu/data`` -> ``imu_data``."""
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", topic.strip("/")) or "imu"
 
 
-def device_spec(name: str, rate_hz: float, source: str, ident: str, fmt: str, with_accel: bool) -> DeviceSpec:
+def _device_spec(name: str, rate_hz: float, source: str, ident: str, fmt: str, with_accel: bool) -> DeviceSpec:
     """An imported device: ``gyro`` (and ``accel``) as float64 in SI units, ``driver = "import"``."""
     chans = [ChannelSpec("gyro", "<f8", "rad/s", 1.0, axes=("x", "y", "z"))]
     if with_accel:
@@ -171,7 +171,7 @@ def device_spec(name: str, rate_hz: float, source: str, ident: str, fmt: str, wi
     )
 
 
-def probe_rate(path: str, t_ns: np.ndarray) -> float:
+def _probe_rate(path: str, t_ns: np.ndarray) -> float:
     """Nominal rate, Hz: one over the median positive step of the stamps ``t_ns`` (ns)."""
     d = np.diff(np.asarray(t_ns, dtype=np.int64))
     d = d[d > 0]
