@@ -109,9 +109,9 @@ def is_field(path: str, rate_hz: float | None) -> bool:
 def load_channels(
     inputs: Sequence[str], globs: Sequence[str], rate_hz: float | None, *, quiet: bool, topic, time_unit, text: dict
 ) -> list[Channel]:
-    """Every selected channel of ``inputs`` in order, as :func:`~imustation.analysis.loaders.load_inputs`
-    gives them, field recordings streamed (:func:`streamed_channels`) - first, so their summaries print
-    before anything is analysed."""
+    """Every selected channel of ``inputs``, in order, as :func:`~imustation.analysis.loaders.load_inputs`
+    would give them; field recordings are streamed (:func:`streamed_channels`) before the other inputs
+    are read, so their summaries print first, as when they were imported into temporary files."""
     from imustation.analysis.loaders import NoChannelsError, load_inputs
 
     field = {k: streamed_channels(p, globs, quiet=quiet, topic=topic, time_unit=time_unit, text=text)
