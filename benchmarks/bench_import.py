@@ -23,11 +23,10 @@ sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 
 
 def measure(bag: str, reader: str) -> None:
-    from imustation.analysis import field_import
-    from imustation.analysis.field_import import import_recording
+    from imustation.acquisition.importers import import_recording, loop
 
     if reader == "old":  # the import as it was: rosbags Reader, message-by-message decoding, 2^20-row write buffer
-        field_import.WRITE_ROWS = 1 << 20
+        loop.WRITE_ROWS = 1 << 20
 
     out = os.path.join(tempfile.mkdtemp(), "bench.h5")
     t0 = time.perf_counter()
@@ -43,7 +42,7 @@ def measure(bag: str, reader: str) -> None:
 def baseline() -> None:
     import rosbags.highlevel  # noqa: F401  (the imports the import process pays for)
 
-    import imustation.analysis.field_import  # noqa: F401
+    import imustation.acquisition.importers  # noqa: F401
 
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"baseline (python, numpy, h5py, rosbags imported): {peak_mb:.0f} MB")

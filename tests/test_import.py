@@ -11,10 +11,9 @@ from bagmaker import write_imu_bag
 from click.testing import CliRunner
 from test_bad_input import assert_one_line_error
 
-from imustation.analysis.field_import import import_recording, text_mapping
+from imustation.acquisition.importers import check_stamps, import_recording, text_mapping
 from imustation.analysis.loaders import load_inputs
 from imustation.analysis.pipeline import analyze_channel
-from imustation.analysis.timestamps import check_stamps
 from imustation.analysis.verdict import data_verdict
 from imustation.cli import cli
 from imustation.runfile import open_run
@@ -114,6 +113,93 @@ def test_broken_stamps_are_reported_kept_and_logged(tmp_path, block):
     assert ch.segments == [(0, 2000), (2000, len(t))]
 
 
+def broken_record(n=3000):
+    """A record with a duplicated stamp, a swapped pair and a gap of 50 samples."""
+    t, g, a = record(n)
+    t = t.copy()
+    t[500] = t[499]
+    t[1000], t[1001] = t[1001], t[1000]
+    keep = np.r_[0:2000, 2050:n]
+    return t[keep], g[keep], a[keep]
+
+
+def text_log(tmp_path, t, g, a):
+    p = tmp_path / "log.csv"
+    header = "timestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
+    np.savetxt(p, np.column_stack([(t - T0) / 1e9 + 100.0, a, g]), delimiter=",", header=header, comments="",
+               fmt="%.17g")  # fmt: skip
+    return p
+
+
+def test_stream_recording_keeps_every_sample_and_gap(tmp_path, monkeypatch):
+    from imustation.acquisition.importers import stream
+
+    monkeypatch.setattr(stream, "COLUMN_ROWS", 700)  # the arrays grow several times
+    t, g, a = broken_record()
+    rec = stream.stream_recording(str(bag_path(tmp_path, "ros1", t, g, a)), block=500)
+    dev = rec.devices["imu_data"]
+    np.testing.assert_array_equal(dev.t_ns, t - T0)  # file order, nothing dropped
+    np.testing.assert_array_equal(np.column_stack(dev.columns["gyro"]), g)
+    np.testing.assert_array_equal(np.column_stack(dev.columns["accel"]), a)
+    assert [(e.t_ns, e.lost) for e in dev.events if e.kind == "gap"] == [(t[2000] - T0, 50)]
+    assert rec.result.path == "" and rec.result.reports["imu_data"].n == len(t)
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap", "sqlite3", "csv"])
+def test_streamed_channels_equal_the_imported_run(tmp_path, fmt):
+    """analyze's channels of a recording (streamed, no file) are those of the run file the import writes."""
+    from imustation.cli._field import streamed_channels
+
+    t, g, a = broken_record()
+    src = text_log(tmp_path, t, g, a) if fmt == "csv" else bag_path(tmp_path, fmt, t, g, a)
+    import_recording(str(src), str(tmp_path / "run.h5"))
+    text = {"time_col": None, "gyro_cols": None, "accel_cols": None, "gyro_unit": "rad/s"}
+    for globs in ([], ["*/gyro/y", "*/accel/*"]):
+        ref = load_inputs([str(tmp_path / "run.h5")], globs)
+        got = streamed_channels(str(src), globs, quiet=True, topic=None, time_unit=None, text=text)
+        assert [c.id for c in got] == [c.id for c in ref] and len(ref) == (6 if not globs else 4)
+        for c, r in zip(got, ref, strict=True):
+            assert (c.fs_hz, c.units, c.scale, c.gaps, c.segments) == (r.fs_hz, r.units, r.scale, r.gaps, r.segments)
+            assert c.meta == r.meta and c.source == str(src) and c.ref is None
+            assert c.data.dtype == r.data.dtype and c.data.flags.c_contiguous
+            np.testing.assert_array_equal(c.data, r.data)
+        assert ref[0].gaps == 1 and len(ref[0].segments) == 2  # the gap splits the record
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "csv"])
+def test_analyze_streams_a_recording_without_a_run_file(tmp_path, monkeypatch, fmt):
+    import tempfile
+
+    from imustation.runfile import RunWriter
+
+    t, g, a = broken_record()
+    src = text_log(tmp_path, t, g, a) if fmt == "csv" else bag_path(tmp_path, fmt, t, g, a)
+    assert run("import", str(src), "-o", str(tmp_path / "run.h5"), "--quiet").exit_code == 0
+    args = ["--channel", "*/gyro/x", "-m", "100"]
+    ref = run("analyze", str(tmp_path / "run.h5"), *args, "--json")
+    table = run("analyze", str(tmp_path / "run.h5"), *args)
+
+    def no_run_file(self, path, **kw):
+        raise AssertionError(f"analyze wrote a run file: {path}")
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(RunWriter, "__init__", no_run_file)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    res = run("analyze", str(src), *args, "--json")
+    assert res.exit_code == 0, res.output
+    doc, want = json.loads(res.stdout), json.loads(ref.stdout)
+    assert [c.pop("source") for c in doc["channels"]] == [str(src)]
+    assert [c.pop("source") for c in want["channels"]] == [str(tmp_path / "run.h5")]
+    assert doc == want and doc["channels"][0]["gaps"] == 1
+    res = run("analyze", str(src), *args)
+    assert res.exit_code == 0, res.output
+    assert res.stdout == table.stdout  # the same table
+    assert "1 gaps (50 samples missing), 1 duplicated, 1 non-monotonic" in res.stderr  # the import summary
+    assert res.stderr.endswith(table.stderr)  # "analysing ..."
+    assert list(tmp.iterdir()) == []
+
+
 def test_check_stamps_jitter_and_rate():
     rng = np.random.default_rng(3)
     t = np.cumsum(np.full(10000, 2_500_000) + rng.integers(-1000, 1000, 10000)).astype(np.int64)
@@ -122,7 +208,7 @@ def test_check_stamps_jitter_and_rate():
     assert 400 < rep.jitter_ns < 1000
     assert rep.gaps == 0 and rep.monotonic
     # streaming in blocks gives the same counts
-    from imustation.analysis.timestamps import StampChecker
+    from imustation.acquisition.importers import StampChecker
 
     t2 = np.delete(t, [100, 5000, 5001])
     c = StampChecker()
@@ -228,11 +314,11 @@ def test_verdict_rules():
     assert json.dumps(nofit.as_dict())
 
 
-# --- the streaming ROS 1 reader (analysis/rosbag1_stream.py) -------------------
+# --- the streaming ROS 1 reader (acquisition/importers/rosbag1.py, ros1.py) -----
 
 
 def _read_all(path, reader, topics):
-    from imustation.analysis.field_import import iter_bag
+    from imustation.acquisition.importers.bags import iter_bag
 
     got = {t: [] for t in topics}
     for t, blk in iter_bag(str(path), topics, block=1000, reader=reader):
@@ -245,8 +331,8 @@ def test_ros1_stream_equals_rosbags_reader(tmp_path, compression):
     from bagmaker import write_big_imu_bag
     from rosbags.rosbag1 import Reader
 
-    from imustation.analysis.field_import import bag_topics
-    from imustation.analysis.rosbag1_stream import Ros1Bag
+    from imustation.acquisition.importers.bags import bag_topics
+    from imustation.acquisition.importers.rosbag1 import Ros1Bag
 
     topics = ["/imu/data", "/imu2/data_raw"]  # two Imu topics (frame_ids of two lengths) and a String topic
     src = write_big_imu_bag(tmp_path / "multi.bag", 1500, compression=compression, topics=topics, extra_every=7,
@@ -314,7 +400,7 @@ def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
 def _traced_peak(path, reader):
     import tracemalloc
 
-    from imustation.analysis.field_import import bag_topics, iter_bag
+    from imustation.acquisition.importers.bags import bag_topics, iter_bag
 
     tracemalloc.start()
     try:
@@ -356,7 +442,7 @@ def test_numpy_imu_decoders_equal_rosbags(fmt):
     from bagmaker import _one
     from rosbags.typesys import Stores, get_typestore
 
-    from imustation.analysis.imu_decode import decode_imu_cdr, decode_imu_ros1
+    from imustation.acquisition.importers.messages import decode_imu_cdr, decode_imu_ros1
 
     store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
     de = store.deserialize_ros1 if fmt == "ros1" else store.deserialize_cdr
@@ -387,11 +473,11 @@ def test_numpy_imu_decoders_equal_rosbags(fmt):
 def test_ros2_numpy_path_equals_rosbags_deserialiser(tmp_path, fmt, monkeypatch):
     from bagmaker import write_big_imu_bag
 
-    from imustation.analysis import field_import
-    from imustation.analysis.imu_decode import decode_imu_cdr
+    from imustation.acquisition.importers import ros2
+    from imustation.acquisition.importers.messages import decode_imu_cdr
 
     decoded = []
-    monkeypatch.setattr(field_import, "decode_imu_cdr", lambda raws: decoded.append(len(raws)) or decode_imu_cdr(raws))
+    monkeypatch.setattr(ros2, "decode_imu_cdr", lambda raws: decoded.append(len(raws)) or decode_imu_cdr(raws))
 
     topics = ["/imu/data", "/imu2/data_raw"]
     src = write_big_imu_bag(tmp_path / "r2", 1500, fmt=fmt, topics=topics, extra_every=5, block=1000)

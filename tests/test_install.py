@@ -14,6 +14,7 @@ SUBPACKAGES = [
     "imustation.cli",
     "imustation.configs",
     "imustation.acquisition",
+    "imustation.acquisition.importers",
     "imustation.drivers",
     "imustation.drivers.bus",
     "imustation.drivers.sim",

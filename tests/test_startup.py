@@ -85,13 +85,14 @@ def test_submodules_still_import_from_the_package():
 
 def test_library_modules_use_the_cli_vocabularies():
     """The CLI's choices (analysis.choices) are the ones the library modules act on."""
-    from imustation.analysis import choices, export, field_import, pipeline, study
+    from imustation.acquisition.importers import logs
+    from imustation.analysis import choices, export, pipeline, study
 
     assert pipeline.ESTIMATORS is choices.ESTIMATORS and pipeline.METHODS is choices.METHODS
     assert pipeline.DEFAULT_ESTIMATOR is choices.DEFAULT_ESTIMATOR
     assert export.FORMATS is choices.EXPORT_FORMATS and export.SOURCES is choices.EXPORT_SOURCES
     assert export.RW_CONVERSIONS is choices.RW_CONVERSIONS
-    assert study.ESTIMATORS is choices.STUDY_ESTIMATORS and field_import.TIME_UNITS is choices.TIME_UNITS
+    assert study.ESTIMATORS is choices.STUDY_ESTIMATORS and logs.TIME_UNITS is choices.TIME_UNITS
 
 
 def test_analyze_options_carry_the_library_values():

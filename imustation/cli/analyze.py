@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 
 import click
 
 from imustation.analysis import choices
 from imustation.cli import cli
+from imustation.cli._field import field_options, imported_runs, load_channels, text_options
 from imustation.cli._parallel import cluster_options, execute, report_failures
-from imustation.cli.importcmd import field_options, run_import, text_options
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
 
@@ -149,28 +147,18 @@ def analyze(
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
-    from imustation.analysis.field_import import is_field_input
     from imustation.analysis.mli import DEFAULT_COMPARISON
     from imustation.analysis.parallel import AnalysisOptions
 
-    with tempfile.TemporaryDirectory(prefix="imustation-import-") as tmp:
-        paths = []
-        for k, path in enumerate(inputs):
-            timed_csv = rate_hz is None and os.path.splitext(path)[1].lower() in (".csv", ".txt")
-            if os.path.exists(path) and (is_field_input(path) or timed_csv):
-                out = os.path.join(tmp, f"{k}-{os.path.basename(path.rstrip('/'))}.h5")
-                run_import(
-                    path, out, quiet=as_json, overwrite=False, topic=topic, time_unit=time_unit,
-                    text=text_options(time_column, gyro_columns, accel_columns, gyro_unit),
-                )  # fmt: skip
-                paths.append(out)
-            else:
-                paths.append(path)
-        if workers or scheduler:
+    field = {"quiet": as_json, "topic": topic, "time_unit": time_unit,
+             "text": text_options(time_column, gyro_columns, accel_columns, gyro_unit)}  # fmt: skip
+    if workers or scheduler:
+        with imported_runs(inputs, rate_hz, **field) as paths:  # cluster tasks read their channel from a file
             opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
             _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit)
-        else:
-            _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json)
+    else:
+        channels = load_channels(inputs, globs, rate_hz, **field)  # field recordings streamed, no run file
+        _analyze(channels, pattern, m, model, compare, method, estimator, as_json)
 
 
 def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
@@ -196,12 +184,10 @@ def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_li
             click.echo(f"{len(failures)} failed (see above); {len(done)} channels analysed", err=True)
 
 
-def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json) -> None:
-    from imustation.analysis.loaders import load_inputs
+def _analyze(channels, pattern, m, model, compare, method, estimator, as_json) -> None:
     from imustation.analysis.mli import DEFAULT_COMPARISON
     from imustation.analysis.pipeline import analysis_document, analyze_channel
 
-    channels = load_inputs(inputs, globs, rate_hz)
     results = []
     for ch in channels:
         if not as_json:

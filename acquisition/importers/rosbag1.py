@@ -6,7 +6,7 @@ message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
 (http://wiki.ros.org/Bags/Format/2.0), decompresses one chunk at a time
 (none / bz2 / lz4) and hands out its messages in file order, so memory is
 O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
-with numpy, a chunk at a time (:func:`.imu_decode.decode_imu_ros1`).
+with numpy, a chunk at a time (:func:`.messages.decode_imu_ros1`).
 
 Records: ``<header_len u32><header><data_len u32><data>``; the header is a list
 of ``<field_len u32>name=value`` fields, ``op`` tells the record type.
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.imu_decode import gather_u32 as _gather_u32
+from imustation.acquisition.importers.messages import gather_u32 as _gather_u32
 
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 MAGIC = b"#ROSBAG V2.0\n"
@@ -42,7 +42,6 @@ class Connection:
     topic: str
     msgtype: str  # as in the bag: "sensor_msgs/Imu"
     md5sum: str
-    msgdef: str
 
 
 @dataclass
@@ -112,7 +111,6 @@ def _connection(fields: dict[str, bytes], data: bytes) -> Connection:
         normalize_topic(topic.decode()),
         d.get("type", b"").decode(),
         d.get("md5sum", b"").decode(),
-        d.get("message_definition", b"").decode(errors="replace"),
     )
 
 
@@ -145,7 +143,6 @@ class Ros1Bag:
         try:
             if self.fh.read(len(MAGIC)) != MAGIC:
                 raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
-            self.data_start = self.fh.tell()
             hdr = self._header()
             if _op(hdr) != OP_BAGHEADER:
                 raise BagFormatError("first record is not the bag header")

@@ -1,17 +1,23 @@
-"""Vectorised decoding of serialised ``sensor_msgs/Imu`` and ``/Temperature`` messages (ROS 1, CDR) with numpy.
+"""Vectorised decoding of serialised ``sensor_msgs/Imu`` (ROS 1, CDR) and ``/Temperature`` (ROS 1) with numpy.
 
 Both layouts are a header (stamp, frame_id string) followed by 37 float64:
 orientation (4), its covariance (9), angular_velocity (3), covariance (9),
 linear_acceleration (3), covariance (9). Only the stamp, angular_velocity and
 linear_acceleration are read. ``sensor_msgs/Temperature``: the header, then
-temperature and variance (float64). A message whose length does not fit the layout
-raises ValueError (the caller then falls back to a full deserialiser or reports it).
+temperature and variance (float64); in ROS 2 bags rosbags deserialises them (:mod:`.ros2`).
+A message whose length does not fit the layout raises ValueError (the caller then
+falls back to a full deserialiser or reports it).
+
+Also the shape every reader of the importer hands out (:data:`Block`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+#: the message types as ROS 2 (and rosbags) and ROS 1 bags name them
+IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
+TEMP_TYPES = ("sensor_msgs/msg/Temperature", "sensor_msgs/Temperature")
 #: md5sum of sensor_msgs/Imu (ROS 1): the layout :func:`decode_imu_ros1` knows
 IMU_MD5 = "6a62c6daae103f4ff57a132d6f95cec2"
 IMU_TAIL = 37 * 8
@@ -19,6 +25,11 @@ _GYRO_AT, _ACCEL_AT = 13 * 8, 25 * 8
 _COLS = np.r_[np.arange(_GYRO_AT, _GYRO_AT + 24), np.arange(_ACCEL_AT, _ACCEL_AT + 24)]
 
 Decoded = tuple[np.ndarray, np.ndarray, np.ndarray]
+#: what every reader yields: ``(t_ns int64 (k,), gyro float64 (k, 3) rad/s, accel float64 (k, 3) m/s^2 | None)``;
+#: a thermometer's block is ``(t_ns, celsius (k,), None)``
+Block = tuple[np.ndarray, np.ndarray, np.ndarray | None]
+#: rows per block written (and held per topic while reading)
+BLOCK_ROWS = 8192
 
 
 def gather_u32(b: np.ndarray, at: np.ndarray) -> np.ndarray:
@@ -101,12 +112,4 @@ def decode_temperature_ros1(buf, start, length) -> tuple[np.ndarray, np.ndarray]
     if len(start) == 0:
         return np.empty(0, np.int64), np.empty(0)
     b, t, tail = _ros1_head(buf, start, length, 16)
-    return t, _temperature(b, tail)
-
-
-def decode_temperature_cdr(raws: list) -> tuple[np.ndarray, np.ndarray]:
-    """The same for CDR messages."""
-    if not raws:
-        return np.empty(0, np.int64), np.empty(0)
-    b, t, tail = _cdr_head(raws, 16)
     return t, _temperature(b, tail)

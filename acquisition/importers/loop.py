@@ -1,0 +1,178 @@
+"""The one write loop every source feeds: blocks in file order -> a run file, stamps checked on the way.
+
+Samples are written in file order, never dropped or reordered;
+:class:`~.timestamps.StampChecker` measures the stamps, and every gap (and a
+summary of backward / duplicated stamps) becomes an ``/events`` row, so the
+analysis splits the record at the gaps (docs/import.md, "Timestamp hygiene").
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from imustation.acquisition.importers.messages import BLOCK_ROWS, Block
+from imustation.acquisition.importers.sources import Recording, open_recording
+from imustation.acquisition.importers.timestamps import StampChecker, StampReport
+from imustation.runfile import RunWriter
+
+#: rows queued (all devices) before the run writer flushes: 2^16 rows = 3.7 MB (its default, 2^20, is 59 MB)
+WRITE_ROWS = 1 << 16
+
+Progress = Callable[[int, int], None]
+
+
+class Target(Protocol):
+    """Where the loop writes: the methods of :class:`~imustation.runfile.RunWriter` it uses."""
+
+    def append(self, device: str, t_ns: np.ndarray, channels: dict[str, np.ndarray]) -> None: ...
+
+    def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None: ...
+
+    def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None: ...
+
+
+@dataclass
+class ImportResult:
+    """What was imported: the output run file and one stamp report per device."""
+
+    path: str
+    source: str
+    source_format: str
+    devices: dict[str, str]  # device name -> topic / column description
+    reports: dict[str, StampReport]
+    mapping: str = ""
+    thermometers: dict[str, tuple[str, int]] = field(default_factory=dict)  # name -> (topic, readings)
+    notes: list[str] = field(default_factory=list)  # reader notes (also /events notes)
+
+
+class _Sink:
+    """Writes blocks of one device and logs the stamp problems as events."""
+
+    def __init__(self, target: Target, name: str, t0: int, with_accel: bool, period_ns: float):
+        self.w, self.name, self.t0, self.with_accel = target, name, t0, with_accel
+        self.check = StampChecker(period_ns=period_ns)
+        self._logged = 0
+        self._prev_last = 0
+
+    def write(self, blk: Block) -> None:
+        t, gyro, accel = blk
+        start = self.check.r.n
+        rel = t - self.t0
+        self.check.update(t)
+        chans = {"gyro": gyro}
+        if self.with_accel:
+            chans["accel"] = accel if accel is not None else np.zeros_like(gyro)
+        self.w.append(self.name, rel, chans)
+        self._log_gaps(lambda i: int(rel[i - start]) if i >= start else self._prev_last)
+        self._prev_last = int(rel[-1])
+
+    def _log_gaps(self, stamp_of) -> None:
+        for idx, dt, miss in self.check.r.gap_list[self._logged :]:
+            self.w.event(stamp_of(idx), self.name, "gap", f"stamp gap {dt / 1e6:.3f} ms", lost=miss)
+        self._logged = len(self.check.r.gap_list)
+
+    def finish(self) -> StampReport:
+        r = self.check.report()
+        self._log_gaps(lambda i: self._prev_last)
+        t_end = r.last_ns - self.t0
+        if r.gaps > len(r.gap_list):
+            self.w.event(t_end, self.name, "note", f"{r.gaps - len(r.gap_list)} further gaps not listed", r.missing)
+        if r.backwards or r.duplicates:
+            first = f"; first at sample {r.backward_list[0][0]}" if r.backward_list else ""
+            self.w.event(
+                t_end,
+                self.name,
+                "note",
+                f"stamps kept in file order: {r.backwards} non-monotonic, {r.duplicates} duplicated{first}",
+            )
+        self.w.event(t_end, self.name, "note", "import: " + r.summary())
+        return r
+
+
+def feed(rec: Recording, target: Target, progress: Progress | None = None) -> ImportResult:
+    """Write every block of ``rec`` to ``target``: the one loop of every source and target.
+
+    ``progress(done, total)`` after each Imu block. Returns the result without ``path``.
+    """
+    sinks = {
+        key: _Sink(target, spec.name, rec.t0, any(c.name == "accel" for c in spec.channels), 1e9 / spec.rate_hz)
+        for key, spec in rec.devices.items()
+    }
+    readings = dict.fromkeys(rec.thermometers, 0)
+    target.event(0, "station", "note", f"imported from {os.path.abspath(rec.source)} ({rec.fmt})"[:256])
+    for key, pos, blk in rec.blocks:
+        if key in rec.thermometers:
+            target.append_temperature(rec.thermometers[key], blk[0] - rec.t0, blk[1])
+            readings[key] += len(blk[0])
+            continue
+        sinks[key].write(blk)
+        if progress:
+            progress(pos, rec.total)
+    reports = {sink.name: sink.finish() for sink in sinks.values()}
+    for note in rec.notes:
+        target.event(max(r.last_ns for r in reports.values()) - rec.t0, "station", "note", note[:256])
+    return ImportResult(
+        "",
+        rec.source,
+        rec.fmt,
+        {spec.name: spec.identity for spec in rec.devices.values()},
+        reports,
+        rec.mapping,
+        {name: (topic, readings[topic]) for topic, name in rec.thermometers.items()},
+        rec.notes,
+    )
+
+
+def import_recording(
+    source: str,
+    out: str,
+    *,
+    topic: str | None = None,
+    text: dict | None = None,
+    time_unit: str | None = None,
+    overwrite: bool = False,
+    progress: Progress | None = None,
+    block: int = BLOCK_ROWS,
+    bag_reader: str = "new",
+) -> ImportResult:
+    """Convert ``source`` into the run file ``out``; returns the stamp reports.
+
+    ``topic``: the Imu topic of a bag (default: all). ``text``: keyword options of
+    :func:`.logs.text_mapping` for text logs. ``progress(done, total)`` is called as
+    the import advances (messages for bags, bytes for text, rows for arrays).
+    ``bag_reader``: ``"new"`` (streaming, the default) or ``"old"`` (rosbags message by message, for
+    comparison; see :func:`.bags.iter_bag`). sensor_msgs/Temperature topics of a bag become thermometers.
+    """
+    rec = open_recording(source, topic=topic, text=text, time_unit=time_unit, block=block, bag_reader=bag_reader)
+    writer = RunWriter(
+        out, station="import", config_text="", simulated=False, devices=list(rec.devices.values()),
+        thermometers=list(rec.thermometers.values()), overwrite=overwrite, started_utc=_iso(rec.t0),
+        fsync=False,  # an import is re-run from its source; no power-cut guarantee needed
+        ballast_bytes=0, max_buffer_rows=WRITE_ROWS,
+    )  # fmt: skip
+    try:
+        res = feed(rec, writer, progress)
+    except BaseException:
+        writer.abort()
+        raise
+    attrs = {"source": os.path.abspath(source), "source_format": rec.fmt, "import_report": _rep(res.reports)}
+    writer.close(attrs=attrs)
+    res.path = out
+    return res
+
+
+def _iso(ns: int) -> str:
+    if ns > 10**17:  # looks like a Unix epoch in ns
+        return _dt.datetime.fromtimestamp(ns / 1e9, _dt.UTC).isoformat(timespec="milliseconds")
+    return "1970-01-01T00:00:00.000+00:00"
+
+
+def _rep(reports: dict[str, StampReport]) -> str:
+    return json.dumps({k: r.as_dict() for k, r in reports.items()})

@@ -1,0 +1,96 @@
+"""Imu and Temperature blocks of a ROS 1 bag, streamed by :mod:`.rosbag1` and decoded with numpy.
+
+One chunk of the bag is in memory at a time; the messages of the wanted topics
+are decoded a chunk at a time (:func:`.messages.decode_imu_ros1`) and handed out
+in blocks of at most ``block`` rows per topic, in file order (receive order
+inside a chunk), never sorted.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+
+import numpy as np
+
+from imustation.acquisition.importers.messages import (
+    IMU_TYPES,
+    TEMP_TYPES,
+    Block,
+    decode_imu_ros1,
+    decode_temperature_ros1,
+)
+from imustation.acquisition.importers.rosbag1 import BagFormatError, Connection, Ros1Bag
+from imustation.errors import InputError
+
+
+def ros1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
+    """Connections and message counts per connection id of a ROS 1 bag (:meth:`.Ros1Bag.index`)."""
+    try:
+        with Ros1Bag(path) as bag:
+            return bag.index()
+    except (BagFormatError, OSError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
+
+
+def iter_ros1(
+    path: str,
+    topics: list[str],
+    block: int,
+    limit: int | None,
+    temp_topics: tuple[str, ...] = (),
+    notes: list[str] | None = None,
+) -> Iterator[tuple[str, Block]]:
+    """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
+    names = [*topics, *temp_topics]
+    pend: dict[str, list[tuple]] = {t: [] for t in names}
+    have = dict.fromkeys(names, 0)
+    seen = 0
+    conns: dict = {}
+    try:
+        with Ros1Bag(path) as bag:
+            for ch in bag.chunks(conns):
+                ids = [i for i, c in conns.items() if c.topic in topics and c.msgtype in IMU_TYPES]
+                tids = [i for i, c in conns.items() if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
+                sel = np.isin(ch.conn, ids)
+                if limit is not None and seen + int(sel.sum()) > limit:
+                    sel &= np.cumsum(sel) <= limit - seen
+                seen += int(sel.sum())
+                for t in names:
+                    mine = [i for i in (ids if t in topics else tids) if conns[i].topic == t]
+                    m = np.isin(ch.conn, mine) & (sel if t in topics else True)
+                    if not m.any():
+                        continue
+                    what = "Imu" if t in topics else "Temperature"
+                    decode = decode_imu_ros1 if t in topics else decode_temperature_ros1
+                    try:
+                        dec = decode(ch.buf, ch.start[m], ch.length[m])
+                    except ValueError as exc:
+                        raise InputError(f"{path}: topic {t}: undecodable {what} message ({exc})") from None
+                    pend[t].append(dec)
+                    have[t] += len(dec[0])
+                    if have[t] >= block:
+                        yield from _full_blocks(t, pend, have, block)
+                if limit is not None and seen >= limit:
+                    break
+            if bag.unread_from is not None and notes is not None:
+                notes.append(
+                    f"unindexed bag (recording not closed): bytes {bag.unread_from}-{bag.size} unreadable, not imported"
+                )
+    except (BagFormatError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+    for t in names:
+        if have[t]:
+            cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
+            yield t, (cols[0], cols[1], cols[2] if len(cols) > 2 else None)
+
+
+def _full_blocks(t: str, pend: dict, have: dict, block: int) -> Iterator[tuple[str, Block]]:
+    cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
+    n = len(cols[0])
+    k = (n // block) * block
+    for i in range(0, k, block):
+        part = [c[i : i + block] for c in cols]
+        yield t, (part[0], part[1], part[2] if len(part) > 2 else None)
+    pend[t] = [tuple(c[k:] for c in cols)] if k < n else []
+    have[t] = n - k
