@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-from imustation.acquisition.importers.messages import BLOCK_ROWS, IMU_MD5, IMU_TYPES, TEMP_TYPES, Block
+from imustation.acquisition.importers.messages import BLOCK_ROWS, IMU_MD5, IMU_TYPES, TEMP_TYPES, Rows
 from imustation.acquisition.importers.ros1 import iter_ros1, ros1_index
 from imustation.acquisition.importers.ros2 import iter_rosbags, rosbags_connections
 from imustation.errors import InputError
@@ -80,7 +80,7 @@ def iter_bag(
     reader: str = "new",
     temp_topics: tuple[str, ...] | list[str] = (),
     notes: list[str] | None = None,
-) -> Iterator[tuple[str, Block]]:
+) -> Iterator[tuple[str, Rows]]:
     """``(topic, block)`` of the Imu messages of ``topics`` in file order, ``block`` rows per topic at most.
 
     ``temp_topics``: sensor_msgs/Temperature topics, yielded as ``(topic, (t_ns, celsius (k,), None))``.

@@ -15,7 +15,7 @@ from itertools import islice
 
 import numpy as np
 
-from imustation.acquisition.importers.messages import BLOCK_ROWS, Block
+from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.analysis.choices import TIME_UNITS
 from imustation.errors import InputError
 
@@ -161,7 +161,7 @@ def _split(line: str, delim: str | None) -> list[str]:
     return [c.strip() for c in (line.split(delim) if delim else line.split())]
 
 
-def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[tuple[int, Block]]:
+def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[tuple[int, Rows]]:
     """``(bytes read, block)`` of a text log, in file order."""
     factor = TIME_UNITS[mp.time_unit]
     cols = [mp.time_col, *mp.gyro_cols, *(mp.accel_cols or ())]
@@ -197,7 +197,7 @@ def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[t
             yield pos, (t_ns, arr[:, 1:4] * mp.gyro_scale, accel)
 
 
-def load_npy_log(path: str, time_unit: str | None = None) -> Block:
+def load_npy_log(path: str, time_unit: str | None = None) -> Rows:
     """An (n, 4) or (n, 7) array: time, gyro x,y,z[, accel x,y,z] (memory-mapped)."""
     try:
         arr = np.load(path, mmap_mode="r", allow_pickle=False)

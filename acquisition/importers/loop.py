@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from imustation.acquisition.importers.messages import BLOCK_ROWS, Block
+from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.acquisition.importers.sources import Recording, open_recording
 from imustation.acquisition.importers.timestamps import StampChecker, StampReport
 from imustation.runfile import RunWriter
@@ -61,7 +61,7 @@ class _Sink:
         self._logged = 0
         self._prev_last = 0
 
-    def write(self, blk: Block) -> None:
+    def write(self, blk: Rows) -> None:
         t, gyro, accel = blk
         start = self.check.r.n
         rel = t - self.t0

@@ -8,7 +8,7 @@ temperature and variance (float64); in ROS 2 bags rosbags deserialises them (:mo
 A message whose length does not fit the layout raises ValueError (the caller then
 falls back to a full deserialiser or reports it).
 
-Also the shape every reader of the importer hands out (:data:`Block`).
+Also the shape every reader of the importer hands out (:data:`Rows`: times, rates, accelerations or None).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ _COLS = np.r_[np.arange(_GYRO_AT, _GYRO_AT + 24), np.arange(_ACCEL_AT, _ACCEL_AT
 Decoded = tuple[np.ndarray, np.ndarray, np.ndarray]
 #: what every reader yields: ``(t_ns int64 (k,), gyro float64 (k, 3) rad/s, accel float64 (k, 3) m/s^2 | None)``;
 #: a thermometer's block is ``(t_ns, celsius (k,), None)``
-Block = tuple[np.ndarray, np.ndarray, np.ndarray | None]
+Rows = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 #: rows per block written (and held per topic while reading)
 BLOCK_ROWS = 8192
 

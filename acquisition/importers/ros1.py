@@ -16,7 +16,7 @@ import numpy as np
 from imustation.acquisition.importers.messages import (
     IMU_TYPES,
     TEMP_TYPES,
-    Block,
+    Rows,
     decode_imu_ros1,
     decode_temperature_ros1,
 )
@@ -40,7 +40,7 @@ def iter_ros1(
     limit: int | None,
     temp_topics: tuple[str, ...] = (),
     notes: list[str] | None = None,
-) -> Iterator[tuple[str, Block]]:
+) -> Iterator[tuple[str, Rows]]:
     """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
     names = [*topics, *temp_topics]
     pend: dict[str, list[tuple]] = {t: [] for t in names}
@@ -85,7 +85,7 @@ def iter_ros1(
             yield t, (cols[0], cols[1], cols[2] if len(cols) > 2 else None)
 
 
-def _full_blocks(t: str, pend: dict, have: dict, block: int) -> Iterator[tuple[str, Block]]:
+def _full_blocks(t: str, pend: dict, have: dict, block: int) -> Iterator[tuple[str, Rows]]:
     cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]
     n = len(cols[0])
     k = (n // block) * block

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imustation.acquisition.importers.messages import IMU_TYPES, TEMP_TYPES, Block, decode_imu_cdr
+from imustation.acquisition.importers.messages import IMU_TYPES, TEMP_TYPES, Rows, decode_imu_cdr
 from imustation.errors import InputError
 
 
@@ -53,7 +53,7 @@ def iter_rosbags(
     limit: int | None,
     reader: str,
     temp_topics: tuple[str, ...] | list[str] = (),
-) -> Iterator[tuple[str, Block]]:
+) -> Iterator[tuple[str, Rows]]:
     """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
     bag = _open_bag(path)
     try:
@@ -117,7 +117,7 @@ def _temp_block(rows: list[tuple[int, float]]) -> tuple[np.ndarray, np.ndarray, 
     return np.array([r[0] for r in rows], np.int64), np.array([r[1] for r in rows], np.float64), None
 
 
-def _decode_cdr(path: str, bag, topic: str, raws: list) -> Block:
+def _decode_cdr(path: str, bag, topic: str, raws: list) -> Rows:
     """A block of CDR Imu messages: numpy when they have the standard layout, else rosbags' deserialiser."""
     try:
         return decode_imu_cdr(raws)

@@ -27,7 +27,7 @@ from imustation.acquisition.importers.bags import (
     temperature_topics,
 )
 from imustation.acquisition.importers.logs import TEXT_EXTS, iter_text, load_npy_log, text_mapping
-from imustation.acquisition.importers.messages import BLOCK_ROWS, Block
+from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec
 
@@ -72,7 +72,7 @@ class Recording:
     #: reader key (Imu topic; "" for a log or an array) -> device, in device order
     devices: dict[str, DeviceSpec]
     #: ``(reader key, progress position or None, block)`` in file order
-    blocks: Iterator[tuple[str, int | None, Block]]
+    blocks: Iterator[tuple[str, int | None, Rows]]
     total: int  # progress total: messages (bags), bytes (logs) or rows (arrays)
     thermometers: dict[str, str] = field(default_factory=dict)  # Temperature topic -> thermometer name
     mapping: str = ""  # the column mapping of a log, as printed
@@ -94,7 +94,7 @@ def open_recording(
         return _open_bag(source, topic, block, bag_reader)
     if kind == "text":
         mp = text_mapping(source, time_unit=time_unit, **(text or {}))
-        blocks: Iterator[tuple[int, Block]] = iter_text(source, mp, block)
+        blocks: Iterator[tuple[int, Rows]] = iter_text(source, mp, block)
         rec = _open_log(source, "text", mp.summary(), mp.accel_cols is not None, blocks, os.path.getsize(source))
         rec.mapping = mp.summary()
         return rec
@@ -123,7 +123,7 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
     thermometers = {t: _device_name(t) for t in temps}
     notes: list[str] = []
 
-    def blocks() -> Iterator[tuple[str, int | None, Block]]:
+    def blocks() -> Iterator[tuple[str, int | None, Rows]]:
         done = 0
         for t, blk in iter_bag(source, list(heads), block=block, reader=reader, temp_topics=temps, notes=notes):
             if t in thermometers:
@@ -137,7 +137,7 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
 
 
 def _open_log(
-    source: str, fmt: str, ident: str, with_accel: bool, blocks: Iterator[tuple[int, Block]], total: int
+    source: str, fmt: str, ident: str, with_accel: bool, blocks: Iterator[tuple[int, Rows]], total: int
 ) -> Recording:
     """A log or an array: one device ``imu``; its first block gives the rate and the time origin."""
     first = next(blocks, None)
