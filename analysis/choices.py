@@ -1,26 +1,10 @@
-"""Option vocabularies of the analysis layer, in a module with no dependencies.
+"""Transitional alias of :mod:`imustation.analysis.pipeline.choices` (issue 20).
 
-The CLI builds its option choices and defaults from these when it starts, before
-numpy or scipy are loaded; the modules that act on them import them from here.
+The field-recording importer (``analysis/field_import.py``) and ``cli/importcmd.py`` read
+``TIME_UNITS`` here while they move to ``acquisition/importers``; delete this module once
+they import :mod:`imustation.analysis.pipeline.choices`.
 """
 
-from __future__ import annotations
+from imustation.analysis.pipeline.choices import TIME_UNITS
 
-#: noise-model methods of ``analyze --method`` (analysis/pipeline.py)
-METHODS = ("mli", "gmwm", "both")
-#: estimators that can fill the ``noise_model`` block (``analyze --estimator``)
-ESTIMATORS = ("mli-f", "mli", "gmwm")
-#: the default: ML_i-F won the Monte Carlo study of docs/noise-model.md
-DEFAULT_ESTIMATOR = "mli-f"
-
-#: estimators of the Monte Carlo study (``study --estimators``, analysis/study.py)
-STUDY_ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single", "mli-f")
-
-#: filter-parameter formats, parameter sources and random-walk conversions of ``export``
-#: (analysis/export.py)
-EXPORT_FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
-EXPORT_SOURCES = ("model", "mli", "ieee")
-RW_CONVERSIONS = ("diffusion", "tau_b")
-
-#: time units of text logs -> nanoseconds (``import --time-unit``, analysis/field_import.py)
-TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
+__all__ = ["TIME_UNITS"]

@@ -15,7 +15,7 @@ import time
 import numpy as np
 from _common import best_of, table_iii_record
 
-import imustation.analysis.mli as mli
+import imustation.analysis.estimators.mli as mli
 
 
 def main() -> None:

@@ -5,8 +5,8 @@ import pytest
 from reference_data import nbs14_1000
 
 from imustation.analysis import StandardModel, fit_mli, oadev, simulate_standard
-from imustation.analysis.loaders import load_inputs
-from imustation.analysis.mli import _filter, _full_nll, integrate_pattern, sampling_pattern
+from imustation.analysis.estimators.mli import _filter, _full_nll, integrate_pattern, sampling_pattern
+from imustation.analysis.pipeline.loaders import load_inputs
 
 
 def test_nbs14_generator_check_values():

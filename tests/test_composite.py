@@ -1,4 +1,4 @@
-"""ML_i-F (analysis/composite.py): the integrated likelihood plus the fine-scale Allan variance."""
+"""ML_i-F (analysis/estimators/composite.py): the integrated likelihood plus the fine-scale Allan variance."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 from click.testing import CliRunner
 from scipy.signal import lfilter
 
-from imustation.analysis.allan import oadev
-from imustation.analysis.composite import (
+from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.composite import (
     ESTIMATOR,
     _CompositeProblem,
     _gm_unit_avar,
@@ -20,9 +20,9 @@ from imustation.analysis.composite import (
     fit_composite,
     fit_composite_data,
 )
-from imustation.analysis.mli import _full_nll, fit_integrated, integrate
-from imustation.analysis.noise_models import GaussMarkov, parse_model, standard
-from imustation.analysis.study import run_study, summarize
+from imustation.analysis.estimators.mli import _full_nll, fit_integrated, integrate
+from imustation.analysis.estimators.noise_models import GaussMarkov, parse_model, standard
+from imustation.analysis.pipeline.study import run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -142,7 +142,7 @@ def test_single_start_option_and_bad_input(record):
 
 
 def test_study_reports_mli_f_and_single_start_outcomes():
-    from imustation.analysis.models import StandardModel
+    from imustation.analysis.estimators.models import StandardModel
 
     fits = run_study(
         StandardModel(1e-3, 1e-4, 20.0),
@@ -176,7 +176,7 @@ def test_analyze_json_has_a_noise_model_block_with_the_mli_keys_plus_method(tmp_
 @pytest.mark.slow
 def test_monte_carlo_coverage_of_the_intervals():
     """40 records of 2 h: every 90 % interval covers the truth 75-100 % of the time (binomial 4 sigma)."""
-    from imustation.analysis.models import StandardModel
+    from imustation.analysis.estimators.models import StandardModel
 
     fits = run_study(StandardModel(1e-3, 5e-5, 30.0), records=40, duration_s=7200.0, fs_hz=FS, estimators=("mli-f",))
     for row in summarize(fits):

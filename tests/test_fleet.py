@@ -11,10 +11,10 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.acquisition import capture, load_config
-from imustation.analysis import parallel
-from imustation.analysis.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
-from imustation.analysis.parallel import AnalysisOptions, plan_tasks, run_tasks
-from imustation.analysis.pipeline import channel_document
+from imustation.analysis.pipeline import parallel
+from imustation.analysis.pipeline.channel import channel_document
+from imustation.analysis.pipeline.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
+from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks, run_tasks
 from imustation.cli import cli
 
 GLOB = "*/gyro/z"

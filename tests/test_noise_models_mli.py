@@ -17,9 +17,9 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.analysis import StandardModel
-from imustation.analysis.kalman import Layout, kalman_profile
-from imustation.analysis.ml_rate import fit_ml_rate, rate_filter
-from imustation.analysis.mli import (
+from imustation.analysis.estimators.kalman import Layout, kalman_profile
+from imustation.analysis.estimators.ml_rate import fit_ml_rate, rate_filter
+from imustation.analysis.estimators.mli import (
     _filter,
     _Problem,
     _profile_nll,
@@ -30,7 +30,7 @@ from imustation.analysis.mli import (
     integrate,
     pattern_avar,
 )
-from imustation.analysis.noise_models import (
+from imustation.analysis.estimators.noise_models import (
     GaussMarkov,
     NoiseModel,
     Quantization,
@@ -42,7 +42,7 @@ from imustation.analysis.noise_models import (
     parse_model,
     standard,
 )
-from imustation.analysis.study import markdown, run_study, summarize
+from imustation.analysis.pipeline.study import markdown, run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -399,7 +399,7 @@ def test_sigma_w_interval_coverage_small():
 @pytest.mark.slow
 def test_interval_coverage_over_100_seeds_of_12h():
     """Coverage of all three 90 % intervals over 100 seeds of 12 h BMX055-like records: 80-98 %."""
-    from imustation.analysis.reference import TABLE_III_MEAN as T
+    from imustation.analysis.estimators.reference import TABLE_III_MEAN as T
 
     fits = run_study(StandardModel(T.sigma_w, T.sigma_b, T.tau_b), records=100, duration_s=12 * 3600)
     for row in summarize(fits):

@@ -17,7 +17,10 @@ from imustation.cli import cli
 #: never needed to print help or to reject arguments
 HEAVY = ("numpy", "scipy", "scipy.stats", "h5py", "matplotlib", "numba", "distributed", "tornado", "rosbags")
 #: estimators the chip simulators (and hence ``imustation capture``) do not use
-ESTIMATORS = ("imustation.analysis.allan", "imustation.analysis.gmwm", "imustation.analysis.mli", "numba", "matplotlib")
+ESTIMATORS = tuple(f"imustation.analysis.estimators.{m}" for m in ("allan", "gmwm", "mli", "fitting")) + (
+    "numba",
+    "matplotlib",
+)
 
 
 def _loaded_after(code: str, names) -> list[str]:
@@ -50,20 +53,23 @@ for args in calls:
     assert _loaded_after(code, HEAVY) == []
 
 
-@pytest.mark.parametrize("module", ["imustation.analysis.models", "imustation.drivers.sim"])
+@pytest.mark.parametrize("module", ["imustation.analysis.estimators.models", "imustation.drivers.sim"])
 def test_simulators_skip_the_estimators(module):
     assert _loaded_after(f"import {module}", ESTIMATORS) == []
 
 
 def test_noise_models_skip_scipy_stats():
-    assert _loaded_after("import imustation.analysis.models", ["scipy.stats"]) == []
+    assert _loaded_after("import imustation.analysis.estimators.models", ["scipy.stats"]) == []
 
 
 def test_public_analysis_names_resolve():
     from imustation.analysis import StandardModel, fit_mli, oadev
 
-    assert (oadev.__module__, fit_mli.__module__) == ("imustation.analysis.allan", "imustation.analysis.mli")
-    assert StandardModel.__module__ == "imustation.analysis.models"
+    assert (oadev.__module__, fit_mli.__module__) == (
+        "imustation.analysis.estimators.allan",
+        "imustation.analysis.estimators.mli",
+    )
+    assert StandardModel.__module__ == "imustation.analysis.estimators.models"
     assert sorted(analysis.__all__) == sorted(analysis._ORIGIN)
     for name in analysis.__all__:
         value = getattr(analysis, name)
@@ -76,16 +82,19 @@ def test_public_analysis_names_resolve():
 
 
 def test_submodules_still_import_from_the_package():
-    from imustation.analysis import plots
+    from imustation.analysis import reports
 
-    assert plots.__name__ == "imustation.analysis.plots"
+    assert reports.__name__ == "imustation.analysis.reports"
     with pytest.raises(AttributeError, match="no_such_name"):
         analysis.no_such_name  # noqa: B018
 
 
 def test_library_modules_use_the_cli_vocabularies():
-    """The CLI's choices (analysis.choices) are the ones the library modules act on."""
-    from imustation.analysis import choices, export, field_import, pipeline, study
+    """The CLI's choices (analysis.pipeline.choices) are the ones the library modules act on."""
+    from imustation.analysis import field_import
+    from imustation.analysis.pipeline import channel as pipeline
+    from imustation.analysis.pipeline import choices, study
+    from imustation.analysis.reports import export
 
     assert pipeline.ESTIMATORS is choices.ESTIMATORS and pipeline.METHODS is choices.METHODS
     assert pipeline.DEFAULT_ESTIMATOR is choices.DEFAULT_ESTIMATOR
@@ -95,7 +104,7 @@ def test_library_modules_use_the_cli_vocabularies():
 
 
 def test_analyze_options_carry_the_library_values():
-    from imustation.analysis import pipeline
+    from imustation.analysis.pipeline import channel as pipeline
 
     params = {p.name: p for p in cli.commands["analyze"].params}
     assert params["estimator"].type.choices == pipeline.ESTIMATORS

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from imustation.analysis.tables import NoiseRow, table_csv, table_latex, table_markdown, units_of
+from imustation.analysis.reports.tables import NoiseRow, table_csv, table_latex, table_markdown, units_of
 
 # EuRoC ADIS16448 (noise-formulas.md §3.1): 1.6968e-4 rad/s/sqrt(Hz) = 35.0 deg/h/sqrt(Hz) = 0.5833 deg/sqrt(h)
 EUROC = {"sigma_w": 1.6968e-4, "sigma_b": 1.9393e-5, "tau_b": 300.0, "N": 1.6968e-4, "B": 1e-5, "K": 1.9393e-5}

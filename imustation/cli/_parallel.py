@@ -11,8 +11,8 @@ import click
 from imustation.errors import InputError
 
 if TYPE_CHECKING:
-    from imustation.analysis.parallel import AnalysisOptions, ChannelTask, TaskFailure
-    from imustation.analysis.pipeline import ChannelAnalysis
+    from imustation.analysis.pipeline.channel import ChannelAnalysis
+    from imustation.analysis.pipeline.parallel import AnalysisOptions, ChannelTask, TaskFailure
 
 
 def cluster_options(f):
@@ -50,7 +50,7 @@ def execute(
     label: str = "analysing",
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
     """Run the tasks (serially, locally or on ``scheduler``) with a progress bar and failures on stderr."""
-    from imustation.analysis.parallel import dask_client, run_tasks
+    from imustation.analysis.pipeline.parallel import dask_client, run_tasks
 
     if workers and scheduler:
         raise InputError("give --workers or --scheduler, not both")

@@ -9,7 +9,7 @@ import tempfile
 
 import click
 
-from imustation.analysis import choices
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.cli._parallel import cluster_options, execute, report_failures
 from imustation.cli.importcmd import field_options, run_import, text_options
@@ -149,9 +149,9 @@ def analyze(
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
+    from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
     from imustation.analysis.field_import import is_field_input
-    from imustation.analysis.mli import DEFAULT_COMPARISON
-    from imustation.analysis.parallel import AnalysisOptions
+    from imustation.analysis.pipeline.parallel import AnalysisOptions
 
     with tempfile.TemporaryDirectory(prefix="imustation-import-") as tmp:
         paths = []
@@ -174,8 +174,8 @@ def analyze(
 
 
 def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
-    from imustation.analysis.parallel import plan_tasks
-    from imustation.analysis.pipeline import analysis_document
+    from imustation.analysis.pipeline.channel import analysis_document
+    from imustation.analysis.pipeline.parallel import plan_tasks
 
     tasks, failures = plan_tasks(paths, globs, opts.rate_hz)
     report_failures(failures)
@@ -197,9 +197,9 @@ def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_li
 
 
 def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json) -> None:
-    from imustation.analysis.loaders import load_inputs
-    from imustation.analysis.mli import DEFAULT_COMPARISON
-    from imustation.analysis.pipeline import analysis_document, analyze_channel
+    from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
+    from imustation.analysis.pipeline.channel import analysis_document, analyze_channel
+    from imustation.analysis.pipeline.loaders import load_inputs
 
     channels = load_inputs(inputs, globs, rate_hz)
     results = []

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from imustation.analysis import choices
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -69,9 +69,9 @@ def export(
     """
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
-    from imustation.analysis.export import export_text, sensor_noise
-    from imustation.analysis.loaders import load_run
-    from imustation.analysis.pipeline import analyze_channel
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import load_run
+    from imustation.analysis.reports.export import export_text, sensor_noise
 
     channels = load_run(run)
     gyros = _device_channels(channels, device, "gyro", run)

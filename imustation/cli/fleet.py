@@ -16,7 +16,7 @@ from imustation.errors import InputError
 
 def _page(md: str, png: bytes, summary: str) -> str:
     """Self-contained HTML: the Markdown tables as HTML and the Allan figure embedded as base64 PNG."""
-    from imustation.analysis.fleet import MIN_GROUP, Z_LIMIT
+    from imustation.analysis.pipeline.fleet import MIN_GROUP, Z_LIMIT
 
     img = base64.b64encode(png).decode("ascii")
     rule = (
@@ -64,9 +64,9 @@ def fleet(
     that fails is reported and listed; the exit status is 2 only when every
     run failed.
     """
-    from imustation.analysis import plots
-    from imustation.analysis.fleet import flag_outliers, fleet_csv, fleet_markdown, fleet_rows, repeatability
-    from imustation.analysis.parallel import AnalysisOptions, plan_tasks
+    from imustation.analysis.pipeline.fleet import flag_outliers, fleet_csv, fleet_markdown, fleet_rows, repeatability
+    from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks
+    from imustation.analysis.reports import plots
 
     tasks, failures = plan_tasks(runs, globs)
     report_failures(failures)

@@ -68,11 +68,11 @@ def _figure_html(name: str, caption: str) -> str:
 
 def report_run(path: str, out_dir: str, globs: tuple[str, ...], model: str, warmup: str) -> tuple[list[str], list]:
     """Analyse one run and write its tables, figures and ``index.html``; returns the files written and table rows."""
-    from imustation.analysis import plots
-    from imustation.analysis.loaders import load_run
-    from imustation.analysis.pipeline import analyze_channel
-    from imustation.analysis.tables import noise_rows, table_csv, table_latex, table_markdown, units_of
-    from imustation.analysis.temperature import (
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import load_run
+    from imustation.analysis.reports import plots
+    from imustation.analysis.reports.tables import noise_rows, table_csv, table_latex, table_markdown, units_of
+    from imustation.analysis.reports.temperature import (
         detect_warmup,
         device_temperature,
         fit_tempco,
@@ -259,7 +259,7 @@ def report(runs: tuple[str, ...], out_dir: str, globs: tuple[str, ...], model: s
     """
     if warmup not in ("auto", "0", "none"):
         parse_duration(warmup)
-    from imustation.analysis.tables import table_csv, table_latex, table_markdown
+    from imustation.analysis.reports.tables import table_csv, table_latex, table_markdown
 
     all_rows = []
     for path in runs:

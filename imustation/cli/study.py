@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from imustation.analysis.choices import STUDY_ESTIMATORS
+from imustation.analysis.pipeline.choices import STUDY_ESTIMATORS
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.units import parse_duration
@@ -63,8 +63,8 @@ def study(
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
     lv = _floats(levels, "--levels")
     seconds = parse_duration(duration)
-    from imustation.analysis.reference import TABLE_III_MEAN
-    from imustation.analysis.study import markdown, run_study, summarize
+    from imustation.analysis.estimators.reference import TABLE_III_MEAN
+    from imustation.analysis.pipeline.study import markdown, run_study, summarize
 
     fits = run_study(
         TABLE_III_MEAN,

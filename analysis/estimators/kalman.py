@@ -2,7 +2,7 @@
 
 State ``x = [term states..., Omega]`` (``Omega`` the angle since the start of the
 current segment), transition and process noise from the closed-form
-discretisation of :mod:`imustation.analysis.noise_models`, observation
+discretisation of :mod:`imustation.analysis.estimators.noise_models`, observation
 ``Y_i = Omega(t_i) + b_on X_i + n_i`` with ``X_i`` the time since the segment
 start and ``n_i`` the white angle noise (variance ``R``, 0 without a ``wa`` term).
 
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.noise_models import _TermBlock, discretize_blocks
+from imustation.analysis.estimators.noise_models import _TermBlock, discretize_blocks
 
 
 @dataclass

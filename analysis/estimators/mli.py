@@ -1,6 +1,6 @@
 """ML_i: maximum likelihood on the integrated signal (Nikolic et al. 2016, §III, Algorithm 2).
 
-Rate noise models from :mod:`imustation.analysis.noise_models` (``"wn+gm"`` is the
+Rate noise models from :mod:`imustation.analysis.estimators.noise_models` (``"wn+gm"`` is the
 paper's eq. 22; also ``"wn+rw"``, ``"wn+gm+rw"``, ``"wn+2gm"``, ``"wa+wn"``,
 ``"wa+wn+gm"``, ...), each with a diffuse turn-on bias. The rate is integrated
 once (eq. 20, exactly in int64 for raw counts), sampled on a pattern (log-spaced,
@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from imustation.analysis.kalman import Layout, Profile, kalman_profile
-from imustation.analysis.noise_models import (
+from imustation.analysis.estimators.kalman import Layout, Profile, kalman_profile
+from imustation.analysis.estimators.noise_models import (
     GaussMarkov,
     NoiseModel,
     RandomWalk,

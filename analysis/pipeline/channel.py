@@ -7,14 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.allan import AllanResult, oadev
-from imustation.analysis.choices import DEFAULT_ESTIMATOR, ESTIMATORS, METHODS
-from imustation.analysis.composite import fit_composite
-from imustation.analysis.gmwm import fit_gmwm
-from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.loaders import Channel
-from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, integrate
-from imustation.analysis.verdict import Verdict, channel_verdict
+from imustation.analysis.estimators.allan import AllanResult, oadev
+from imustation.analysis.estimators.composite import fit_composite
+from imustation.analysis.estimators.gmwm import fit_gmwm
+from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
+from imustation.analysis.estimators.mli import MLiResult, compare_models, fit_integrated, integrate
+from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, ESTIMATORS, METHODS
+from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
 
 DOC_FORMAT = "imustation-analysis"

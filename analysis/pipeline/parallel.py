@@ -3,8 +3,8 @@
 The unit of work is one channel of one input file, named by two strings,
 ``(path, channel id)``: each task opens the file itself and reads only its own
 channel (no sample arrays travel through the scheduler), runs
-:func:`~imustation.analysis.pipeline.analyze_channel` and returns the same
-:class:`~imustation.analysis.pipeline.ChannelAnalysis` the serial path builds,
+:func:`~imustation.analysis.pipeline.channel.analyze_channel` and returns the same
+:class:`~imustation.analysis.pipeline.channel.ChannelAnalysis` the serial path builds,
 with the channel's samples released (a few kB: Allan curve, fits, verdict). So
 the JSON of a parallel analysis is identical to the serial one.
 
@@ -26,8 +26,8 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from imustation.analysis.loaders import NoChannelsError, load_inputs
-from imustation.analysis.pipeline import DEFAULT_ESTIMATOR, ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.channel import DEFAULT_ESTIMATOR, ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.loaders import NoChannelsError, load_inputs
 from imustation.errors import ImustationError, InputError
 
 #: environment of local worker processes: one compute thread each (numba, OpenMP, BLAS)

@@ -42,9 +42,9 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from imustation.analysis.allan import oadev
-from imustation.analysis.kalman import Profile
-from imustation.analysis.mli import (
+from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.kalman import Profile
+from imustation.analysis.estimators.mli import (
     Z90,
     Increments,
     MLiResult,
@@ -60,7 +60,7 @@ from imustation.analysis.mli import (
     grid_start,
     integrate,
 )
-from imustation.analysis.noise_models import _expm1_tail, parse_model
+from imustation.analysis.estimators.noise_models import _expm1_tail, parse_model
 from imustation.errors import InputError
 
 ESTIMATOR = "ML_i-F"

@@ -16,8 +16,8 @@ import time
 
 import numpy as np
 
-from imustation.analysis.kalman import Profile
-from imustation.analysis.mli import (
+from imustation.analysis.estimators.kalman import Profile
+from imustation.analysis.estimators.mli import (
     MLiResult,
     _check_rate,
     _NewtonResult,
@@ -29,7 +29,7 @@ from imustation.analysis.mli import (
     _Spec,
     sampling_pattern,
 )
-from imustation.analysis.noise_models import parse_model
+from imustation.analysis.estimators.noise_models import parse_model
 from imustation.errors import InputError
 
 
@@ -67,7 +67,7 @@ def rate_filter(z: np.ndarray, gaps: np.ndarray, fs_hz: float, r: np.ndarray, ta
 class _RateProblem(_Problem):
     """Likelihood of the standard model on subsampled rate, batched.
 
-    Shares :class:`imustation.analysis.mli._Problem`'s ``nll``/``full_nll`` and
+    Shares :class:`imustation.analysis.estimators.mli._Problem`'s ``nll``/``full_nll`` and
     optimiser; only the data, the search box and ``profile`` (the rate filter) differ.
     """
 
