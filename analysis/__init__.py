@@ -34,12 +34,14 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from imustation.analysis.estimators.allan import AllanResult, mdev, oadev, ohdev, totdev
     from imustation.analysis.estimators.ar import ARResult, GaussMarkov, fit_ar, gauss_markov_from_ar1
+    from imustation.analysis.estimators.fitting import MLiResult
     from imustation.analysis.estimators.gmwm import GMWMResult, WVResult, fit_gmwm, wavelet_variance
     from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
     from imustation.analysis.estimators.ml_rate import fit_ml_rate
-    from imustation.analysis.estimators.mli import MLiResult, compare_models, fit_integrated, fit_mli, integrate
+    from imustation.analysis.estimators.mli import compare_models, fit_integrated, fit_mli
     from imustation.analysis.estimators.models import StandardModel, simulate_standard
     from imustation.analysis.estimators.noise_models import NoiseModel
+    from imustation.analysis.estimators.pattern import integrate
     from imustation.analysis.estimators.psd import PSDResult, log_average, welch_psd
 
 #: module (below this package) -> the public names it defines (in step with the TYPE_CHECKING imports and __all__)
@@ -49,7 +51,9 @@ _SOURCES = {
     "estimators.gmwm": ("GMWMResult", "WVResult", "fit_gmwm", "wavelet_variance"),
     "estimators.ieee": ("IEEECoefficients", "ieee_coefficients"),
     "estimators.ml_rate": ("fit_ml_rate",),
-    "estimators.mli": ("MLiResult", "compare_models", "fit_integrated", "fit_mli", "integrate"),
+    "estimators.fitting": ("MLiResult",),
+    "estimators.mli": ("compare_models", "fit_integrated", "fit_mli"),
+    "estimators.pattern": ("integrate",),
     "estimators.models": ("StandardModel", "simulate_standard"),
     "estimators.noise_models": ("NoiseModel",),
     "estimators.psd": ("PSDResult", "log_average", "welch_psd"),

@@ -15,13 +15,14 @@ from imustation.analysis.estimators.composite import (
     ESTIMATOR,
     _CompositeProblem,
     _gm_unit_avar,
-    _Spec,
     fine_scale,
     fit_composite,
     fit_composite_data,
 )
-from imustation.analysis.estimators.mli import _full_nll, fit_integrated, integrate
+from imustation.analysis.estimators.fitting import ParamSpec, full_nll
+from imustation.analysis.estimators.mli import fit_integrated
 from imustation.analysis.estimators.noise_models import GaussMarkov, parse_model, standard
+from imustation.analysis.estimators.pattern import integrate
 from imustation.analysis.pipeline.study import run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
@@ -65,14 +66,14 @@ def test_counts_and_scaled_floats_give_the_same_statistic():
 def test_composite_nll_is_ml_i_likelihood_plus_the_fine_term_at_the_profiled_sigma_w(record):
     inc = integrate(record, FS, m=500, pattern="uniform")
     fine = fine_scale(record, FS)
-    problem = _CompositeProblem(inc, _Spec(parse_model("wn+gm")), fine)
+    problem = _CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
     theta = np.array([[math.log((2e-5 / 1e-3) ** 2), math.log(60.0)], [math.log(1e-6), math.log(500.0)]])
     prof = problem.profile(theta)
     A = problem.unit_avar(theta)
     s = problem.sigma_w2(prof, A)
 
     def total(sw2):
-        return _full_nll(prof, sw2) + (fine.avar - sw2 * A) ** 2 / (2 * fine.var)
+        return full_nll(prof, sw2) + (fine.avar - sw2 * A) ** 2 / (2 * fine.var)
 
     np.testing.assert_allclose(problem.nll(theta), total(s), rtol=1e-12)
     # s is the minimiser over sigma_w^2: nudging it either way costs

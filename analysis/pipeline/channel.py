@@ -9,9 +9,11 @@ import numpy as np
 
 from imustation.analysis.estimators.allan import AllanResult, oadev
 from imustation.analysis.estimators.composite import fit_composite
+from imustation.analysis.estimators.fitting import MLiResult
 from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.estimators.mli import MLiResult, compare_models, fit_integrated, integrate
+from imustation.analysis.estimators.mli import compare_models, fit_integrated
+from imustation.analysis.estimators.pattern import integrate
 from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, ESTIMATORS, METHODS
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict

@@ -37,9 +37,10 @@ from imustation.analysis.estimators.composite import DEFAULT_M as F_DEFAULT_M
 from imustation.analysis.estimators.composite import fine_scale, fit_composite_data
 from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ml_rate import fit_ml_rate
-from imustation.analysis.estimators.mli import fit_integrated, integrate
+from imustation.analysis.estimators.mli import fit_integrated
 from imustation.analysis.estimators.models import StandardModel
 from imustation.analysis.estimators.noise_models import standard
+from imustation.analysis.estimators.pattern import integrate
 from imustation.analysis.pipeline.choices import STUDY_ESTIMATORS as ESTIMATORS
 from imustation.errors import InputError
 
