@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from imustation.analysis.estimators.allan import AllanResult, mdev, oadev, ohdev, totdev
-    from imustation.analysis.estimators.ar import ARResult, GaussMarkov, fit_ar, gauss_markov_from_ar1
+    from imustation.analysis.estimators.ar import ARResult, GaussMarkovFit, fit_ar, gauss_markov_from_ar1
     from imustation.analysis.estimators.fitting import MLiResult
     from imustation.analysis.estimators.gmwm import GMWMResult, WVResult, fit_gmwm, wavelet_variance
     from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 #: module (below this package) -> the public names it defines (in step with the TYPE_CHECKING imports and __all__)
 _SOURCES = {
     "estimators.allan": ("AllanResult", "mdev", "oadev", "ohdev", "totdev"),
-    "estimators.ar": ("ARResult", "GaussMarkov", "fit_ar", "gauss_markov_from_ar1"),
+    "estimators.ar": ("ARResult", "GaussMarkovFit", "fit_ar", "gauss_markov_from_ar1"),
     "estimators.gmwm": ("GMWMResult", "WVResult", "fit_gmwm", "wavelet_variance"),
     "estimators.ieee": ("IEEECoefficients", "ieee_coefficients"),
     "estimators.ml_rate": ("fit_ml_rate",),
@@ -70,7 +70,7 @@ __all__ = [
     "welch_psd",
     "log_average",
     "ARResult",
-    "GaussMarkov",
+    "GaussMarkovFit",
     "fit_ar",
     "gauss_markov_from_ar1",
     "IEEECoefficients",

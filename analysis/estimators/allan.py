@@ -85,20 +85,6 @@ def log_taus(n: int, fs_hz: float, per_decade: int = 10, order: int = 2) -> np.n
     return m.astype(np.int64) / fs_hz
 
 
-def integrate(rate: np.ndarray, fs_hz: float, scale: float = 1.0) -> np.ndarray:
-    """Angle ``x`` (N+1 points, ``x[0] = 0``) in (unit)*s: exact int64 sums for integer counts."""
-    tau0 = 1.0 / fs_hz
-    if np.issubdtype(rate.dtype, np.integer):
-        x = np.empty(len(rate) + 1, dtype=np.int64)
-        x[0] = 0
-        np.cumsum(rate, dtype=np.int64, out=x[1:])
-        return x.astype(np.float64) * (scale * tau0)
-    x = np.empty(len(rate) + 1, dtype=np.float64)
-    x[0] = 0.0
-    np.cumsum(rate, out=x[1:])
-    return x * (scale * tau0)
-
-
 # ---------------------------------------------------------------------------
 # input handling
 

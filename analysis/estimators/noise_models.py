@@ -425,10 +425,6 @@ class NoiseModel:
             raise InputError(f"discretisation {method!r}: use 'analytic' or 'vanloan'")
         return discretize_blocks([TermBlock.of(t) for t in self._ss_terms()], dt)
 
-    @property
-    def observation_variance(self) -> float:
-        return float(self.state_space()["R"][0, 0])
-
     # -- simulation (Algorithm 1, generalised) -------------------------------
     def simulate(self, n: int, fs_hz: float, seed: int | np.random.Generator | None = None) -> np.ndarray:
         """``n`` rate samples at ``fs_hz`` (Hz): sum of the terms' exact discrete simulations + b_on."""
