@@ -6,6 +6,9 @@ numpy or scipy are loaded; the modules that act on them import them from here.
 
 from __future__ import annotations
 
+#: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet):
+#: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22)
+DEFAULT_MODEL = "wn+gm"
 #: noise-model methods of ``analyze --method`` (analysis/pipeline/channel.py)
 METHODS = ("mli", "gmwm", "both")
 #: estimators that can fill the ``noise_model`` block (``analyze --estimator``)

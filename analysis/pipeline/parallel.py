@@ -199,6 +199,34 @@ def run_tasks(
     return results, [failed[i] for i in sorted(failed)]
 
 
+def execute(
+    tasks: Sequence[ChannelTask],
+    options: AnalysisOptions,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    memory_limit: str | float | None = "auto",
+    on_start: Callable[[object | None], None] | None = None,
+    on_done: Progress | None = None,
+) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
+    """Analyse every task: in this process, on a local cluster of ``workers`` processes, or on the
+    cluster at ``scheduler`` -- the one path of ``analyze`` and ``fleet``.
+
+    ``on_start(client)`` is called once the client (None when serial) is ready, ``on_done`` after
+    each task (see :func:`run_tasks`). Returns the results in task order (None where a task
+    failed) and the failures. Raises :class:`InputError` when both ``workers`` and ``scheduler``
+    are given or the scheduler cannot be reached.
+    """
+    if workers and scheduler:
+        raise InputError("give --workers or --scheduler, not both")
+    if not tasks:
+        return [], []
+    with dask_client(workers, scheduler, memory_limit=memory_limit) as client:
+        if on_start is not None:
+            on_start(client)
+        return run_tasks(tasks, options, client, on_done)
+
+
 @contextlib.contextmanager
 def dask_client(
     workers: int | None = None,

@@ -11,7 +11,7 @@ import click
 
 from imustation.analysis.pipeline import choices
 from imustation.cli import cli
-from imustation.cli._parallel import cluster_options, execute, report_failures
+from imustation.cli._parallel import cluster_options, report_failures, run_with_progress
 from imustation.cli.importcmd import field_options, run_import, text_options
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
@@ -166,23 +166,28 @@ def analyze(
                 paths.append(out)
             else:
                 paths.append(path)
-        if workers or scheduler:
-            opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
-            _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit)
-        else:
-            _analyze(paths, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json)
+        opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
+        _analyze(paths, globs, opts, as_json, workers, scheduler, memory_limit)
 
 
-def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
+def _analyze(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
+    """Plan one task per channel, run them (serially or on a cluster) and print the table or JSON."""
     from imustation.analysis.pipeline.channel import analysis_document
     from imustation.analysis.pipeline.parallel import plan_tasks
 
     tasks, failures = plan_tasks(paths, globs, opts.rate_hz)
-    report_failures(failures)
-    results, failed = execute(tasks, opts, workers=workers, scheduler=scheduler, memory_limit=memory_limit)
+    if tasks:
+        report_failures(failures)  # without tasks they make the error below
+    results, failed = run_with_progress(
+        tasks, opts, workers=workers, scheduler=scheduler, memory_limit=memory_limit, bar=not as_json
+    )
     failures += failed
     done = [r for r in results if r is not None]
     if not done:
+        if len(failures) == 1:
+            raise InputError(failures[0].error)
+        # each failure on its own line (a single task's was not shown while it ran), then the count
+        report_failures(failures if not tasks else failed if len(tasks) == 1 else [])
         first = failures[0].error if failures else "no channels"
         raise InputError(f"every input failed ({len(failures)} failures; first: {first})")
     if as_json:
@@ -194,30 +199,3 @@ def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_li
         click.echo(results_table(done))
         if failures:
             click.echo(f"{len(failures)} failed (see above); {len(done)} channels analysed", err=True)
-
-
-def _analyze(inputs, globs, rate_hz, pattern, m, model, compare, method, estimator, as_json) -> None:
-    from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
-    from imustation.analysis.pipeline.channel import analysis_document, analyze_channel
-    from imustation.analysis.pipeline.loaders import load_inputs
-
-    channels = load_inputs(inputs, globs, rate_hz)
-    results = []
-    for ch in channels:
-        if not as_json:
-            click.echo(f"analysing {ch.id} ({ch.n} samples) ...", err=True)
-        results.append(
-            analyze_channel(
-                ch,
-                pattern=pattern,
-                m=m,
-                model=model,
-                compare=DEFAULT_COMPARISON if compare else (),
-                method=method,
-                estimator=estimator,
-            )
-        )
-    if as_json:
-        click.echo(json.dumps(analysis_document(results)))
-    else:
-        click.echo(results_table(results))
