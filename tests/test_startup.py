@@ -110,3 +110,21 @@ def test_analyze_options_carry_the_library_values():
     assert params["estimator"].type.choices == pipeline.ESTIMATORS
     assert params["estimator"].default == pipeline.DEFAULT_ESTIMATOR
     assert params["method"].type.choices == pipeline.METHODS
+
+
+def test_one_option_vocabulary_across_commands():
+    """-o/--output wherever a command writes a file; one default model and method, named in choices."""
+    from imustation.analysis.pipeline import choices
+
+    writers = ("capture", "demo", "export", "fleet", "import", "report", "study")
+    for name in writers:
+        opts = {o for p in cli.commands[name].params for o in p.opts}
+        assert {"-o", "--output"} <= opts, name
+    assert "--out" in {o for p in cli.commands["study"].params for o in p.opts}  # the former spelling still works
+    models = {name: p.default for name, c in cli.commands.items() for p in c.params if p.name == "model"}
+    assert set(models) == {"analyze", "export", "fleet", "report"}
+    assert set(models.values()) == {choices.DEFAULT_MODEL}
+    params = {p.name: p for p in cli.commands["analyze"].params}
+    assert params["method"].default == choices.DEFAULT_METHOD
+    study = {p.name: p for p in cli.commands["study"].params}
+    assert study["estimators"].default == ",".join(choices.DEFAULT_STUDY_ESTIMATORS)

@@ -26,7 +26,8 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from imustation.analysis.pipeline.channel import DEFAULT_ESTIMATOR, ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.channel import ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import NoChannelsError, load_inputs
 from imustation.errors import ImustationError, InputError
 
@@ -67,9 +68,9 @@ class AnalysisOptions:
 
     pattern: str = "log"
     m: int = 1000
-    model: str = "wn+gm"
+    model: str = DEFAULT_MODEL
     compare: tuple[str, ...] = ()
-    method: str = "mli"
+    method: str = DEFAULT_METHOD
     rate_hz: float | None = None
     estimator: str = DEFAULT_ESTIMATOR
 

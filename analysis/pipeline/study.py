@@ -41,6 +41,7 @@ from imustation.analysis.estimators.mli import fit_integrated
 from imustation.analysis.estimators.models import StandardModel
 from imustation.analysis.estimators.noise_models import standard
 from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.pipeline.choices import DEFAULT_STUDY_ESTIMATORS
 from imustation.analysis.pipeline.choices import STUDY_ESTIMATORS as ESTIMATORS
 from imustation.errors import InputError
 
@@ -86,7 +87,7 @@ def run_study(
     duration_s: float,
     fs_hz: float = 400.0,
     seed: int = 0,
-    estimators: tuple[str, ...] = ("mli-log",),
+    estimators: tuple[str, ...] = DEFAULT_STUDY_ESTIMATORS,
     levels: tuple[float, ...] = (1.0,),
     m: int = 1000,
     progress=None,

@@ -86,7 +86,12 @@ def _interp_adev(allan, tau: float) -> float:
 @click.option(
     "-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Number of ML_i pattern intervals."
 )
-@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model, e.g. wn+gm, wn+2gm, wa+wn+gm.")
+@click.option(
+    "--model",
+    default=choices.DEFAULT_MODEL,
+    show_default=True,
+    help="Noise model fitted, e.g. wn+gm, wn+2gm, wa+wn+gm.",
+)
 @click.option(
     "--compare-models",
     "compare",
@@ -104,7 +109,7 @@ def _interp_adev(allan, tau: float) -> float:
 @click.option(
     "--method",
     type=click.Choice(choices.METHODS),
-    default="mli",
+    default=choices.DEFAULT_METHOD,
     show_default=True,
     help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
 )
@@ -140,12 +145,12 @@ def analyze(
     column when --rate is not given; docs/import.md). Prints a table, or with
     --json the document described in docs/analysis-json.md.
 
-    With --workers N (a local dask cluster) or --scheduler ADDR (an existing
-    one) every channel is one task that reads its channel from the file
-    itself; the results are identical to the serial ones. A run or channel
-    that fails is reported on stderr (and under 'failures' in the JSON) and
-    the others finish; the exit status is 2 only when every one failed
-    (docs/fleet.md).
+    Every channel is one task that reads its channel from the file itself:
+    in this process, or in parallel with --workers N (a local dask cluster)
+    or --scheduler ADDR (an existing one), with identical results. A run or
+    channel that fails is reported on stderr (and under 'failures' in the
+    JSON) and the others finish; the exit status is 2 only when every one
+    failed (docs/fleet.md).
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.cli._parallel import cluster_options, report_failures, run_with_progress
 
@@ -14,7 +15,9 @@ from imustation.cli._parallel import cluster_options, report_failures, run_with_
 @click.option(
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to include (default: every gyro/accel axis)."
 )
-@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model (sigma_w, sigma_b, tau_b).")
+@click.option(
+    "--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted (sigma_w, sigma_b, tau_b)."
+)
 @cluster_options
 def fleet(
     runs: tuple[str, ...],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import click
 
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 
 
@@ -13,7 +14,7 @@ from imustation.cli import cli
 @click.option(
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to report (default: gyro/accel axes)."
 )
-@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model.")
+@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
 @click.option(
     "--warmup",
     default="auto",
