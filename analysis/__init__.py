@@ -10,10 +10,19 @@ Public API::
     fit = fit_mli(rate, fs_hz, model="wn+2gm", segments=[(0, n1), (n2, n)])
     wv = wavelet_variance(rate, fs_hz)  # Haar WV: .scale, .tau, .wv, .wv_lo, .wv_hi; fit_gmwm -> MLiResult fields
 
+Three rooms (each subpackage's ``__init__`` names what it offers):
+
+* :mod:`.estimators` -- arrays in, plain dataclasses out (Allan, PSD, IEEE-952, AR, the
+  noise-model library, ML_i, ML_i-F, ML on rates, GMWM and their fitting engine);
+* :mod:`.reports` -- tables, figures, filter-parameter exports, attitude and temperature
+  handling, and the assembly of one run's report;
+* :mod:`.pipeline` -- loading channels, running the estimators per channel, serially or on
+  a cluster, over runs and fleets, the Monte Carlo study and the option vocabularies.
+
 This layer imports nothing from ``imustation.drivers`` or ``imustation.acquisition``.
 
 The names above load on first use (PEP 562 ``__getattr__``): importing one submodule,
-e.g. ``imustation.analysis.models`` for the chip simulators, does not pay for scipy.stats,
+e.g. ``imustation.analysis.estimators.models`` for the chip simulators, does not pay for scipy.stats,
 numba and every estimator.
 """
 
@@ -23,27 +32,31 @@ import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from imustation.analysis.allan import AllanResult, mdev, oadev, ohdev, totdev
-    from imustation.analysis.ar import ARResult, GaussMarkov, fit_ar, gauss_markov_from_ar1
-    from imustation.analysis.gmwm import GMWMResult, WVResult, fit_gmwm, wavelet_variance
-    from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
-    from imustation.analysis.ml_rate import fit_ml_rate
-    from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, fit_mli, integrate
-    from imustation.analysis.models import StandardModel, simulate_standard
-    from imustation.analysis.noise_models import NoiseModel
-    from imustation.analysis.psd import PSDResult, log_average, welch_psd
+    from imustation.analysis.estimators.allan import AllanResult, mdev, oadev, ohdev, totdev
+    from imustation.analysis.estimators.ar import ARResult, GaussMarkovFit, fit_ar, gauss_markov_from_ar1
+    from imustation.analysis.estimators.fitting import MLiResult
+    from imustation.analysis.estimators.gmwm import GMWMResult, WVResult, fit_gmwm, wavelet_variance
+    from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
+    from imustation.analysis.estimators.ml_rate import fit_ml_rate
+    from imustation.analysis.estimators.mli import compare_models, fit_integrated, fit_mli
+    from imustation.analysis.estimators.models import StandardModel, simulate_standard
+    from imustation.analysis.estimators.noise_models import NoiseModel
+    from imustation.analysis.estimators.pattern import integrate
+    from imustation.analysis.estimators.psd import PSDResult, log_average, welch_psd
 
-#: submodule -> the public names it defines (in step with the TYPE_CHECKING imports and __all__)
+#: module (below this package) -> the public names it defines (in step with the TYPE_CHECKING imports and __all__)
 _SOURCES = {
-    "allan": ("AllanResult", "mdev", "oadev", "ohdev", "totdev"),
-    "ar": ("ARResult", "GaussMarkov", "fit_ar", "gauss_markov_from_ar1"),
-    "gmwm": ("GMWMResult", "WVResult", "fit_gmwm", "wavelet_variance"),
-    "ieee": ("IEEECoefficients", "ieee_coefficients"),
-    "ml_rate": ("fit_ml_rate",),
-    "mli": ("MLiResult", "compare_models", "fit_integrated", "fit_mli", "integrate"),
-    "models": ("StandardModel", "simulate_standard"),
-    "noise_models": ("NoiseModel",),
-    "psd": ("PSDResult", "log_average", "welch_psd"),
+    "estimators.allan": ("AllanResult", "mdev", "oadev", "ohdev", "totdev"),
+    "estimators.ar": ("ARResult", "GaussMarkovFit", "fit_ar", "gauss_markov_from_ar1"),
+    "estimators.gmwm": ("GMWMResult", "WVResult", "fit_gmwm", "wavelet_variance"),
+    "estimators.ieee": ("IEEECoefficients", "ieee_coefficients"),
+    "estimators.ml_rate": ("fit_ml_rate",),
+    "estimators.fitting": ("MLiResult",),
+    "estimators.mli": ("compare_models", "fit_integrated", "fit_mli"),
+    "estimators.pattern": ("integrate",),
+    "estimators.models": ("StandardModel", "simulate_standard"),
+    "estimators.noise_models": ("NoiseModel",),
+    "estimators.psd": ("PSDResult", "log_average", "welch_psd"),
 }
 _ORIGIN = {name: module for module, names in _SOURCES.items() for name in names}
 
@@ -57,7 +70,7 @@ __all__ = [
     "welch_psd",
     "log_average",
     "ARResult",
-    "GaussMarkov",
+    "GaussMarkovFit",
     "fit_ar",
     "gauss_markov_from_ar1",
     "IEEECoefficients",
@@ -80,7 +93,7 @@ __all__ = [
 
 def __getattr__(name: str):
     module = _ORIGIN.get(name)
-    if module is None:  # also lets ``from imustation.analysis import plots`` fall through to the submodule
+    if module is None:  # also lets ``from imustation.analysis import reports`` fall through to the subpackage
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
     globals()[name] = value  # later look-ups skip __getattr__

@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from imustation.analysis.noise_models import standard
-from imustation.analysis.parallel import AnalysisOptions, dask_client, plan_tasks, run_tasks
-from imustation.analysis.pipeline import analysis_document
-from imustation.analysis.reference import TABLE_III_MEAN
+from imustation.analysis.estimators.noise_models import standard
+from imustation.analysis.estimators.reference import TABLE_III_MEAN
+from imustation.analysis.pipeline.channel import analysis_document
+from imustation.analysis.pipeline.parallel import AnalysisOptions, dask_client, plan_tasks, run_tasks
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
 
 FS_HZ = 400.0
@@ -68,7 +68,7 @@ def synth_run(path: str, hours: float, seed: int) -> int:
 
 _ONE_TASK = """
 import sys, time
-from imustation.analysis.parallel import AnalysisOptions, analyze_task
+from imustation.analysis.pipeline.parallel import AnalysisOptions, analyze_task
 
 def hwm():  # peak RSS of this process image, bytes (VmHWM starts afresh at exec, unlike ru_maxrss)
     with open("/proc/self/status") as fh:
@@ -100,8 +100,8 @@ def _cpu_s() -> float:
 
 def _warm_up() -> None:
     """Load the numba kernels and scipy in a worker (part of the cluster start, not of the tasks)."""
-    from imustation.analysis.loaders import Channel
-    from imustation.analysis.pipeline import analyze_channel
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import Channel
 
     x = standard(1e-4, 1e-6, 100.0, 0.0).simulate(40000, FS_HZ, 0)
     analyze_channel(Channel("warm", FS_HZ, "rad/s", np.rint(x / SCALE).astype(np.int16), SCALE))

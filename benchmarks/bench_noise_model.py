@@ -13,9 +13,10 @@ import argparse
 
 from _common import COUNT_SCALE, best_of, table_iii_record
 
-from imustation.analysis.composite import DEFAULT_M, fine_scale, fit_composite_data
-from imustation.analysis.gmwm import fit_gmwm
-from imustation.analysis.mli import fit_integrated, integrate
+from imustation.analysis.estimators.composite import DEFAULT_M, fine_scale, fit_composite_data
+from imustation.analysis.estimators.gmwm import fit_gmwm
+from imustation.analysis.estimators.mli import fit_integrated
+from imustation.analysis.estimators.pattern import integrate
 
 
 def main() -> None:

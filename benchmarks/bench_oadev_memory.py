@@ -43,7 +43,7 @@ def write_run(path: str, hours: float) -> int:
 
 def measure(path: str) -> None:
     from imustation.analysis import oadev
-    from imustation.analysis.loaders import load_run
+    from imustation.analysis.pipeline.loaders import load_run
 
     t0 = time.perf_counter()
     ch = load_run(path, ["gyro0/gyro/z"])[0]

@@ -5,8 +5,10 @@ import pytest
 from reference_data import nbs14_1000
 
 from imustation.analysis import StandardModel, fit_mli, oadev, simulate_standard
-from imustation.analysis.loaders import load_inputs
-from imustation.analysis.mli import _filter, _full_nll, integrate_pattern, sampling_pattern
+from imustation.analysis.estimators.fitting import full_nll
+from imustation.analysis.estimators.pattern import integrate_pattern, sampling_pattern
+from imustation.analysis.estimators.scan import standard_profile
+from imustation.analysis.pipeline.loaders import load_inputs
 
 
 def test_nbs14_generator_check_values():
@@ -90,8 +92,8 @@ def test_scan_filter_equals_textbook_kalman_filter():
         P = P - np.outer(K, K) * B
     # diffuse limit (de Jong 1991): the large-prior likelihood exceeds the diffuse one
     # by the prior's normalising term 0.5 log(2 pi big)
-    prof = _filter(y, dt, np.array([sb**2 / sw**2]), np.array([tau]))
-    ours = _full_nll(prof, np.array([sw**2]))[0]
+    prof = standard_profile(y, dt, np.array([sb**2 / sw**2]), np.array([tau]))
+    ours = full_nll(prof, np.array([sw**2]))[0]
     assert nll - 0.5 * np.log(2 * np.pi * big) == pytest.approx(ours, abs=1e-4)
 
 

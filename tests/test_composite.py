@@ -1,4 +1,4 @@
-"""ML_i-F (analysis/composite.py): the integrated likelihood plus the fine-scale Allan variance."""
+"""ML_i-F (analysis/estimators/composite.py): the integrated likelihood plus the fine-scale Allan variance."""
 
 from __future__ import annotations
 
@@ -10,19 +10,20 @@ import pytest
 from click.testing import CliRunner
 from scipy.signal import lfilter
 
-from imustation.analysis.allan import oadev
-from imustation.analysis.composite import (
+from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.composite import (
     ESTIMATOR,
     _CompositeProblem,
     _gm_unit_avar,
-    _Spec,
     fine_scale,
     fit_composite,
     fit_composite_data,
 )
-from imustation.analysis.mli import _full_nll, fit_integrated, integrate
-from imustation.analysis.noise_models import GaussMarkov, parse_model, standard
-from imustation.analysis.study import run_study, summarize
+from imustation.analysis.estimators.fitting import ParamSpec, full_nll
+from imustation.analysis.estimators.mli import fit_integrated
+from imustation.analysis.estimators.noise_models import GaussMarkov, parse_model, standard
+from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.pipeline.study import run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -65,14 +66,14 @@ def test_counts_and_scaled_floats_give_the_same_statistic():
 def test_composite_nll_is_ml_i_likelihood_plus_the_fine_term_at_the_profiled_sigma_w(record):
     inc = integrate(record, FS, m=500, pattern="uniform")
     fine = fine_scale(record, FS)
-    problem = _CompositeProblem(inc, _Spec(parse_model("wn+gm")), fine)
+    problem = _CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
     theta = np.array([[math.log((2e-5 / 1e-3) ** 2), math.log(60.0)], [math.log(1e-6), math.log(500.0)]])
     prof = problem.profile(theta)
     A = problem.unit_avar(theta)
     s = problem.sigma_w2(prof, A)
 
     def total(sw2):
-        return _full_nll(prof, sw2) + (fine.avar - sw2 * A) ** 2 / (2 * fine.var)
+        return full_nll(prof, sw2) + (fine.avar - sw2 * A) ** 2 / (2 * fine.var)
 
     np.testing.assert_allclose(problem.nll(theta), total(s), rtol=1e-12)
     # s is the minimiser over sigma_w^2: nudging it either way costs
@@ -142,7 +143,7 @@ def test_single_start_option_and_bad_input(record):
 
 
 def test_study_reports_mli_f_and_single_start_outcomes():
-    from imustation.analysis.models import StandardModel
+    from imustation.analysis.estimators.models import StandardModel
 
     fits = run_study(
         StandardModel(1e-3, 1e-4, 20.0),
@@ -176,7 +177,7 @@ def test_analyze_json_has_a_noise_model_block_with_the_mli_keys_plus_method(tmp_
 @pytest.mark.slow
 def test_monte_carlo_coverage_of_the_intervals():
     """40 records of 2 h: every 90 % interval covers the truth 75-100 % of the time (binomial 4 sigma)."""
-    from imustation.analysis.models import StandardModel
+    from imustation.analysis.estimators.models import StandardModel
 
     fits = run_study(StandardModel(1e-3, 5e-5, 30.0), records=40, duration_s=7200.0, fs_hz=FS, estimators=("mli-f",))
     for row in summarize(fits):

@@ -9,7 +9,10 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from imustation.analysis.export import (
+from imustation.analysis.estimators.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate
+from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.reports.export import (
     AxisNoise,
     SensorNoise,
     axis_noise,
@@ -18,9 +21,6 @@ from imustation.analysis.export import (
     gm_to_rw_at_tau_b,
     random_walk_from_params,
 )
-from imustation.analysis.loaders import Channel
-from imustation.analysis.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate
-from imustation.analysis.pipeline import analyze_channel
 from imustation.cli import cli
 from imustation.drivers.sim import simulated_truth
 

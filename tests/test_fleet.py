@@ -11,10 +11,10 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.acquisition import capture, load_config
-from imustation.analysis import parallel
-from imustation.analysis.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
-from imustation.analysis.parallel import AnalysisOptions, plan_tasks, run_tasks
-from imustation.analysis.pipeline import channel_document
+from imustation.analysis.pipeline import parallel
+from imustation.analysis.pipeline.channel import channel_document
+from imustation.analysis.pipeline.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
+from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks, run_tasks
 from imustation.cli import cli
 
 GLOB = "*/gyro/z"
@@ -246,3 +246,23 @@ def test_glob_matching_nothing_in_one_run_is_not_a_failure(fleet_runs, tmp_path)
         plan_tasks(runs, ["nothing/*"])
     r = CliRunner().invoke(cli, ["fleet", *runs, "-o", str(tmp_path), "--channel", "nothing/*"])
     assert r.exit_code == 2 and "no channels matching nothing/*" in r.stderr
+
+
+def test_channels_in_memory_run_on_a_cluster_as_serially(fleet_runs, cluster):
+    """Tasks that carry their channel (a streamed field recording: no file to read back) give
+    the same results on a cluster as in this process, and the same as their file's tasks."""
+    from distributed import Client
+
+    from imustation.analysis.pipeline.loaders import load_inputs
+    from imustation.analysis.pipeline.parallel import tasks_of_channels
+
+    run = fleet_runs[0][0]
+    tasks = tasks_of_channels(load_inputs([run], [GLOB]))
+    assert all(t.data is not None and t.path == run for t in tasks)
+    with Client(cluster, set_as_default=False) as client:
+        res_d, fail_d = run_tasks(tasks, AnalysisOptions(), client)
+    res_s, fail_s = run_tasks(tasks, AnalysisOptions())
+    res_f, _ = run_tasks(plan_tasks([run], [GLOB])[0], AnalysisOptions())
+    assert not fail_d and not fail_s
+    docs = [[json.dumps(channel_document(r)) for r in res] for res in (res_d, res_s, res_f)]
+    assert docs[0] == docs[1] == docs[2]

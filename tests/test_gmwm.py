@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from imustation.analysis.allan import oadev
-from imustation.analysis.gmwm import GMWMResult, fit_gmwm, model_wv, wavelet_variance
-from imustation.analysis.mli import fit_mli
-from imustation.analysis.noise_models import (
+from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.gmwm import GMWMResult, fit_gmwm, model_wv, wavelet_variance
+from imustation.analysis.estimators.mli import fit_mli
+from imustation.analysis.estimators.noise_models import (
     GaussMarkov,
     NoiseModel,
     RandomWalk,
@@ -29,7 +29,7 @@ from imustation.analysis.noise_models import (
     WhiteRate,
     standard,
 )
-from imustation.analysis.study import run_study
+from imustation.analysis.pipeline.study import run_study
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -225,7 +225,7 @@ def test_analyze_method_both_json(tmp_path):
 
 
 def test_study_gmwm_column():
-    from imustation.analysis.models import StandardModel
+    from imustation.analysis.estimators.models import StandardModel
 
     fits = run_study(StandardModel(1e-3, 1e-3, 20.0), records=2, duration_s=2000.0, fs_hz=FS, estimators=("gmwm",))
     assert [f.estimator for f in fits] == ["gmwm", "gmwm"]

@@ -5,7 +5,7 @@ import pytest
 from scipy.signal import lfilter
 
 from imustation.analysis import ieee_coefficients, oadev
-from imustation.analysis.loaders import load_run, locate_breaks, segments_from_breaks
+from imustation.analysis.pipeline.loaders import load_run, locate_breaks, segments_from_breaks
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter, open_run
 
 

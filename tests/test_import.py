@@ -12,9 +12,9 @@ from click.testing import CliRunner
 from test_bad_input import assert_one_line_error
 
 from imustation.acquisition.importers import check_stamps, import_recording, text_mapping
-from imustation.analysis.loaders import load_inputs
-from imustation.analysis.pipeline import analyze_channel
-from imustation.analysis.verdict import data_verdict
+from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.loaders import load_inputs
+from imustation.analysis.pipeline.verdict import data_verdict
 from imustation.cli import cli
 from imustation.runfile import open_run
 

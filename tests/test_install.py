@@ -20,6 +20,9 @@ SUBPACKAGES = [
     "imustation.drivers.sim",
     "imustation.drivers.sim.serial_handlers",
     "imustation.analysis",
+    "imustation.analysis.estimators",
+    "imustation.analysis.reports",
+    "imustation.analysis.pipeline",
     "imustation.monitor",
 ]
 

@@ -17,32 +17,25 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.analysis import StandardModel
-from imustation.analysis.kalman import Layout, kalman_profile
-from imustation.analysis.ml_rate import fit_ml_rate, rate_filter
-from imustation.analysis.mli import (
-    _filter,
-    _Problem,
-    _profile_nll,
-    _Spec,
-    compare_models,
-    fit_integrated,
-    fit_mli,
-    integrate,
-    pattern_avar,
-)
-from imustation.analysis.noise_models import (
+from imustation.analysis.estimators.fitting import ParamSpec, Problem, profiled_nll
+from imustation.analysis.estimators.kalman import Layout, kalman_profile
+from imustation.analysis.estimators.ml_rate import fit_ml_rate, rate_filter
+from imustation.analysis.estimators.mli import compare_models, fit_integrated, fit_mli
+from imustation.analysis.estimators.noise_models import (
     GaussMarkov,
     NoiseModel,
     Quantization,
     RandomWalk,
     RateRamp,
+    TermBlock,
     WhiteAngle,
     WhiteRate,
-    _TermBlock,
     parse_model,
     standard,
 )
-from imustation.analysis.study import markdown, run_study, summarize
+from imustation.analysis.estimators.pattern import integrate, pattern_avar
+from imustation.analysis.estimators.scan import standard_profile
+from imustation.analysis.pipeline.study import markdown, run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -158,10 +151,10 @@ def _pattern_data(model: NoiseModel, seconds: float, m: int, seed: int, segments
 
 def test_general_kalman_filter_equals_scan_filter():
     inc = _pattern_data(standard(1e-4, 5e-6, 40.0, 0.003), 1800, 200, 5)
-    spec = _Spec(("wn", "gm"))
+    spec = ParamSpec(("wn", "gm"))
     theta = np.log([[1e-3, 30.0], [0.2, 0.5], [1e-7, 3e4]])
-    a = _Problem(inc, spec, "scan").nll(theta)
-    b = _Problem(inc, spec, "kalman").nll(theta)
+    a = Problem(inc, spec, "scan").nll(theta)
+    b = Problem(inc, spec, "kalman").nll(theta)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
 
 
@@ -170,10 +163,10 @@ def test_general_and_scan_filters_agree_across_gaps():
     segs = [(0, n // 3), (n // 3 + 5000, n - 2000)]
     inc = _pattern_data(standard(1e-4, 5e-6, 40.0, 0.003), 1800, 200, 6, segments=segs)
     assert inc.new_segment.sum() == 2 and inc.gap[inc.new_segment][1] == pytest.approx(50.0)
-    spec = _Spec(("wn", "gm"))
+    spec = ParamSpec(("wn", "gm"))
     theta = np.log([[1e-3, 30.0], [0.2, 0.5]])
     np.testing.assert_allclose(
-        _Problem(inc, spec, "scan").nll(theta), _Problem(inc, spec, "kalman").nll(theta), rtol=0, atol=1e-6
+        Problem(inc, spec, "scan").nll(theta), Problem(inc, spec, "kalman").nll(theta), rtol=0, atol=1e-6
     )
 
 
@@ -218,7 +211,7 @@ def test_general_kalman_filter_equals_dense_gaussian_likelihood():
     gaps = np.zeros(N)
     gaps[len(t1)] = gap
     lay = Layout(Y, X, dt, new_seg, gaps)
-    prof = kalman_profile([_TermBlock("wn", np.array([q_w])), _TermBlock("rw", np.array([q_k]))], np.array([r_a]), lay)
+    prof = kalman_profile([TermBlock("wn", np.array([q_w])), TermBlock("rw", np.array([q_k]))], np.array([r_a]), lay)
     ours = 0.5 * (prof.logdet[0] + prof.s_tilde[0] + prof.log_suu[0])
     assert ours == pytest.approx(dense, abs=1e-9)
     assert prof.b_on[0] == pytest.approx(b_on, abs=1e-9)
@@ -289,7 +282,7 @@ def test_scan_filter_with_gap_equals_dense_gaussian():
     s_uu = dt @ Ci @ dt
     res = y - (dt @ Ci @ y) / s_uu * dt
     dense = 0.5 * (np.linalg.slogdet(C)[1] + res @ Ci @ res + np.log(s_uu))
-    prof = _filter(y, dt, np.array([r]), np.array([tau]), gap)
+    prof = standard_profile(y, dt, np.array([r]), np.array([tau]), gap)
     assert 0.5 * (prof.logdet[0] + prof.s_tilde[0] + prof.log_suu[0]) == pytest.approx(dense, abs=1e-9)
 
 
@@ -399,7 +392,7 @@ def test_sigma_w_interval_coverage_small():
 @pytest.mark.slow
 def test_interval_coverage_over_100_seeds_of_12h():
     """Coverage of all three 90 % intervals over 100 seeds of 12 h BMX055-like records: 80-98 %."""
-    from imustation.analysis.reference import TABLE_III_MEAN as T
+    from imustation.analysis.estimators.reference import TABLE_III_MEAN as T
 
     fits = run_study(StandardModel(T.sigma_w, T.sigma_b, T.tau_b), records=100, duration_s=12 * 3600)
     for row in summarize(fits):
@@ -444,4 +437,4 @@ def test_fit_integrated_reuses_one_integration():
     a = fit_integrated(inc)
     b = fit_mli(x, FS)
     assert a.nll == pytest.approx(b.nll, abs=1e-9)
-    assert _profile_nll is not None
+    assert profiled_nll is not None

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imustation.analysis import plots
-from imustation.analysis.loaders import load_run
-from imustation.analysis.pipeline import analyze_channel
+from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.loaders import load_run
+from imustation.analysis.reports import plots
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def test_multi_psd_temperature(analysed, tmp_path):
 
 
 def test_attitude_figure(analysed, tmp_path):
-    from imustation.analysis.attitude import angle_error_std
+    from imustation.analysis.reports.attitude import angle_error_std
 
     res = analysed[0]
     fig = plots.attitude_figure(res, "s")

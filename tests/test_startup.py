@@ -17,7 +17,10 @@ from imustation.cli import cli
 #: never needed to print help or to reject arguments
 HEAVY = ("numpy", "scipy", "scipy.stats", "h5py", "matplotlib", "numba", "distributed", "tornado", "rosbags")
 #: estimators the chip simulators (and hence ``imustation capture``) do not use
-ESTIMATORS = ("imustation.analysis.allan", "imustation.analysis.gmwm", "imustation.analysis.mli", "numba", "matplotlib")
+ESTIMATORS = tuple(f"imustation.analysis.estimators.{m}" for m in ("allan", "gmwm", "mli", "fitting")) + (
+    "numba",
+    "matplotlib",
+)
 
 
 def _loaded_after(code: str, names) -> list[str]:
@@ -50,20 +53,23 @@ for args in calls:
     assert _loaded_after(code, HEAVY) == []
 
 
-@pytest.mark.parametrize("module", ["imustation.analysis.models", "imustation.drivers.sim"])
+@pytest.mark.parametrize("module", ["imustation.analysis.estimators.models", "imustation.drivers.sim"])
 def test_simulators_skip_the_estimators(module):
     assert _loaded_after(f"import {module}", ESTIMATORS) == []
 
 
 def test_noise_models_skip_scipy_stats():
-    assert _loaded_after("import imustation.analysis.models", ["scipy.stats"]) == []
+    assert _loaded_after("import imustation.analysis.estimators.models", ["scipy.stats"]) == []
 
 
 def test_public_analysis_names_resolve():
     from imustation.analysis import StandardModel, fit_mli, oadev
 
-    assert (oadev.__module__, fit_mli.__module__) == ("imustation.analysis.allan", "imustation.analysis.mli")
-    assert StandardModel.__module__ == "imustation.analysis.models"
+    assert (oadev.__module__, fit_mli.__module__) == (
+        "imustation.analysis.estimators.allan",
+        "imustation.analysis.estimators.mli",
+    )
+    assert StandardModel.__module__ == "imustation.analysis.estimators.models"
     assert sorted(analysis.__all__) == sorted(analysis._ORIGIN)
     for name in analysis.__all__:
         value = getattr(analysis, name)
@@ -76,17 +82,19 @@ def test_public_analysis_names_resolve():
 
 
 def test_submodules_still_import_from_the_package():
-    from imustation.analysis import plots
+    from imustation.analysis import reports
 
-    assert plots.__name__ == "imustation.analysis.plots"
+    assert reports.__name__ == "imustation.analysis.reports"
     with pytest.raises(AttributeError, match="no_such_name"):
         analysis.no_such_name  # noqa: B018
 
 
 def test_library_modules_use_the_cli_vocabularies():
-    """The CLI's choices (analysis.choices) are the ones the library modules act on."""
+    """The CLI's choices (analysis.pipeline.choices) are the ones the library modules act on."""
     from imustation.acquisition.importers import logs
-    from imustation.analysis import choices, export, pipeline, study
+    from imustation.analysis.pipeline import channel as pipeline
+    from imustation.analysis.pipeline import choices, study
+    from imustation.analysis.reports import export
 
     assert pipeline.ESTIMATORS is choices.ESTIMATORS and pipeline.METHODS is choices.METHODS
     assert pipeline.DEFAULT_ESTIMATOR is choices.DEFAULT_ESTIMATOR
@@ -96,9 +104,27 @@ def test_library_modules_use_the_cli_vocabularies():
 
 
 def test_analyze_options_carry_the_library_values():
-    from imustation.analysis import pipeline
+    from imustation.analysis.pipeline import channel as pipeline
 
     params = {p.name: p for p in cli.commands["analyze"].params}
     assert params["estimator"].type.choices == pipeline.ESTIMATORS
     assert params["estimator"].default == pipeline.DEFAULT_ESTIMATOR
     assert params["method"].type.choices == pipeline.METHODS
+
+
+def test_one_option_vocabulary_across_commands():
+    """-o/--output wherever a command writes a file; one default model and method, named in choices."""
+    from imustation.analysis.pipeline import choices
+
+    writers = ("capture", "demo", "export", "fleet", "import", "report", "study")
+    for name in writers:
+        opts = {o for p in cli.commands[name].params for o in p.opts}
+        assert {"-o", "--output"} <= opts, name
+    assert "--out" in {o for p in cli.commands["study"].params for o in p.opts}  # the former spelling still works
+    models = {name: p.default for name, c in cli.commands.items() for p in c.params if p.name == "model"}
+    assert set(models) == {"analyze", "export", "fleet", "report"}
+    assert set(models.values()) == {choices.DEFAULT_MODEL}
+    params = {p.name: p for p in cli.commands["analyze"].params}
+    assert params["method"].default == choices.DEFAULT_METHOD
+    study = {p.name: p for p in cli.commands["study"].params}
+    assert study["estimators"].default == ",".join(choices.DEFAULT_STUDY_ESTIMATORS)

@@ -11,8 +11,8 @@ from click.testing import CliRunner
 
 from imustation.acquisition import load_config
 from imustation.acquisition.synthesize import synthesize
-from imustation.analysis.composite import fit_composite
-from imustation.analysis.loaders import load_run
+from imustation.analysis.estimators.composite import fit_composite
+from imustation.analysis.pipeline.loaders import load_run
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.drivers.sim import device_sources, simulated_truth, station_device_seed

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from imustation.analysis.tables import NoiseRow, table_csv, table_latex, table_markdown, units_of
+from imustation.analysis.reports.tables import NoiseRow, table_csv, table_latex, table_markdown, units_of
 
 # EuRoC ADIS16448 (docs/reference/noise-formulas.md §3.1):
 # 1.6968e-4 rad/s/sqrt(Hz) = 35.0 deg/h/sqrt(Hz) = 0.5833 deg/sqrt(h)

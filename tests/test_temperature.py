@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from imustation.analysis.plots import bias_track
-from imustation.analysis.temperature import detect_warmup, device_temperature, fit_tempco
+from imustation.analysis.reports.plots import bias_track
+from imustation.analysis.reports.temperature import detect_warmup, device_temperature, fit_tempco
 from imustation.errors import InputError
 
 

@@ -16,7 +16,7 @@ from itertools import islice
 import numpy as np
 
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
-from imustation.analysis.choices import TIME_UNITS
+from imustation.analysis.pipeline.choices import TIME_UNITS
 from imustation.errors import InputError
 
 TEXT_EXTS = (".csv", ".tsv", ".txt", ".dat", ".log")

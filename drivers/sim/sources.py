@@ -15,8 +15,8 @@ from typing import Protocol
 
 import numpy as np
 
-from imustation.analysis.models import StandardModel, StandardNoiseStream
-from imustation.analysis.reference import ACCEL_DEFAULTS, TABLE_IV
+from imustation.analysis.estimators.models import StandardModel, StandardNoiseStream
+from imustation.analysis.estimators.reference import ACCEL_DEFAULTS, TABLE_IV
 from imustation.errors import SettingError
 from imustation.units import DEG2RAD, G0
 
@@ -45,7 +45,7 @@ SIM_KEYS = (
     "temp_drift_c",
     "temp_period_s",
     "faults",
-    # accelerometers (defaults: analysis.reference.ACCEL_DEFAULTS, not the paper)
+    # accelerometers (defaults: analysis.estimators.reference.ACCEL_DEFAULTS, not the paper)
     "accel_sigma_w",
     "accel_sigma_b",
     "accel_tau_b",

@@ -9,7 +9,7 @@ errors must not wait for numpy, scipy, h5py, numba or matplotlib (seconds on a
 small machine). So the subcommand modules import only click and light modules
 (errors, units, clock, configs) at module top; everything else is imported
 inside the command functions; option choices and defaults come from the
-dependency-free :mod:`imustation.analysis.choices`. tests/test_startup.py
+dependency-free :mod:`imustation.analysis.pipeline.choices`. tests/test_startup.py
 checks this.
 """
 

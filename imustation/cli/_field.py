@@ -3,7 +3,7 @@ summary they print, and ``analyze``'s glue from the importer's stream to analysi
 
 The analysis layer imports nothing from acquisition; here the recording streamed by
 :func:`imustation.acquisition.importers.stream_recording` becomes
-:class:`imustation.analysis.loaders.Channel` objects, the ones the imported run file would give.
+:class:`imustation.analysis.pipeline.loaders.Channel` objects, the ones the imported run file would give.
 """
 
 from __future__ import annotations
@@ -12,16 +12,16 @@ import contextlib
 import fnmatch
 import os
 import sys
-import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import click
 
-from imustation.analysis.choices import TIME_UNITS
+from imustation.analysis.pipeline.choices import TIME_UNITS
 
 if TYPE_CHECKING:
-    from imustation.analysis.loaders import Channel
+    from imustation.analysis.pipeline.loaders import Channel
+    from imustation.analysis.pipeline.parallel import ChannelTask, TaskFailure
 
 
 @contextlib.contextmanager
@@ -106,41 +106,48 @@ def is_field(path: str, rate_hz: float | None) -> bool:
     return os.path.exists(path) and (is_field_input(path) or timed_csv)
 
 
-def load_channels(
+def plan_inputs(
     inputs: Sequence[str], globs: Sequence[str], rate_hz: float | None, *, quiet: bool, topic, time_unit, text: dict
-) -> list[Channel]:
-    """Every selected channel of ``inputs``, in order, as :func:`~imustation.analysis.loaders.load_inputs`
-    would give them; field recordings are streamed (:func:`streamed_channels`) before the other inputs
-    are read, so their summaries print first, as when they were imported into temporary files."""
-    from imustation.analysis.loaders import NoChannelsError, load_inputs
+) -> tuple[list[ChannelTask], list[TaskFailure]]:
+    """One analysis task per selected channel of ``inputs``, in input order.
+
+    Field recordings are streamed into memory (:func:`streamed_channels`; no run file is
+    written) and their tasks carry the channel; every other input is planned by
+    :func:`~imustation.analysis.pipeline.parallel.plan_tasks` (each task reads its own channel
+    from the file). Recordings are streamed first so that their import summaries print before
+    any analysis output. :class:`NoChannelsError` when no input has a channel.
+    """
+    from imustation.analysis.pipeline.loaders import NoChannelsError
+    from imustation.analysis.pipeline.parallel import plan_tasks, tasks_of_channels
 
     field = {k: streamed_channels(p, globs, quiet=quiet, topic=topic, time_unit=time_unit, text=text)
              for k, p in enumerate(inputs) if is_field(p, rate_hz)}  # fmt: skip
-    if not field:
-        return load_inputs(inputs, globs, rate_hz)
-    channels: list[Channel] = []
+    tasks: list[ChannelTask] = []
+    failures: list[TaskFailure] = []
     for k, path in enumerate(inputs):
         if k in field:
-            channels += field[k]
+            tasks += tasks_of_channels(field[k])
             continue
         try:
-            channels += load_inputs([path], globs, rate_hz)
+            planned, failed = plan_tasks([path], globs, rate_hz)
         except NoChannelsError:
-            pass  # as in load_inputs: an error only when no input has a channel
-    if not channels:
+            continue  # as in plan_tasks: an error only when no input has a channel
+        tasks += planned
+        failures += failed
+    if not tasks and not failures:
         sel = f" matching {', '.join(globs)}" if globs else ""
         raise NoChannelsError(f"no channels{sel} in {', '.join(inputs)}")
-    return channels
+    return tasks, failures
 
 
 def streamed_channels(path: str, globs: Sequence[str], *, quiet: bool, topic, time_unit, text: dict) -> list[Channel]:
     """The rate channels of a field recording, streamed into memory: no run file is written.
 
-    Equal to :func:`~imustation.analysis.loaders.load_run`'s channels of the recording imported
+    Equal to :func:`~imustation.analysis.pipeline.loaders.load_run`'s channels of the recording imported
     (ids, rates, units, samples, gap count, segments, metadata), except ``source``: the recording.
     """
     from imustation.acquisition.importers import stream_recording
-    from imustation.analysis.loaders import RATE_CHANNELS, Channel, locate_breaks, segments_from_breaks
+    from imustation.analysis.pipeline.loaders import RATE_CHANNELS, Channel, locate_breaks, segments_from_breaks
 
     with progress_bar(f"importing {os.path.basename(path.rstrip('/'))}", quiet) as progress:
         rec = stream_recording(path, topic=topic, text=text, time_unit=time_unit, progress=progress)
@@ -174,23 +181,3 @@ def streamed_channels(path: str, globs: Sequence[str], *, quiet: bool, topic, ti
                 out.append(Channel(cid, spec.rate_hz, ch.units, data, ch.scale, source=path, gaps=len(breaks),
                                    meta=meta, segments=list(segments)))  # fmt: skip
     return out
-
-
-@contextlib.contextmanager
-def imported_runs(inputs: Sequence[str], rate_hz: float | None, *, quiet: bool, topic, time_unit, text: dict
-                  ) -> Iterator[list[str]]:  # fmt: skip
-    """``inputs`` with each field recording imported into a temporary run file, removed afterwards.
-
-    For ``analyze --workers/--scheduler``: each cluster task reads its one channel from a file
-    (analysis/parallel.py), so that no sample arrays travel through the scheduler.
-    """
-    with tempfile.TemporaryDirectory(prefix="imustation-import-") as tmp:
-        paths = []
-        for k, path in enumerate(inputs):
-            if is_field(path, rate_hz):
-                out = os.path.join(tmp, f"{k}-{os.path.basename(path.rstrip('/'))}.h5")
-                run_import(path, out, quiet=quiet, overwrite=False, topic=topic, time_unit=time_unit, text=text)
-                paths.append(out)
-            else:
-                paths.append(path)
-        yield paths

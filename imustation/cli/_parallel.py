@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import click
 
-from imustation.errors import InputError
-
 if TYPE_CHECKING:
-    from imustation.analysis.parallel import AnalysisOptions, ChannelTask, TaskFailure
-    from imustation.analysis.pipeline import ChannelAnalysis
+    from imustation.analysis.pipeline.channel import ChannelAnalysis
+    from imustation.analysis.pipeline.parallel import AnalysisOptions, ChannelTask, TaskFailure
 
 
 def cluster_options(f):
@@ -40,7 +39,7 @@ def cluster_options(f):
     return f
 
 
-def execute(
+def run_with_progress(
     tasks: Sequence[ChannelTask],
     options: AnalysisOptions,
     *,
@@ -48,23 +47,42 @@ def execute(
     scheduler: str | None,
     memory_limit: str = "auto",
     label: str = "analysing",
+    bar: bool = True,
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
-    """Run the tasks (serially, locally or on ``scheduler``) with a progress bar and failures on stderr."""
-    from imustation.analysis.parallel import dask_client, run_tasks
+    """:func:`~imustation.analysis.pipeline.parallel.execute` with the dashboard link, a progress bar
+    (unless ``bar`` is False) and each failure on stderr; a single task shows neither bar nor
+    failure line (its failure becomes the command's one error line)."""
+    from imustation.analysis.pipeline.parallel import execute
 
-    if workers and scheduler:
-        raise InputError("give --workers or --scheduler, not both")
-    with dask_client(workers, scheduler, memory_limit=memory_limit) as client:
-        if client is not None:
-            click.echo(f"dask dashboard: {client.dashboard_link}", err=True)
-        with click.progressbar(length=len(tasks), label=label, file=sys.stderr, show_pos=True) as bar:
+    several = len(tasks) > 1
+    with contextlib.ExitStack() as stack:
+        shown = []
 
-            def on_done(done: int, total: int, fail: TaskFailure | None) -> None:
-                bar.update(1)
-                if fail is not None:
-                    click.echo(f"\nfailed: {fail.error}", err=True)
+        def on_start(client) -> None:
+            if client is not None:
+                click.echo(f"dask dashboard: {client.dashboard_link}", err=True)
+            if several and bar:
+                shown.append(
+                    stack.enter_context(
+                        click.progressbar(length=len(tasks), label=label, file=sys.stderr, show_pos=True)
+                    )
+                )
 
-            return run_tasks(tasks, options, client, on_done)
+        def on_done(done: int, total: int, fail: TaskFailure | None) -> None:
+            for progress in shown:
+                progress.update(1)
+            if fail is not None and several:
+                click.echo(f"\nfailed: {fail.error}", err=True)
+
+        return execute(
+            tasks,
+            options,
+            workers=workers,
+            scheduler=scheduler,
+            memory_limit=memory_limit,
+            on_start=on_start,
+            on_done=on_done,
+        )
 
 
 def report_failures(failures: Sequence[TaskFailure]) -> None:

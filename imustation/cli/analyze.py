@@ -7,10 +7,10 @@ import math
 
 import click
 
-from imustation.analysis import choices
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
-from imustation.cli._field import field_options, imported_runs, load_channels, text_options
-from imustation.cli._parallel import cluster_options, execute, report_failures
+from imustation.cli._field import field_options, plan_inputs, text_options
+from imustation.cli._parallel import cluster_options, report_failures, run_with_progress
 from imustation.errors import InputError
 from imustation.units import DEG2RAD
 
@@ -84,7 +84,12 @@ def _interp_adev(allan, tau: float) -> float:
 @click.option(
     "-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Number of ML_i pattern intervals."
 )
-@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model, e.g. wn+gm, wn+2gm, wa+wn+gm.")
+@click.option(
+    "--model",
+    default=choices.DEFAULT_MODEL,
+    show_default=True,
+    help="Noise model fitted, e.g. wn+gm, wn+2gm, wa+wn+gm.",
+)
 @click.option(
     "--compare-models",
     "compare",
@@ -102,7 +107,7 @@ def _interp_adev(allan, tau: float) -> float:
 @click.option(
     "--method",
     type=click.Choice(choices.METHODS),
-    default="mli",
+    default=choices.DEFAULT_METHOD,
     show_default=True,
     help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
 )
@@ -138,39 +143,42 @@ def analyze(
     column when --rate is not given; docs/import.md). Prints a table, or with
     --json the document described in docs/analysis-json.md.
 
-    With --workers N (a local dask cluster) or --scheduler ADDR (an existing
-    one) every channel is one task that reads its channel from the file
-    itself; the results are identical to the serial ones. A run or channel
-    that fails is reported on stderr (and under 'failures' in the JSON) and
-    the others finish; the exit status is 2 only when every one failed
-    (docs/fleet.md).
+    Every channel is one task that reads its channel from the file itself
+    (a field recording is streamed into memory once, no run file written,
+    and its tasks carry their samples): in this process, or in parallel with --workers N (a local dask cluster)
+    or --scheduler ADDR (an existing one), with identical results. A run or
+    channel that fails is reported on stderr (and under 'failures' in the
+    JSON) and the others finish; the exit status is 2 only when every one
+    failed (docs/fleet.md).
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
-    from imustation.analysis.mli import DEFAULT_COMPARISON
-    from imustation.analysis.parallel import AnalysisOptions
+    from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
+    from imustation.analysis.pipeline.parallel import AnalysisOptions
 
-    field = {"quiet": as_json, "topic": topic, "time_unit": time_unit,
-             "text": text_options(time_column, gyro_columns, accel_columns, gyro_unit)}  # fmt: skip
-    if workers or scheduler:
-        with imported_runs(inputs, rate_hz, **field) as paths:  # cluster tasks read their channel from a file
-            opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
-            _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit)
-    else:
-        channels = load_channels(inputs, globs, rate_hz, **field)  # field recordings streamed, no run file
-        _analyze(channels, pattern, m, model, compare, method, estimator, as_json)
+    text = text_options(time_column, gyro_columns, accel_columns, gyro_unit)
+    # field recordings are streamed into memory (no run file); other inputs are read by their tasks
+    tasks, failures = plan_inputs(inputs, globs, rate_hz, quiet=as_json, topic=topic, time_unit=time_unit, text=text)
+    opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
+    _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit)
 
 
-def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_limit) -> None:
-    from imustation.analysis.parallel import plan_tasks
-    from imustation.analysis.pipeline import analysis_document
+def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -> None:
+    """Run one task per channel (serially or on a cluster) and print the table or JSON."""
+    from imustation.analysis.pipeline.channel import analysis_document
 
-    tasks, failures = plan_tasks(paths, globs, opts.rate_hz)
-    report_failures(failures)
-    results, failed = execute(tasks, opts, workers=workers, scheduler=scheduler, memory_limit=memory_limit)
+    if tasks:
+        report_failures(failures)  # without tasks they make the error below
+    results, failed = run_with_progress(
+        tasks, opts, workers=workers, scheduler=scheduler, memory_limit=memory_limit, bar=not as_json
+    )
     failures += failed
     done = [r for r in results if r is not None]
     if not done:
+        if len(failures) == 1:
+            raise InputError(failures[0].error)
+        # each failure on its own line (a single task's was not shown while it ran), then the count
+        report_failures(failures if not tasks else failed if len(tasks) == 1 else [])
         first = failures[0].error if failures else "no channels"
         raise InputError(f"every input failed ({len(failures)} failures; first: {first})")
     if as_json:
@@ -182,28 +190,3 @@ def _analyze_parallel(paths, globs, opts, as_json, workers, scheduler, memory_li
         click.echo(results_table(done))
         if failures:
             click.echo(f"{len(failures)} failed (see above); {len(done)} channels analysed", err=True)
-
-
-def _analyze(channels, pattern, m, model, compare, method, estimator, as_json) -> None:
-    from imustation.analysis.mli import DEFAULT_COMPARISON
-    from imustation.analysis.pipeline import analysis_document, analyze_channel
-
-    results = []
-    for ch in channels:
-        if not as_json:
-            click.echo(f"analysing {ch.id} ({ch.n} samples) ...", err=True)
-        results.append(
-            analyze_channel(
-                ch,
-                pattern=pattern,
-                m=m,
-                model=model,
-                compare=DEFAULT_COMPARISON if compare else (),
-                method=method,
-                estimator=estimator,
-            )
-        )
-    if as_json:
-        click.echo(json.dumps(analysis_document(results)))
-    else:
-        click.echo(results_table(results))

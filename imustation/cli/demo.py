@@ -73,8 +73,8 @@ def demo(
     from imustation.acquisition import load_config
     from imustation.acquisition.synthesize import synthesize
     from imustation.acquisition.workers import bus_groups
-    from imustation.analysis.loaders import load_inputs
-    from imustation.analysis.pipeline import analyze_channel
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import load_inputs
     from imustation.drivers.sim import simulated_truth
 
     default_cfg = "demo-lab.toml" if lab else "demo.toml"

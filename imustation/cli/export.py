@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from imustation.analysis import choices
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.errors import InputError
 
@@ -46,7 +46,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
     show_default=True,
     help="Gauss-Markov bias -> random walk: sigma_b (conservative) or ADEV match at tau_b (docs/reports.md).",
 )
-@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model fitted per axis.")
+@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
 @click.option("--topic", default="/imu0", show_default=True, help="IMU topic written for ROS-based tools.")
 def export(
     run: str,
@@ -69,9 +69,9 @@ def export(
     """
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
-    from imustation.analysis.export import export_text, sensor_noise
-    from imustation.analysis.loaders import load_run
-    from imustation.analysis.pipeline import analyze_channel
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import load_run
+    from imustation.analysis.reports.export import export_text, sensor_noise
 
     channels = load_run(run)
     gyros = _device_channels(channels, device, "gyro", run)

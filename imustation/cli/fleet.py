@@ -2,37 +2,11 @@
 
 from __future__ import annotations
 
-import base64
-import html
-import os
-
 import click
 
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
-from imustation.cli._parallel import cluster_options, execute, report_failures
-from imustation.cli.report import _CSS, _html_table
-from imustation.errors import InputError
-
-
-def _page(md: str, png: bytes, summary: str) -> str:
-    """Self-contained HTML: the Markdown tables as HTML and the Allan figure embedded as base64 PNG."""
-    from imustation.analysis.fleet import MIN_GROUP, Z_LIMIT
-
-    img = base64.b64encode(png).decode("ascii")
-    rule = (
-        f"Outliers: robust z = 0.6745 (x − median)/MAD of log10 σ_w, σ_b, τ_b against every run of the same "
-        f"driver, sensor and axis; |z| > {Z_LIMIT:g} is flagged (groups of at least {MIN_GROUP} runs). "
-        "Values: ML_i fit of the standard model (σ_w, σ_b, τ_b), IEEE-952 Allan fit (N, B, K), ± standard error."
-    )
-    return (
-        "<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>imustation fleet</title>"
-        f"<style>{_CSS}</style></head><body><h1>Fleet noise report</h1><p>{html.escape(summary)}</p>"
-        f"<p>{html.escape(rule)}</p>"
-        f'<figure><img src="data:image/png;base64,{img}" alt="fleet Allan deviation">'
-        '<figcaption>Allan deviation of every run, one panel per axis group (<a href="fleet_allan.png">PNG</a>); '
-        'outliers in colour. Tables: <a href="fleet.csv">fleet.csv</a>, <a href="fleet.md">fleet.md</a>.'
-        "</figcaption></figure>" + _html_table(md) + "</body></html>\n"
-    )
+from imustation.cli._parallel import cluster_options, report_failures, run_with_progress
 
 
 @cli.command()
@@ -41,7 +15,9 @@ def _page(md: str, png: bytes, summary: str) -> str:
 @click.option(
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to include (default: every gyro/accel axis)."
 )
-@click.option("--model", default="wn+gm", show_default=True, help="ML_i noise model (sigma_w, sigma_b, tau_b).")
+@click.option(
+    "--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted (sigma_w, sigma_b, tau_b)."
+)
 @cluster_options
 def fleet(
     runs: tuple[str, ...],
@@ -64,49 +40,15 @@ def fleet(
     that fails is reported and listed; the exit status is 2 only when every
     run failed.
     """
-    from imustation.analysis import plots
-    from imustation.analysis.fleet import flag_outliers, fleet_csv, fleet_markdown, fleet_rows, repeatability
-    from imustation.analysis.parallel import AnalysisOptions, plan_tasks
+    from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks
+    from imustation.analysis.reports.fleetreport import write_fleet_report
 
     tasks, failures = plan_tasks(runs, globs)
     report_failures(failures)
-    results, failed = execute(
+    results, failed = run_with_progress(
         tasks, AnalysisOptions(model=model), workers=workers, scheduler=scheduler, memory_limit=memory_limit
     )
-    order = {p: i for i, p in enumerate(runs)}
-    failures = sorted(failures + failed, key=lambda f: (order.get(f.path, len(order)), f.channel or ""))
-    done = [r for r in results if r is not None]
-    if not done:
-        first = failures[0].error if failures else "no channels"
-        raise InputError(f"every run failed ({len(failures)} failures; first: {first})")
-    rows = flag_outliers(fleet_rows(done))
-    rep = repeatability(rows)
-    os.makedirs(out_dir, exist_ok=True)
-    md = fleet_markdown(rows, rep, failures)
-    curves = [
-        (f"{r.driver} {r.sensor} {r.axis}", r.sensor, f"{r.key} ({os.path.basename(r.run)})", res.allan.tau,
-         res.allan.adev, bool(r.outliers))
-        for r, res in zip(rows, done, strict=True)
-    ]  # fmt: skip
-    png_path = os.path.join(out_dir, "fleet_allan.png")
-    plots.fleet_allan_figure(curves).savefig(png_path, dpi=110)
-    with open(png_path, "rb") as fh:
-        png = fh.read()
-    n_runs = len({r.run for r in rows})
-    n_out = sum(1 for r in rows if r.outliers)
-    summary = (
-        f"{len(rows)} axes of {n_runs} runs, {len({r.key for r in rows})} devices; "
-        f"{n_out} outlier axes; {len(failures)} failures"
-    )
-    for name, text in (
-        ("fleet.csv", fleet_csv(rows, failures)),
-        ("fleet.md", md),
-        ("fleet.html", _page(md, png, summary)),
-    ):
-        with open(os.path.join(out_dir, name), "w", encoding="utf-8") as fh:
-            fh.write(text)
-    for r in rows:
-        if r.outliers:
-            z = ", ".join(f"{q} z {r.z[q]:+.1f}" for q in r.outliers)
-            click.echo(f"outlier: {r.run} {r.key} {r.sensor}/{r.axis}: {z}", err=True)
-    click.echo(f"{summary} -> {out_dir}/fleet.{{csv,md,html}}, fleet_allan.png")
+    rep = write_fleet_report(runs, results, failures + failed, out_dir)
+    for line in rep.outlier_lines():
+        click.echo(line, err=True)
+    click.echo(rep.summary_line())

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from imustation.analysis.choices import STUDY_ESTIMATORS
+from imustation.analysis.pipeline.choices import DEFAULT_STUDY_ESTIMATORS, STUDY_ESTIMATORS
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.units import parse_duration
@@ -31,7 +31,7 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the first record.")
 @click.option(
     "--estimators",
-    default="mli-log",
+    default=",".join(DEFAULT_STUDY_ESTIMATORS),
     show_default=True,
     help=f"Comma-separated subset of {','.join(STUDY_ESTIMATORS)}.",
 )
@@ -47,7 +47,15 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
     is_flag=True,
     help="Also fit from each estimator's single default start and count how often it ends in another optimum.",
 )
-@click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the Markdown table to this file.")
+@click.option(
+    "-o",
+    "--output",
+    "--out",
+    "out",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Write the Markdown table to this file (--out: the former spelling).",
+)
 def study(
     records: int,
     duration: str,
@@ -63,8 +71,8 @@ def study(
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
     lv = _floats(levels, "--levels")
     seconds = parse_duration(duration)
-    from imustation.analysis.reference import TABLE_III_MEAN
-    from imustation.analysis.study import markdown, run_study, summarize
+    from imustation.analysis.estimators.reference import TABLE_III_MEAN
+    from imustation.analysis.pipeline.study import markdown, run_study, summarize
 
     fits = run_study(
         TABLE_III_MEAN,

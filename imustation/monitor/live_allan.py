@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.allan import oadev
-from imustation.analysis.mli import fit_integrated, integrate
+from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.mli import fit_integrated
+from imustation.analysis.estimators.pattern import integrate
 from imustation.errors import ImustationError
 
 #: rows kept per device before the buffer halves itself (x 3 axes x 8 bytes at most)

@@ -3,8 +3,8 @@
 The unit of work is one channel of one input file, named by two strings,
 ``(path, channel id)``: each task opens the file itself and reads only its own
 channel (no sample arrays travel through the scheduler), runs
-:func:`~imustation.analysis.pipeline.analyze_channel` and returns the same
-:class:`~imustation.analysis.pipeline.ChannelAnalysis` the serial path builds,
+:func:`~imustation.analysis.pipeline.channel.analyze_channel` and returns the same
+:class:`~imustation.analysis.pipeline.channel.ChannelAnalysis` the serial path builds,
 with the channel's samples released (a few kB: Allan curve, fits, verdict). So
 the JSON of a parallel analysis is identical to the serial one.
 
@@ -26,8 +26,9 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from imustation.analysis.loaders import NoChannelsError, load_inputs
-from imustation.analysis.pipeline import DEFAULT_ESTIMATOR, ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.channel import ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL
+from imustation.analysis.pipeline.loaders import Channel, NoChannelsError, load_inputs
 from imustation.errors import ImustationError, InputError
 
 #: environment of local worker processes: one compute thread each (numba, OpenMP, BLAS)
@@ -43,10 +44,16 @@ CONNECT_TIMEOUT_S = 10.0
 
 @dataclass(frozen=True)
 class ChannelTask:
-    """One channel of one input: ``path`` as given, ``channel`` its id (``device/gyro/z``)."""
+    """One channel of one input: ``path`` as given, ``channel`` its id (``device/gyro/z``).
+
+    ``data``: the channel itself when it is already in memory (a field recording streamed by
+    the importer, which has no file to read it back from); a cluster then ships its samples
+    to the worker. None: the task reads its channel from ``path``.
+    """
 
     path: str
     channel: str
+    data: Channel | None = None
 
 
 @dataclass(frozen=True)
@@ -67,9 +74,9 @@ class AnalysisOptions:
 
     pattern: str = "log"
     m: int = 1000
-    model: str = "wn+gm"
+    model: str = DEFAULT_MODEL
     compare: tuple[str, ...] = ()
-    method: str = "mli"
+    method: str = DEFAULT_METHOD
     rate_hz: float | None = None
     estimator: str = DEFAULT_ESTIMATOR
 
@@ -121,13 +128,24 @@ def _limit_numba_threads() -> None:
         numba.set_num_threads(min(int(want), numba.config.NUMBA_NUM_THREADS))
 
 
-def analyze_task(path: str, channel: str, options: AnalysisOptions) -> ChannelAnalysis:
-    """Read channel ``channel`` of ``path`` and analyse it; the result holds no samples."""
+def tasks_of_channels(channels: Sequence[Channel]) -> list[ChannelTask]:
+    """Tasks that analyse channels already in memory (see :class:`ChannelTask`)."""
+    return [ChannelTask(ch.source, ch.id, ch) for ch in channels]
+
+
+def analyze_task(
+    path: str, channel: str, options: AnalysisOptions, data: Channel | None = None
+) -> ChannelAnalysis:
+    """Read channel ``channel`` of ``path`` (or take ``data``, the channel in memory) and analyse it;
+    the result holds no samples."""
     _limit_numba_threads()
-    picked = [ch for ch in load_inputs([path], [glob.escape(channel)], options.rate_hz) if ch.id == channel]
-    if not picked:
-        raise InputError(f"{path}: no channel {channel}")
-    ch = picked[0]
+    if data is not None:
+        ch = data
+    else:
+        picked = [ch for ch in load_inputs([path], [glob.escape(channel)], options.rate_hz) if ch.id == channel]
+        if not picked:
+            raise InputError(f"{path}: no channel {channel}")
+        ch = picked[0]
     res = analyze_channel(
         ch,
         pattern=options.pattern,
@@ -139,6 +157,11 @@ def analyze_task(path: str, channel: str, options: AnalysisOptions) -> ChannelAn
     )
     ch.release()  # run-file channels come back without samples (plain arrays keep theirs)
     return res
+
+
+def _analyze_mapped(path: str, channel: str, data: Channel | None, options: AnalysisOptions) -> ChannelAnalysis:
+    """:func:`analyze_task` with the argument order ``client.map`` gives (one iterable per task field)."""
+    return analyze_task(path, channel, options, data)
 
 
 #: ``on_done(done, total, failure)`` after each task; ``failure`` None when it succeeded
@@ -173,7 +196,7 @@ def run_tasks(
     if client is None:
         for i, t in enumerate(tasks):
             try:
-                res, exc = analyze_task(t.path, t.channel, options), None
+                res, exc = analyze_task(t.path, t.channel, options, t.data), None
             except Exception as e:  # noqa: BLE001 - reported per task
                 res, exc = None, e
             done(i, res, exc, i + 1)
@@ -181,9 +204,10 @@ def run_tasks(
         from distributed import as_completed
 
         futures = client.map(
-            analyze_task,
+            _analyze_mapped,
             [t.path for t in tasks],
             [t.channel for t in tasks],
+            [t.data for t in tasks],
             options=options,
             pure=False,
             retries=0,
@@ -197,6 +221,34 @@ def run_tasks(
                 done(i, None, fut.exception(), count)
             fut.release()
     return results, [failed[i] for i in sorted(failed)]
+
+
+def execute(
+    tasks: Sequence[ChannelTask],
+    options: AnalysisOptions,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    memory_limit: str | float | None = "auto",
+    on_start: Callable[[object | None], None] | None = None,
+    on_done: Progress | None = None,
+) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
+    """Analyse every task: in this process, on a local cluster of ``workers`` processes, or on the
+    cluster at ``scheduler`` -- the one path of ``analyze`` and ``fleet``.
+
+    ``on_start(client)`` is called once the client (None when serial) is ready, ``on_done`` after
+    each task (see :func:`run_tasks`). Returns the results in task order (None where a task
+    failed) and the failures. Raises :class:`InputError` when both ``workers`` and ``scheduler``
+    are given or the scheduler cannot be reached.
+    """
+    if workers and scheduler:
+        raise InputError("give --workers or --scheduler, not both")
+    if not tasks:
+        return [], []
+    with dask_client(workers, scheduler, memory_limit=memory_limit) as client:
+        if on_start is not None:
+            on_start(client)
+        return run_tasks(tasks, options, client, on_done)
 
 
 @contextlib.contextmanager

@@ -7,14 +7,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.allan import AllanResult, oadev
-from imustation.analysis.choices import DEFAULT_ESTIMATOR, ESTIMATORS, METHODS
-from imustation.analysis.composite import fit_composite
-from imustation.analysis.gmwm import fit_gmwm
-from imustation.analysis.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.loaders import Channel
-from imustation.analysis.mli import MLiResult, compare_models, fit_integrated, integrate
-from imustation.analysis.verdict import Verdict, channel_verdict
+from imustation.analysis.estimators.allan import AllanResult, oadev
+from imustation.analysis.estimators.composite import fit_composite
+from imustation.analysis.estimators.fitting import MLiResult
+from imustation.analysis.estimators.gmwm import fit_gmwm
+from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
+from imustation.analysis.estimators.mli import compare_models, fit_integrated
+from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, ESTIMATORS, METHODS
+from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
 
 DOC_FORMAT = "imustation-analysis"
@@ -40,9 +42,9 @@ def analyze_channel(
     *,
     pattern: str = "log",
     m: int = 1000,
-    model: str = "wn+gm",
+    model: str = DEFAULT_MODEL,
     compare: tuple[str, ...] = (),
-    method: str = "mli",
+    method: str = DEFAULT_METHOD,
     estimator: str = DEFAULT_ESTIMATOR,
 ) -> ChannelAnalysis:
     """Allan deviation, IEEE-952 coefficients and the noise-model fits of one channel.

@@ -19,7 +19,7 @@ and the total variance (eq. 25) uses the series reflected about both ends.
 The results equal allantools' ``oadev``, ``mdev``, ``ohdev``, ``totdev`` with
 ``data_type="freq"`` at the same taus (checked in the tests to 1e-9).
 
-Integer counts are integrated exactly (see :mod:`imustation.analysis._kernels`);
+Integer counts are integrated exactly (see :mod:`imustation.analysis.estimators._kernels`);
 ``segments`` (contiguous sample ranges, e.g. ``Channel.segments``) are pooled:
 only difference terms lying wholly inside one segment are summed, and the
 variance divides by the total number of such terms - never across a gap.
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from imustation.analysis import _kernels
+from imustation.analysis.estimators import _kernels
 from imustation.errors import InputError
 
 #: probability mass inside [adev_lo, adev_hi] (one sigma of a normal)
@@ -83,20 +83,6 @@ def log_taus(n: int, fs_hz: float, per_decade: int = 10, order: int = 2) -> np.n
     k = int(per_decade * np.log10(m_max)) + 1 if m_max > 1 else 1
     m = np.unique(np.round(np.logspace(0, np.log10(m_max), k)))
     return m.astype(np.int64) / fs_hz
-
-
-def integrate(rate: np.ndarray, fs_hz: float, scale: float = 1.0) -> np.ndarray:
-    """Angle ``x`` (N+1 points, ``x[0] = 0``) in (unit)*s: exact int64 sums for integer counts."""
-    tau0 = 1.0 / fs_hz
-    if np.issubdtype(rate.dtype, np.integer):
-        x = np.empty(len(rate) + 1, dtype=np.int64)
-        x[0] = 0
-        np.cumsum(rate, dtype=np.int64, out=x[1:])
-        return x.astype(np.float64) * (scale * tau0)
-    x = np.empty(len(rate) + 1, dtype=np.float64)
-    x[0] = 0.0
-    np.cumsum(rate, out=x[1:])
-    return x * (scale * tau0)
 
 
 # ---------------------------------------------------------------------------

@@ -6,18 +6,24 @@ numpy or scipy are loaded; the modules that act on them import them from here.
 
 from __future__ import annotations
 
-#: noise-model methods of ``analyze --method`` (analysis/pipeline.py)
+#: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet):
+#: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22)
+DEFAULT_MODEL = "wn+gm"
+#: noise-model methods of ``analyze --method`` (analysis/pipeline/channel.py) and the default
 METHODS = ("mli", "gmwm", "both")
+DEFAULT_METHOD = "mli"
 #: estimators that can fill the ``noise_model`` block (``analyze --estimator``)
 ESTIMATORS = ("mli-f", "mli", "gmwm")
 #: the default: ML_i-F won the Monte Carlo study of docs/noise-model.md
 DEFAULT_ESTIMATOR = "mli-f"
 
-#: estimators of the Monte Carlo study (``study --estimators``, analysis/study.py)
+#: estimators of the Monte Carlo study (``study --estimators``, analysis/pipeline/study.py)
 STUDY_ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single", "mli-f")
+#: the study's default: the paper's ML_i on its log pattern
+DEFAULT_STUDY_ESTIMATORS = ("mli-log",)
 
 #: filter-parameter formats, parameter sources and random-walk conversions of ``export``
-#: (analysis/export.py)
+#: (analysis/reports/export.py)
 EXPORT_FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
 EXPORT_SOURCES = ("model", "mli", "ieee")
 RW_CONVERSIONS = ("diffusion", "tau_b")

@@ -49,10 +49,6 @@ class PSDResult:
     windows: int
     bins: np.ndarray
 
-    @property
-    def units_note(self) -> str:
-        return "one-sided G(f)" if self.sides == "one" else "two-sided S(f) = G(f)/2"
-
 
 def default_nperseg(n: int) -> int:
     """Largest power of two <= n / MIN_WINDOWS (at least 16 samples, at most MAX_NPERSEG)."""

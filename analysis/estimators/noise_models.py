@@ -34,6 +34,11 @@ noise-formulas.md §5) and, with ``fs_hz``, the exact form for the sampled
 process where the two differ (Gauss-Markov as AR(1), rate random walk).
 PSD: **two-sided** ``S(f)`` of the rate, ``avar = 4 int_0^inf S sin^4(pi f tau)/(pi f tau)^2 df``;
 pass ``onesided=True`` for ``2 S(f)`` (the convention of ``scipy.signal.welch``).
+
+One idea in ~560 lines, kept together on purpose: each term carries its PSD, Allan
+variance, state-space block, closed-form discretisation and exact simulation side by
+side, so a new term is written in one place; splitting by operation would spread every
+term over several modules.
 """
 
 from __future__ import annotations
@@ -76,7 +81,7 @@ def f3(a: np.ndarray) -> np.ndarray:
 _F3_COEF = tuple((-1) ** k * (2**k - 2) / ((k + 1) * math.factorial(k)) for k in range(2, 13))
 
 
-def _expm1_tail(x: np.ndarray) -> np.ndarray:
+def expm1_tail(x: np.ndarray) -> np.ndarray:
     """``E(x) = x + expm1(-x) = x^2/2 - x^3/6 + ...`` for x >= 0, series below 0.1 (no cancellation)."""
     x = np.asarray(x, dtype=float)
     small = x < 0.1
@@ -189,7 +194,7 @@ class GaussMarkov(Term):
         om = -math.expm1(-d)  # 1 - phi, accurately
         g = -np.expm1(-n * d) / om
         # n - g = (E(nd) - n E(d)) / om without the cancellation of n - g for n d << 1
-        n_minus_g = (_expm1_tail(n * d) - n * _expm1_tail(np.array(d))) / om
+        n_minus_g = (expm1_tail(n * d) - n * expm1_tail(np.array(d))) / om
         s2 = q * T / 2.0
         return s2 / n**2 * (n + 2.0 * phi * n_minus_g / om - phi * g * g)
 
@@ -423,11 +428,7 @@ class NoiseModel:
             return Phi, Qd
         if method != "analytic":
             raise InputError(f"discretisation {method!r}: use 'analytic' or 'vanloan'")
-        return discretize_blocks([_TermBlock.of(t) for t in self._ss_terms()], dt)
-
-    @property
-    def observation_variance(self) -> float:
-        return float(self.state_space()["R"][0, 0])
+        return discretize_blocks([TermBlock.of(t) for t in self._ss_terms()], dt)
 
     # -- simulation (Algorithm 1, generalised) -------------------------------
     def simulate(self, n: int, fs_hz: float, seed: int | np.random.Generator | None = None) -> np.ndarray:
@@ -491,7 +492,7 @@ def van_loan(F: np.ndarray, GQG: np.ndarray, dt: float) -> tuple[np.ndarray, np.
 
 
 @dataclass(frozen=True)
-class _TermBlock:
+class TermBlock:
     """A term's variance ``q`` and correlation time (``inf`` for RW, 0 for no state)."""
 
     code: str
@@ -499,19 +500,19 @@ class _TermBlock:
     tau: float | np.ndarray = math.inf
 
     @staticmethod
-    def of(t: Term) -> _TermBlock:
+    def of(t: Term) -> TermBlock:
         if isinstance(t, WhiteRate):
-            return _TermBlock("wn", t.sigma_w**2)
+            return TermBlock("wn", t.sigma_w**2)
         if isinstance(t, GaussMarkov):
-            return _TermBlock("gm", t.sigma_b**2, t.tau_b)
+            return TermBlock("gm", t.sigma_b**2, t.tau_b)
         if isinstance(t, RandomWalk):
-            return _TermBlock("rw", t.sigma_k**2)
+            return TermBlock("rw", t.sigma_k**2)
         if isinstance(t, WhiteAngle):
-            return _TermBlock("wa", t.sigma_a**2)
+            return TermBlock("wa", t.sigma_a**2)
         raise InputError(f"{type(t).__name__}: no state-space form")
 
 
-def discretize_blocks(blocks: list[_TermBlock], dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def discretize_blocks(blocks: list[TermBlock], dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form ``Phi``, ``Qd`` of ``[term states..., Omega]``; ``dt`` and the
     blocks' ``q``/``tau`` broadcast together (e.g. dt (M, 1), q (K,)) -> shape ``(..., p, p)``.
 

@@ -25,10 +25,10 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from imustation.analysis.noise_models import NoiseModel
-from imustation.analysis.pipeline import ChannelAnalysis
-from imustation.analysis.psd import log_average, welch_psd
-from imustation.analysis.tables import units_of
+from imustation.analysis.estimators.noise_models import NoiseModel
+from imustation.analysis.estimators.psd import log_average, welch_psd
+from imustation.analysis.pipeline.channel import ChannelAnalysis
+from imustation.analysis.reports.tables import units_of
 from imustation.units import EARTH_RATE, format_duration
 
 #: device settings shown on figures besides rate and bandwidth (substrings of run-file attribute names)
@@ -198,9 +198,9 @@ def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, 
 
     Lags from 10 samples to 1/``min_windows`` of the longest segment; independent windows. The data's
     turn-on bias is the segment mean, so the model curve uses the bias variance about that mean
-    (:func:`~imustation.analysis.attitude.angle_error_std` with ``record_s``).
+    (:func:`~imustation.analysis.reports.attitude.angle_error_std` with ``record_s``).
     """
-    from imustation.analysis.attitude import angle_error_std, angle_spread
+    from imustation.analysis.reports.attitude import angle_error_std, angle_spread
 
     ch = res.channel
     a, b = max(ch.segments, key=lambda s: s[1] - s[0])

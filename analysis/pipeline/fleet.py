@@ -28,9 +28,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from imustation.analysis.parallel import TaskFailure
-from imustation.analysis.pipeline import ChannelAnalysis
-from imustation.analysis.tables import TITLES, noise_rows, units_of
+from imustation.analysis.pipeline.channel import ChannelAnalysis
+from imustation.analysis.pipeline.parallel import TaskFailure
+from imustation.analysis.reports.tables import TITLES, noise_rows, units_of
 
 #: quantities of the fleet table (SI): ML_i standard model, then IEEE-952
 FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")

@@ -55,11 +55,11 @@ import json
 import math
 from dataclasses import dataclass
 
-from imustation.analysis.choices import EXPORT_FORMATS as FORMATS
-from imustation.analysis.choices import EXPORT_SOURCES as SOURCES
-from imustation.analysis.choices import RW_CONVERSIONS
-from imustation.analysis.noise_models import GaussMarkov
-from imustation.analysis.pipeline import ChannelAnalysis
+from imustation.analysis.estimators.noise_models import GaussMarkov
+from imustation.analysis.pipeline.channel import ChannelAnalysis
+from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
+from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
+from imustation.analysis.pipeline.choices import RW_CONVERSIONS
 from imustation.errors import InputError
 from imustation.units import G0
 

@@ -16,20 +16,12 @@ import time
 
 import numpy as np
 
-from imustation.analysis.kalman import Profile
-from imustation.analysis.mli import (
-    MLiResult,
-    _check_rate,
-    _NewtonResult,
-    _optimise,
-    _Problem,
-    _result,
-    _scan_affine,
-    _scan_moebius,
-    _Spec,
-    sampling_pattern,
-)
-from imustation.analysis.noise_models import parse_model
+from imustation.analysis.estimators.fitting import MLiResult, ParamSpec, Problem, build_result, optimise
+from imustation.analysis.estimators.kalman import Profile
+from imustation.analysis.estimators.newton import NewtonResult
+from imustation.analysis.estimators.noise_models import parse_model
+from imustation.analysis.estimators.pattern import check_rate, sampling_pattern
+from imustation.analysis.estimators.scan import scan_affine, scan_moebius
 from imustation.errors import InputError
 
 
@@ -43,18 +35,18 @@ def rate_filter(z: np.ndarray, gaps: np.ndarray, fs_hz: float, r: np.ndarray, ta
     e[0] = 0.0  # first sample: stationary prior
     q[0] = r * tau * 0.5
     # posterior p_i = (e^2 p + q) R / (e^2 p + q + R): Moebius [[e^2 R, q R], [e^2, q + R]]
-    A, Bm, C, D = _scan_moebius((e * e * Rv, q * Rv, e * e, q + Rv))
+    A, Bm, C, D = scan_moebius((e * e * Rv, q * Rv, e * e, q + Rv))
     p_post = Bm / D  # prefix maps applied to p = 0 (e_0 = 0 makes the start irrelevant)
     p_prev = np.vstack([np.zeros_like(r)[None, :], p_post[:-1]])
     p_pred = e * e * p_prev + q
     B = p_pred + Rv
     gain = p_pred / B
     g = (1.0 - gain) * e
-    bhat = _scan_affine(g, gain * z[:, None])
+    bhat = scan_affine(g, gain * z[:, None])
     bprev = np.vstack([np.zeros_like(r)[None, :], bhat[:-1]])
     nu = z[:, None] - e * bprev
     ones = np.ones_like(z)
-    uhat = _scan_affine(g, gain * ones[:, None])
+    uhat = scan_affine(g, gain * ones[:, None])
     uprev = np.vstack([np.zeros_like(r)[None, :], uhat[:-1]])
     u = 1.0 - e * uprev
     s_ee = np.sum(nu * nu / B, axis=0)
@@ -64,16 +56,16 @@ def rate_filter(z: np.ndarray, gaps: np.ndarray, fs_hz: float, r: np.ndarray, ta
     return Profile(s_ee - s_eu * b_on, np.sum(np.log(B), axis=0), np.log(s_uu), b_on, len(z))
 
 
-class _RateProblem(_Problem):
+class _RateProblem(Problem):
     """Likelihood of the standard model on subsampled rate, batched.
 
-    Shares :class:`imustation.analysis.mli._Problem`'s ``nll``/``full_nll`` and
+    Shares :class:`~.fitting.Problem`'s ``nll``/``full_nll`` and
     optimiser; only the data, the search box and ``profile`` (the rate filter) differ.
     """
 
     def __init__(self, z: np.ndarray, gaps: np.ndarray, fs_hz: float, duration: float):
         self.z, self.gaps, self.fs_hz = z, gaps, fs_hz
-        self.spec = _Spec(parse_model("wn+gm"))
+        self.spec = ParamSpec(parse_model("wn+gm"))
         # r = sigma_b^2/sigma_w^2 from "invisible over the record" to "bias variance
         # 10 x the white variance per sample (sigma_w^2 fs) at the shortest tau"
         self.lo = np.array([math.log(1e-6 / duration**2), math.log(2.0 / fs_hz)])
@@ -109,7 +101,7 @@ def fit_ml_rate(
     sample indices); ``m=None`` uses every sample (affordable on short records).
     """
     t0 = time.perf_counter()
-    rate = _check_rate(rate, fs_hz)
+    rate = check_rate(rate, fs_hz)
     n = len(rate)
     if m is None:
         idx = np.arange(n)
@@ -127,7 +119,7 @@ def fit_ml_rate(
     pts = np.column_stack([RR.ravel(), TT.ravel()])
     f = problem.nll(pts)
     starts = [pts[i] for i in np.argsort(f)[:3]]
-    best, n_starts = _optimise(problem, starts)
-    assert isinstance(best, _NewtonResult)
+    best, n_starts = optimise(problem, starts)
+    assert isinstance(best, NewtonResult)
     label = "all" if m is None else pattern
-    return _result(problem, best.x, best, n_starts, t0, "ML", len(idx), label, n, fs_hz)
+    return build_result(problem, best.x, best, n_starts, t0, "ML", len(idx), label, n, fs_hz)

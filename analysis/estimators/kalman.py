@@ -2,7 +2,7 @@
 
 State ``x = [term states..., Omega]`` (``Omega`` the angle since the start of the
 current segment), transition and process noise from the closed-form
-discretisation of :mod:`imustation.analysis.noise_models`, observation
+discretisation of :mod:`imustation.analysis.estimators.noise_models`, observation
 ``Y_i = Omega(t_i) + b_on X_i + n_i`` with ``X_i`` the time since the segment
 start and ``n_i`` the white angle noise (variance ``R``, 0 without a ``wa`` term).
 
@@ -17,7 +17,7 @@ start and ``n_i`` the white angle noise (variance ``R``, 0 without a ``wa`` term
   over the gap without an update and the angle restarts at 0 (its variance is
   the angle-noise variance ``R`` of the segment's first sample).
 
-For the standard model the scalar prefix-scan filter of :mod:`.mli` gives the
+For the standard model the scalar prefix-scan filter of :mod:`.scan` gives the
 same numbers much faster; the tests compare the two.
 """
 
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.noise_models import _TermBlock, discretize_blocks
+from imustation.analysis.estimators.noise_models import TermBlock, discretize_blocks
 
 
 @dataclass
@@ -66,7 +66,7 @@ def _segment_cumsum(v: np.ndarray, new_segment: np.ndarray) -> np.ndarray:
     return c - base[np.cumsum(new_segment) - 1]
 
 
-def kalman_profile(blocks: list[_TermBlock], r_angle: np.ndarray, lay: Layout) -> Profile:
+def kalman_profile(blocks: list[TermBlock], r_angle: np.ndarray, lay: Layout) -> Profile:
     """Run the diffuse filter for K parameter points.
 
     ``blocks``: the model's terms with ``q`` (variance relative to sigma_w^2) and

@@ -42,25 +42,21 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from imustation.analysis.allan import oadev
-from imustation.analysis.kalman import Profile
-from imustation.analysis.mli import (
+from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.fitting import (
     Z90,
-    Increments,
     MLiResult,
-    _check_rate,
-    _fd_derivatives,
-    _full_nll,
-    _optimise,
-    _Problem,
-    _result,
-    _Spec,
-    _stencil,
-    allan_start,
-    grid_start,
-    integrate,
+    ParamSpec,
+    Problem,
+    build_result,
+    full_nll,
+    optimise,
 )
-from imustation.analysis.noise_models import _expm1_tail, parse_model
+from imustation.analysis.estimators.kalman import Profile
+from imustation.analysis.estimators.mli import allan_start, grid_start
+from imustation.analysis.estimators.newton import fd_derivatives, stencil
+from imustation.analysis.estimators.noise_models import expm1_tail, parse_model
+from imustation.analysis.estimators.pattern import Increments, check_rate, integrate
 from imustation.errors import InputError
 
 ESTIMATOR = "ML_i-F"
@@ -165,15 +161,15 @@ def _gm_unit_avar(tau_b: np.ndarray, tau: float, fs_hz: float) -> np.ndarray:
     phi = np.exp(-d)
     om = -np.expm1(-d)
     g = -np.expm1(-n * d) / om
-    n_minus_g = (_expm1_tail(n * d) - n * _expm1_tail(d)) / om  # n - g without cancellation
+    n_minus_g = (expm1_tail(n * d) - n * expm1_tail(d)) / om  # n - g without cancellation
     s2 = tau_b / 2.0
     return s2 / n**2 * (n + 2.0 * phi * n_minus_g / om - phi * g * g)
 
 
-class _CompositeProblem(_Problem):
+class _CompositeProblem(Problem):
     """ML_i's batched likelihood plus the fine-scale term; sigma_w^2 profiled by a cubic."""
 
-    def __init__(self, inc: Increments, spec: _Spec, fine: FineScale, filt: str = "auto"):
+    def __init__(self, inc: Increments, spec: ParamSpec, fine: FineScale, filt: str = "auto"):
         super().__init__(inc, spec, filt)
         self.fine = fine
 
@@ -208,7 +204,7 @@ class _CompositeProblem(_Problem):
 
     def _composite(self, prof: Profile, A: np.ndarray, s: np.ndarray) -> np.ndarray:
         fine = (self.fine.avar - s * A) ** 2 / (2.0 * self.fine.var)
-        return _full_nll(prof, s) + fine
+        return full_nll(prof, s) + fine
 
     def nll(self, theta: np.ndarray) -> np.ndarray:
         theta = np.atleast_2d(theta)
@@ -259,7 +255,7 @@ def fit_composite_data(
     fit would do; the Monte Carlo study counts how often that ends elsewhere).
     """
     t0 = time.perf_counter()
-    spec = _Spec(parse_model(model))
+    spec = ParamSpec(parse_model(model))
     if len(inc.y) < 4 + 2 * spec.d:
         raise InputError(f"only {len(inc.y)} pattern intervals: too few for model {spec.name!r}")
     problem = _CompositeProblem(inc, spec, fine)
@@ -268,12 +264,12 @@ def fit_composite_data(
         starts = allan[:1]
     else:
         starts = (grid_start(problem) + allan) if spec.fast else allan
-    best, n_starts = _optimise(problem, starts)
+    best, n_starts = optimise(problem, starts)
     theta = best.x
     prof = problem.profile(theta[None, :])
     A = problem.unit_avar(theta[None, :])
     s = float(problem.sigma_w2(prof, A)[0])
-    res = _result(problem, theta, best, n_starts, t0, ESTIMATOR, len(inc.y), inc.pattern, inc.n, inc.fs_hz, s)
+    res = build_result(problem, theta, best, n_starts, t0, ESTIMATOR, len(inc.y), inc.pattern, inc.n, inc.fs_hz, s)
     ci90 = dict(res.ci90)
     if spec.fast:
         # profile-likelihood intervals for the bias parameters: the likelihood in
@@ -333,8 +329,8 @@ def _profile_intervals(problem: _CompositeProblem, theta: np.ndarray, f_hat: flo
     at the optimum is not usable.
     """
     h = 0.02
-    f = problem.nll(theta[None, :] + _stencil(2) * h)
-    H = _fd_derivatives(f, 2, h)[2]
+    f = problem.nll(theta[None, :] + stencil(2) * h)
+    H = fd_derivatives(f, 2, h)[2]
     try:
         cov = np.linalg.inv(H)
     except np.linalg.LinAlgError:
@@ -424,7 +420,7 @@ def fit_composite(
     ``tau_b`` (s), ``b_on`` (rad/s), ``stderr``, ``ci90``, diagnostics.
     """
     parse_model(model)
-    rate = _check_rate(rate, fs_hz)
+    rate = check_rate(rate, fs_hz)
     if fine_samples != "auto" and not (isinstance(fine_samples, int) and fine_samples >= 1):
         raise InputError(f"fine_samples = {fine_samples!r}: use 'auto' or a whole number of samples >= 1")
     t0 = time.perf_counter()

@@ -15,7 +15,7 @@ tau_b      s                       s               s
 =========  ======================  ==============  ===================
 
 (°/h/√h: rad/s/√s x 3600·180/π x √3600; 1 g = 9.80665 m/s².) Builders take
-:class:`~imustation.analysis.pipeline.ChannelAnalysis` results and return text;
+:class:`~imustation.analysis.pipeline.channel.ChannelAnalysis` results and return text;
 writing the files is the caller's business.
 """
 
@@ -26,7 +26,7 @@ import io
 import math
 from dataclasses import dataclass
 
-from imustation.analysis.pipeline import ChannelAnalysis
+from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.errors import InputError
 from imustation.units import DPH2RADPS, G0
 

@@ -33,14 +33,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.choices import STUDY_ESTIMATORS as ESTIMATORS
-from imustation.analysis.composite import DEFAULT_M as F_DEFAULT_M
-from imustation.analysis.composite import fine_scale, fit_composite_data
-from imustation.analysis.gmwm import fit_gmwm
-from imustation.analysis.ml_rate import fit_ml_rate
-from imustation.analysis.mli import fit_integrated, integrate
-from imustation.analysis.models import StandardModel
-from imustation.analysis.noise_models import standard
+from imustation.analysis.estimators.composite import DEFAULT_M as F_DEFAULT_M
+from imustation.analysis.estimators.composite import fine_scale, fit_composite_data
+from imustation.analysis.estimators.gmwm import fit_gmwm
+from imustation.analysis.estimators.ml_rate import fit_ml_rate
+from imustation.analysis.estimators.mli import fit_integrated
+from imustation.analysis.estimators.models import StandardModel
+from imustation.analysis.estimators.noise_models import standard
+from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.pipeline.choices import DEFAULT_STUDY_ESTIMATORS
+from imustation.analysis.pipeline.choices import STUDY_ESTIMATORS as ESTIMATORS
 from imustation.errors import InputError
 
 #: estimators with a multi-start default whose single start the study can check
@@ -85,7 +87,7 @@ def run_study(
     duration_s: float,
     fs_hz: float = 400.0,
     seed: int = 0,
-    estimators: tuple[str, ...] = ("mli-log",),
+    estimators: tuple[str, ...] = DEFAULT_STUDY_ESTIMATORS,
     levels: tuple[float, ...] = (1.0,),
     m: int = 1000,
     progress=None,

@@ -49,10 +49,11 @@ class ARResult:
 
 
 @dataclass(frozen=True)
-class GaussMarkov:
-    """First-order Gauss-Markov parameters: ``beta`` (1/s), correlation time ``T = 1/beta`` (s),
-    stationary standard deviation ``sigma`` and innovation standard deviation ``sigma_w`` (unit),
-    with standard errors (delta method from the AR(1) fit)."""
+class GaussMarkovFit:
+    """First-order Gauss-Markov parameters estimated from an AR(1) fit (:func:`gauss_markov_from_ar1`):
+    ``beta`` (1/s), correlation time ``T = 1/beta`` (s), stationary standard deviation ``sigma``
+    and innovation standard deviation ``sigma_w`` (unit), with standard errors (delta method).
+    The noise-model term of the same process is :class:`~.noise_models.GaussMarkov`."""
 
     beta: float
     T: float
@@ -115,7 +116,7 @@ def fit_ar(series: np.ndarray, *, order: int | None = None, max_order: int = 10,
     return ARResult(p, phi, np.sqrt(np.diag(cov))[1:], intercept, float(sigma2), sbc, n)
 
 
-def gauss_markov_from_ar1(ar: ARResult, fs_hz: float) -> GaussMarkov:
+def gauss_markov_from_ar1(ar: ARResult, fs_hz: float) -> GaussMarkovFit:
     """GM parameters from an AR(1) fit (Zhao et al. eqs. 11-13); ``fs_hz`` the sampling rate."""
     if ar.order != 1:
         raise InputError(f"Gauss-Markov parameters need an AR(1) fit, got order {ar.order}")
@@ -126,4 +127,4 @@ def gauss_markov_from_ar1(ar: ARResult, fs_hz: float) -> GaussMarkov:
     beta = -math.log(phi) / dt  # eq. 13
     sigma = math.sqrt(ar.sigma2 / (1.0 - phi**2))  # eq. 11
     beta_se = float(ar.phi_stderr[0]) / (phi * dt)  # d beta / d phi = -1/(phi dt)
-    return GaussMarkov(beta, 1.0 / beta, sigma, math.sqrt(ar.sigma2), beta_se, beta_se / beta**2)
+    return GaussMarkovFit(beta, 1.0 / beta, sigma, math.sqrt(ar.sigma2), beta_se, beta_se / beta**2)

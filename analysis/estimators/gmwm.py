@@ -8,10 +8,10 @@ adjacent means of ``m = 2^(j-1)`` samples, so
 
 and the unbiased MODWT estimator (no boundary coefficients, ``M_j = N - tau_j + 1``
 terms) is exactly half the fully overlapping Allan variance at ``m = 2^(j-1)``.
-:func:`wavelet_variance` therefore reuses :func:`imustation.analysis.allan.oadev`
+:func:`wavelet_variance` therefore reuses :func:`imustation.analysis.estimators.allan.oadev`
 (numba kernels, integer counts, gaps) instead of another pass over the data, and
 the theoretical WV of a model is half the exact sampled AVAR of
-:mod:`imustation.analysis.noise_models` (``avar(tau, fs_hz)``).
+:mod:`imustation.analysis.estimators.noise_models` (``avar(tau, fs_hz)``).
 
 Confidence intervals: chi-square with the equivalent degrees of freedom
 ``eta_j = max(M_j / 2^j, 1)`` (Percival & Walden 2000, *Wavelet Methods for Time
@@ -55,9 +55,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares, nnls
 
-from imustation.analysis.allan import chi2_bounds, oadev
-from imustation.analysis.mli import MLiResult, _intervals, _Spec
-from imustation.analysis.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteAngle, WhiteRate, parse_model
+from imustation.analysis.estimators.allan import chi2_bounds, oadev
+from imustation.analysis.estimators.fitting import MLiResult, ParamSpec, intervals
+from imustation.analysis.estimators.noise_models import (
+    GaussMarkov,
+    NoiseModel,
+    RandomWalk,
+    WhiteAngle,
+    WhiteRate,
+    parse_model,
+)
 from imustation.errors import InputError
 
 #: default probability mass inside [wv_lo, wv_hi]
@@ -107,7 +114,7 @@ def wavelet_variance(
     fs_hz : sampling rate, Hz.
     scale : units per count for integer input.
     segments : contiguous sample ranges ``(start, stop)`` with data; no wavelet
-        coefficient spans a gap (pooled as in :func:`~imustation.analysis.allan.oadev`).
+        coefficient spans a gap (pooled as in :func:`~imustation.analysis.estimators.allan.oadev`).
     confidence : probability of the chi-square interval (0 < confidence < 1).
     """
     if not 0.0 < confidence < 1.0:
@@ -144,7 +151,7 @@ def model_wv(model: NoiseModel, scale: np.ndarray, fs_hz: float) -> np.ndarray:
 # the estimator
 
 
-def _unit_terms(spec: _Spec, taus: Sequence[float]) -> list:
+def _unit_terms(spec: ParamSpec, taus: Sequence[float]) -> list:
     """Terms of unit variance (sigma = 1) in the layout of ``spec``; ``taus`` for the GM terms."""
     out: list = [WhiteRate(1.0)]
     k = 0
@@ -159,10 +166,10 @@ def _unit_terms(spec: _Spec, taus: Sequence[float]) -> list:
     return out
 
 
-class _Problem:
+class _WVProblem:
     """Design of the WV fit: nu(theta) = A(tau_b's) q with q the term variances."""
 
-    def __init__(self, wv: WVResult, spec: _Spec, duration_s: float):
+    def __init__(self, wv: WVResult, spec: ParamSpec, duration_s: float):
         self.wv, self.spec = wv, spec
         self.t_half = 0.5 * wv.scale / wv.fs_hz  # AVAR cluster time of each scale, s
         self.n_gm = spec.codes.count("gm")
@@ -178,7 +185,7 @@ class _Problem:
         fs = self.wv.fs_hz
         return np.stack([0.5 * t.avar(self.t_half, fs) for t in _unit_terms(self.spec, taus)], axis=1)
 
-    # x = [log q_wn, then per other term: log q (and log tau for gm)], the order of _Spec.phi_names
+    # x = [log q_wn, then per other term: log q (and log tau for gm)], the order of ParamSpec.phi_names
     def split(self, x: np.ndarray) -> tuple[np.ndarray, list[float]]:
         q, taus, i = [math.exp(x[0])], [], 1
         for c in self.spec.others:
@@ -218,7 +225,7 @@ class _Problem:
         return rnorm**2, self.join(q, taus)
 
 
-def _grid_starts(problem: _Problem, w: np.ndarray) -> np.ndarray:
+def _grid_starts(problem: _WVProblem, w: np.ndarray) -> np.ndarray:
     k = problem.n_gm
     if k == 0:
         return problem.nnls_start([], w)[1]
@@ -231,14 +238,14 @@ def _grid_starts(problem: _Problem, w: np.ndarray) -> np.ndarray:
     return best[1]
 
 
-def _single_start(problem: _Problem, w: np.ndarray) -> np.ndarray:
+def _single_start(problem: _WVProblem, w: np.ndarray) -> np.ndarray:
     """One heuristic start: every tau_b at the scale of the smallest WV, variances by NNLS."""
     wv = problem.wv
     t0 = float(np.clip(wv.tau[int(np.argmin(wv.wv))], problem.tau_lo, problem.tau_hi))
     return problem.nnls_start([t0 * 4.0**i for i in range(problem.n_gm)], w)[1]
 
 
-def _refine(problem: _Problem, x0: np.ndarray, w: np.ndarray):
+def _refine(problem: _WVProblem, x0: np.ndarray, w: np.ndarray):
     lo, hi = problem.bounds()
     x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
 
@@ -250,7 +257,7 @@ def _refine(problem: _Problem, x0: np.ndarray, w: np.ndarray):
 
 @dataclass(frozen=True)
 class GMWMResult(MLiResult):
-    """GMWM estimate with the public fields of :class:`~imustation.analysis.mli.MLiResult`.
+    """GMWM estimate with the public fields of :class:`~imustation.analysis.estimators.mli.MLiResult`.
 
     ``estimator = "GMWM"``, ``pattern = "wv-haar"``, ``m`` the number of wavelet
     scales used; ``nll``/``aic``/``bic`` are NaN (no likelihood); ``b_on`` is the
@@ -282,7 +289,7 @@ def fit_gmwm(
     rate : (n,) rate samples in rad/s (or m/s^2), or integer counts with ``scale``.
     fs_hz : sampling rate, Hz.
     model : ``"wn+gm"`` (standard model), ``"wn+rw"``, ``"wn+gm+rw"``, ``"wn+2gm"``,
-        ``"wa+wn+gm"``, ... (see :func:`~imustation.analysis.noise_models.parse_model`).
+        ``"wa+wn+gm"``, ... (see :func:`~imustation.analysis.estimators.noise_models.parse_model`).
     segments : contiguous sample ranges with data (gaps between them).
     starts : ``"grid"`` (correlation-time grid + NNLS, default) or ``"single"``.
     reweight : refits with weights from the fitted model's WV (0 = weights from nu_hat only).
@@ -293,7 +300,7 @@ def fit_gmwm(
     ``tau_b`` (s), ``params``, ``stderr``, ``ci90`` as for ML_i.
     """
     t0 = time.perf_counter()
-    spec = _Spec(parse_model(model))
+    spec = ParamSpec(parse_model(model))
     if starts not in START_KINDS:
         raise InputError(f"starts {starts!r}: use one of {', '.join(START_KINDS)}")
     if int(reweight) < 0:
@@ -307,7 +314,7 @@ def fit_gmwm(
     rate = np.asarray(rate)
     n = len(rate)
     kept = n if segments is None else int(sum(b - a for a, b in segments))
-    problem = _Problem(wv, spec, kept / float(fs_hz))
+    problem = _WVProblem(wv, spec, kept / float(fs_hz))
     eta = wv.edf
     w = np.sqrt(eta / 2.0) / wv.wv  # 1/sd of nu_hat_j (chi-square), from nu_hat first
     x = _grid_starts(problem, w) if starts == "grid" else _single_start(problem, w)
@@ -319,10 +326,12 @@ def fit_gmwm(
         if starts == "grid":
             cand.append(_refine(problem, sol.x, w))  # the previous optimum under the new weights
         sol = min(cand, key=lambda s: s.cost)
-    return _result(problem, sol, w, rate, scale, t0, segments)
+    return _gmwm_result(problem, sol, w, rate, scale, t0, segments)
 
 
-def _result(problem: _Problem, sol, w: np.ndarray, rate: np.ndarray, scale: float, t0: float, segments) -> GMWMResult:
+def _gmwm_result(
+    problem: _WVProblem, sol, w: np.ndarray, rate: np.ndarray, scale: float, t0: float, segments
+) -> GMWMResult:
     spec = problem.spec
     names = spec.phi_names()
     x = sol.x
@@ -331,7 +340,7 @@ def _result(problem: _Problem, sol, w: np.ndarray, rate: np.ndarray, scale: floa
     Jr = sol.jac  # d resid / dx = -w d nu/dx
     D = np.where(is_var, 2.0, 1.0)  # dx/dphi
     H = (Jr * D[None, :]).T @ (Jr * D[None, :])  # J^T Omega J in phi
-    stderr, ci90 = _intervals(names, phi, H)
+    stderr, ci90 = intervals(names, phi, H)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))
     lo, hi = problem.bounds()
     at_bound = tuple(sorted(names[i] for i in range(len(x)) if min(x[i] - lo[i], hi[i] - x[i]) < 1e-3))

@@ -1,0 +1,14 @@
+"""Estimators: sample arrays in (SI units or integer counts with a scale), plain dataclasses out.
+
+Allan family (:mod:`.allan`), PSD (:mod:`.psd`), IEEE-952 coefficients (:mod:`.ieee`),
+AR(p)/Gauss-Markov (:mod:`.ar`), the rate noise-model library (:mod:`.noise_models`,
+:mod:`.models` with the paper's standard model, :mod:`.reference` values), and the
+noise-model fits: ML_i (:mod:`.mli`), ML_i-F (:mod:`.composite`), classical ML on the rates
+(:mod:`.ml_rate`) and GMWM (:mod:`.gmwm`), which share the fitting engine of :mod:`.fitting`,
+the integrated-signal pattern of :mod:`.pattern`, the scan filter of :mod:`.scan` and the
+batched Kalman filter of :mod:`.kalman`.
+
+Nothing here reads files, plots or imports :mod:`imustation.analysis.reports` or
+:mod:`imustation.analysis.pipeline` (an import-linter contract). This ``__init__`` imports
+nothing, so the chip simulators can load :mod:`.models` alone.
+"""

@@ -1,0 +1,458 @@
+"""The fitting engine shared by ML_i, ML_i-F, ML on rates and GMWM.
+
+* :class:`ParamSpec`: a model's parameter layout. The search runs over ``theta``:
+  every variance relative to ``sigma_w^2`` (which is profiled in closed form) and log
+  correlation times, so the standard model is searched in 2 dimensions; physical
+  log-parameters ``phi`` (``log sigma_w`` first) are what results report.
+* :class:`Problem`: the innovations likelihood (Nikolic et al. 2016, eq. 19) of one
+  model on one integrated record, batched over parameter points. ``b_on`` is a
+  diffuse initial state, handled exactly by the augmented (de Jong) filter (GLS
+  estimate and the ``log S_uu`` term); the standard model runs the prefix-scan filter
+  of :mod:`.scan`, other models the batched Kalman filter of :mod:`.kalman`; gaps
+  predict the bias across without an update. Estimators with other data or other
+  terms subclass it (``profile``, ``nll``, ``full_nll``).
+* :func:`optimise`: damped Newton (:mod:`.newton`) from each distinct start; a start
+  that reaches an optimum already found is stopped.
+* :func:`intervals`: delta-method standard errors and 90 % intervals from the observed
+  information (beyond the paper, which gives none).
+* :class:`MLiResult` and :func:`build_result`: the result every estimator returns.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from imustation.analysis.estimators.kalman import Profile, kalman_profile
+from imustation.analysis.estimators.newton import NewtonResult, fd_derivatives, newton, stencil
+from imustation.analysis.estimators.noise_models import (
+    GaussMarkov,
+    NoiseModel,
+    RandomWalk,
+    TermBlock,
+    WhiteAngle,
+    WhiteRate,
+    model_name,
+)
+from imustation.analysis.estimators.pattern import Increments
+from imustation.analysis.estimators.scan import standard_profile
+from imustation.errors import InputError
+
+_LOG2PI = math.log(2.0 * math.pi)
+#: z-score of the two-sided 90 % interval
+Z90 = 1.6448536269514722
+
+
+def profiled_nll(prof: Profile) -> np.ndarray:
+    """-log L with sigma_w^2 and b_on profiled out (diffuse likelihood)."""
+    dof = prof.m - 1
+    s2 = prof.s_tilde / dof
+    return 0.5 * (dof * (np.log(s2) + 1.0) + prof.logdet + prof.log_suu + dof * _LOG2PI)
+
+
+def full_nll(prof: Profile, sigma_w2: np.ndarray) -> np.ndarray:
+    """-log L at ``sigma_w2`` ((rate unit)^2/Hz, one per profile column) with b_on profiled out."""
+    dof = prof.m - 1
+    return 0.5 * (dof * np.log(sigma_w2) + prof.logdet + prof.log_suu + prof.s_tilde / sigma_w2 + dof * _LOG2PI)
+
+
+# ---------------------------------------------------------------------------
+# model specification: search parameters theta <-> physical parameters
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Parameter layout of a model.
+
+    Search vector ``theta``: for each Gauss-Markov term ``log(sigma_b^2/sigma_w^2)``
+    and ``log tau_b``; random walk ``log(sigma_k^2/sigma_w^2)``; white angle
+    ``log(sigma_a^2/sigma_w^2)``. Physical vector ``phi``: ``log sigma_w`` followed
+    by the logs of ``sigma_b, tau_b`` / ``sigma_k`` / ``sigma_a`` in the same order.
+    """
+
+    #: term codes as :func:`~.noise_models.parse_model` returns them, ``"wn"`` first
+    codes: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        """Canonical model name (``"wn+gm"``, ...)."""
+        return model_name(self.codes)
+
+    @property
+    def fast(self) -> bool:
+        """The standard model, which the prefix-scan filter of :mod:`.scan` evaluates."""
+        return self.codes == ("wn", "gm")
+
+    @property
+    def others(self) -> tuple[str, ...]:
+        """Codes of the terms besides the white rate noise, in search order."""
+        return tuple(c for c in self.codes if c != "wn")
+
+    @property
+    def d(self) -> int:
+        """Dimension of the search vector theta."""
+        return sum(2 if c == "gm" else 1 for c in self.others)
+
+    def phi_names(self) -> list[str]:
+        """Names of the physical parameters, in the order of phi."""
+        names = ["sigma_w"]
+        k = 0
+        ngm = self.codes.count("gm")
+        for c in self.others:
+            if c == "gm":
+                k += 1
+                sfx = "" if ngm == 1 else str(k)
+                names += [f"sigma_b{sfx}", f"tau_b{sfx}"]
+            elif c == "rw":
+                names.append("sigma_k")
+            else:
+                names.append("sigma_a")
+        return names
+
+    def theta_kinds(self) -> list[str]:
+        """Kind of each search coordinate: ``r``/``tau`` (Gauss-Markov), ``r_rw``, ``r_wa``."""
+        out = []
+        for c in self.others:
+            out += ["r", "tau"] if c == "gm" else [f"r_{c}"]
+        return out
+
+    def bounds(self, inc: Increments) -> tuple[np.ndarray, np.ndarray]:
+        """Search box ``(lo, hi)`` of theta for the record ``inc``."""
+        total = inc.duration
+        dt_min = float(inc.dt.min())
+        box = {
+            # r = sigma^2/sigma_w^2 from "invisible over the record" to "dominates at one
+            # interval"; a Gauss-Markov term can hide the white noise even with long
+            # intervals (angle variance r tau^2 dt vs dt), so its bound uses tau >= 1/fs
+            "r": (math.log(1e-6 / total**2), math.log(10.0 * inc.fs_hz**2)),
+            "r_rw": (math.log(1e-6 / total**2), math.log(10.0 / dt_min**2)),
+            "tau": (math.log(2.0 / inc.fs_hz), math.log(100.0 * total)),
+            "r_wa": (math.log(1e-4 * dt_min), math.log(10.0 * total)),
+        }
+        lo, hi = zip(*(box[k] for k in self.theta_kinds()), strict=True)
+        return np.array(lo), np.array(hi)
+
+    def blocks(self, theta: np.ndarray) -> tuple[list[TermBlock], np.ndarray]:
+        """Term blocks (sigma_w = 1 units) and angle-noise ratio for theta (K, d)."""
+        K = theta.shape[0]
+        blocks = [TermBlock("wn", np.ones(K))]
+        r_angle = np.zeros(K)
+        j = 0
+        for c in self.others:
+            if c == "gm":
+                blocks.append(TermBlock("gm", np.exp(theta[:, j]), np.exp(theta[:, j + 1])))
+                j += 2
+            elif c == "rw":
+                blocks.append(TermBlock("rw", np.exp(theta[:, j])))
+                j += 1
+            else:
+                r_angle = np.exp(theta[:, j])
+                j += 1
+        return blocks, r_angle
+
+    def theta_of_phi(self, phi: np.ndarray) -> np.ndarray:
+        """phi (K, 1 + d) -> theta (K, d): variance ratios relative to sigma_w^2."""
+        out = np.empty((phi.shape[0], self.d))
+        j = 0
+        for c in self.others:
+            out[:, j] = 2.0 * (phi[:, j + 1] - phi[:, 0])
+            if c == "gm":
+                out[:, j + 1] = phi[:, j + 2]
+                j += 2
+            else:
+                j += 1
+        return out
+
+    def phi_of_theta(self, theta: np.ndarray, sigma_w: float) -> np.ndarray:
+        """theta (d,) and sigma_w (rate unit/sqrt(Hz)) -> phi (1 + d,)."""
+        phi = np.empty(1 + self.d)
+        phi[0] = math.log(sigma_w)
+        j = 0
+        for c in self.others:
+            phi[j + 1] = phi[0] + 0.5 * theta[j]
+            if c == "gm":
+                phi[j + 2] = theta[j + 1]
+                j += 2
+            else:
+                j += 1
+        return phi
+
+    def model(self, phi: np.ndarray, b_on: float) -> NoiseModel:
+        """The :class:`~.noise_models.NoiseModel` at phi (1 + d,) with turn-on bias ``b_on`` (rate unit)."""
+        v = np.exp(phi)
+        terms: list = [WhiteRate(float(v[0]))]
+        j = 1
+        for c in self.others:
+            if c == "gm":
+                terms.append(GaussMarkov(float(v[j]), float(v[j + 1])))
+                j += 2
+            elif c == "rw":
+                terms.append(RandomWalk(float(v[j])))
+                j += 1
+            else:
+                terms.append(WhiteAngle(float(v[j])))
+                j += 1
+        return NoiseModel(tuple(terms), b_on, name=self.name)
+
+
+class Problem:
+    """Likelihood of one model on one integrated record, batched over parameter points."""
+
+    def __init__(self, inc: Increments, spec: ParamSpec, filt: str = "auto"):
+        self.inc = inc
+        self.spec = spec
+        if filt == "auto":
+            filt = "scan" if spec.fast else "kalman"
+        if filt == "scan" and not spec.fast:
+            raise InputError(f"filter 'scan' exists for 'wn+gm' only, not {spec.name!r}")
+        self.filt = filt
+        self.layout = inc.layout() if filt == "kalman" else None
+        self.lo, self.hi = spec.bounds(inc)
+        self.n_eval = 0
+
+    def profile(self, theta: np.ndarray) -> Profile:
+        theta = np.atleast_2d(theta)
+        self.n_eval += theta.shape[0]
+        if self.filt == "scan":
+            gap = self.inc.gap if np.any(self.inc.gap > 0) else None
+            return standard_profile(self.inc.y, self.inc.dt, np.exp(theta[:, 0]), np.exp(theta[:, 1]), gap)
+        blocks, r_angle = self.spec.blocks(theta)
+        return kalman_profile(blocks, r_angle, self.layout)
+
+    def nll(self, theta: np.ndarray) -> np.ndarray:
+        """Profiled negative log-likelihood at theta (K, d)."""
+        with np.errstate(all="ignore"):
+            out = profiled_nll(self.profile(theta))
+        return np.where(np.isfinite(out), out, np.inf)
+
+    def full_nll(self, phi: np.ndarray) -> np.ndarray:
+        """Negative log-likelihood at physical log-parameters phi (K, 1 + d) (b_on diffuse)."""
+        phi = np.atleast_2d(phi)
+        with np.errstate(all="ignore"):
+            out = full_nll(self.profile(self.spec.theta_of_phi(phi)), np.exp(2.0 * phi[:, 0]))
+        return np.where(np.isfinite(out), out, np.inf)
+
+
+# ---------------------------------------------------------------------------
+# optimisation
+
+
+def optimise(problem: Problem, starts: list[np.ndarray]) -> tuple[NewtonResult, int]:
+    """Newton from each distinct start; a start stops when it reaches an optimum already
+    found or is still far worse than the best (50 nats after 3 steps, 5 after 6)."""
+    found: list[NewtonResult] = []
+
+    def stop(x, f, it):
+        for r in found:
+            if np.abs(x - r.x).max() < 0.3 and r.converged:
+                return "same optimum as an earlier start"
+        best = min((r.fun for r in found), default=math.inf)
+        if (it >= 3 and f > best + 50.0) or (it >= 6 and f > best + 5.0):
+            return "abandoned: far worse than the best start"
+        return None
+
+    unique: list[np.ndarray] = []
+    for x0 in starts:
+        if all(np.abs(x0 - u).max() > 0.1 for u in unique):
+            unique.append(x0)
+    kinds = problem.spec.theta_kinds()
+    # only extra terms may vanish: the standard model's own bias is kept (its search box decides)
+    probe = tuple(j for j, k in enumerate(kinds) if k == "r_rw" or k == "r_wa") if problem.spec.d > 2 else ()
+    if problem.spec.codes.count("gm") > 1:
+        probe += tuple(j for j, k in enumerate(kinds) if k == "r")
+    for x0 in unique:
+        found.append(newton(problem.nll, x0, problem.lo, problem.hi, stop=stop if found else None, probe=probe))
+    candidates = [r for r in found if not r.message.startswith("same optimum")]
+    best = min(candidates, key=lambda r: r.fun)
+    return best, len(unique)
+
+
+# ---------------------------------------------------------------------------
+# uncertainty
+
+
+def observed_information(problem: Problem, phi: np.ndarray, h: float = 1e-2) -> np.ndarray:
+    """Numerical Hessian of the full nll in physical log-parameters (observed information)."""
+    D = len(phi)
+    f = problem.full_nll(phi[None, :] + stencil(D) * h)
+    return fd_derivatives(f, D, h)[2]
+
+
+def intervals(
+    names: list[str], phi: np.ndarray, H: np.ndarray
+) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+    """Delta-method standard errors and 90 % intervals symmetric in log-parameters."""
+    try:
+        cov = np.linalg.inv(H)
+        var = np.diag(cov)
+        if not np.all(np.linalg.eigvalsh(H) > 0):
+            var = np.full(len(phi), np.nan)
+    except np.linalg.LinAlgError:
+        var = np.full(len(phi), np.nan)
+    stderr, ci90 = {}, {}
+    for name, p, v in zip(names, phi, var, strict=True):
+        value = math.exp(p)
+        se_log = math.sqrt(v) if v > 0 and np.isfinite(v) else float("nan")
+        stderr[name] = value * se_log if se_log < 700.0 else math.inf
+        half = min(Z90 * se_log, 700.0) if math.isfinite(se_log) else math.nan  # exp() range
+        ci90[name] = (value * math.exp(-half), value * math.exp(half))
+    return stderr, ci90
+
+
+# ---------------------------------------------------------------------------
+# results and public API
+
+
+@dataclass(frozen=True)
+class MLiResult:
+    """ML_i (or classical ML) estimate of a noise model with turn-on bias (SI units).
+
+    ``sigma_w`` (rad s^-1/sqrt(Hz)), ``sigma_b`` (rad s^-2/sqrt(Hz)), ``tau_b`` (s)
+    and ``b_on`` (rad/s) follow the paper. For ``wn+rw`` ``sigma_b`` is the random
+    walk's ``sigma_k`` and ``tau_b = inf``; with several Gauss-Markov terms they are
+    the slowest one's; models without a bias term give NaN. ``params`` holds
+    every parameter by name (``sigma_b1, tau_b1, ...`` ordered by tau for 2gm,
+    ``sigma_k``, ``sigma_a`` in rad). ``stderr`` holds delta-method standard errors
+    from the observed information; ``ci90`` 90 % intervals, symmetric in log-parameters.
+    ``nll`` is the negative diffuse log-likelihood at the optimum (nats);
+    ``aic = 2 nll + 2 k``, ``bic = 2 nll + k log M`` with ``k`` the number of
+    noise parameters plus b_on and M the number of pattern intervals.
+    """
+
+    model: str
+    sigma_w: float
+    sigma_b: float
+    tau_b: float
+    b_on: float
+    stderr: dict[str, float]
+    ci90: dict[str, tuple[float, float]]
+    nll: float
+    pattern: str
+    m: int
+    n: int
+    fs_hz: float
+    converged: bool
+    message: str
+    n_eval: int
+    fit_time_s: float
+    starts: int = 1
+    at_bound: tuple[str, ...] = field(default_factory=tuple)
+    params: dict[str, float] = field(default_factory=dict)
+    k: int = 0
+    aic: float = math.nan
+    bic: float = math.nan
+    estimator: str = "ML_i"
+    noise_model: NoiseModel | None = field(default=None, compare=False, repr=False)
+
+    def as_dict(self) -> dict:
+        return {
+            "model": self.model,
+            "estimator": self.estimator,
+            "sigma_w": self.sigma_w,
+            "sigma_b": self.sigma_b,
+            "tau_b": self.tau_b,
+            "b_on": self.b_on,
+            "params": dict(self.params),
+            "stderr": dict(self.stderr),
+            "ci90": {k: list(v) for k, v in self.ci90.items()},
+            "pattern": self.pattern,
+            "m": self.m,
+            "nll": self.nll,
+            "k": self.k,
+            "aic": self.aic,
+            "bic": self.bic,
+            "converged": self.converged,
+            "message": self.message,
+        }
+
+
+def build_result(
+    problem: Problem,
+    theta: np.ndarray,
+    newton: NewtonResult,
+    n_starts: int,
+    t0: float,
+    estimator: str,
+    m_intervals: int,
+    pattern: str,
+    n: int,
+    fs_hz: float,
+    sigma_w2: float | None = None,
+) -> MLiResult:
+    """The result at search point ``theta``: physical parameters, intervals, criteria.
+
+    ``sigma_w2`` (rate unit^2/Hz): given by estimators whose likelihood does not
+    profile it in closed form (ML_i-F); the nll is then ``problem.full_nll``'s.
+    """
+    spec = problem.spec
+    prof = problem.profile(theta[None, :])
+    M = prof.m
+    if sigma_w2 is None:
+        sigma_w2 = float(prof.s_tilde[0] / (M - 1))
+        phi = spec.phi_of_theta(theta, math.sqrt(sigma_w2))
+        nll = float(full_nll(prof, np.array([sigma_w2]))[0])
+    else:
+        phi = spec.phi_of_theta(theta, math.sqrt(sigma_w2))
+        nll = float(problem.full_nll(phi[None, :])[0])
+    b_on = float(prof.b_on[0])
+    names = spec.phi_names()
+    H = observed_information(problem, phi)
+    stderr, ci90 = intervals(names, phi, H)
+    params = dict(zip(names, np.exp(phi).tolist(), strict=True))
+    lo, hi = problem.lo, problem.hi
+    at_bound = {names[1 + j] for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3}
+    # order several Gauss-Markov terms by correlation time (the likelihood is symmetric)
+    ngm = spec.codes.count("gm")
+    if ngm > 1:
+        order = sorted(range(1, ngm + 1), key=lambda i: params[f"tau_b{i}"])
+        for dct in (params, stderr, ci90):
+            old = dict(dct)
+            for new_i, old_i in enumerate(order, start=1):
+                for key in ("sigma_b", "tau_b"):
+                    dct[f"{key}{new_i}"] = old[f"{key}{old_i}"]
+        rename = {f"{k}{o}": f"{k}{i}" for i, o in enumerate(order, 1) for k in ("sigma_b", "tau_b")}
+        at_bound = {rename.get(b, b) for b in at_bound}
+    at_bound = tuple(sorted(at_bound))
+    if "gm" in spec.codes:
+        sfx = "" if ngm == 1 else str(ngm)
+        sigma_b, tau_b = params[f"sigma_b{sfx}"], params[f"tau_b{sfx}"]
+        if ngm > 1:
+            stderr["sigma_b"], stderr["tau_b"] = stderr[f"sigma_b{sfx}"], stderr[f"tau_b{sfx}"]
+            ci90["sigma_b"], ci90["tau_b"] = ci90[f"sigma_b{sfx}"], ci90[f"tau_b{sfx}"]
+    elif "rw" in spec.codes:
+        sigma_b, tau_b = params["sigma_k"], math.inf
+    else:
+        sigma_b = tau_b = math.nan
+    params["b_on"] = b_on
+    k = len(names) + 1
+    converged = newton.converged and not at_bound
+    message = newton.message if not at_bound else f"at search bound: {', '.join(at_bound)}"
+    return MLiResult(
+        model=spec.name,
+        sigma_w=math.sqrt(sigma_w2),
+        sigma_b=sigma_b,
+        tau_b=tau_b,
+        b_on=b_on,
+        stderr=stderr,
+        ci90=ci90,
+        nll=nll,
+        pattern=pattern,
+        m=m_intervals,
+        n=n,
+        fs_hz=fs_hz,
+        converged=converged,
+        message=message,
+        n_eval=problem.n_eval,
+        fit_time_s=time.perf_counter() - t0,
+        starts=n_starts,
+        at_bound=at_bound,
+        params=params,
+        k=k,
+        aic=2.0 * nll + 2.0 * k,
+        bic=2.0 * nll + k * math.log(M),
+        estimator=estimator,
+        noise_model=spec.model(phi, b_on),
+    )

@@ -1,0 +1,124 @@
+"""The fleet report: one table over many runs and devices, written to one folder.
+
+:func:`write_fleet_report` turns the per-channel analyses of many runs (and the runs or
+channels that failed) into fleet.csv, fleet.md, fleet.html (self-contained: the Allan
+figure embedded) and fleet_allan.png, with repeatability per device and outliers
+against the fleet (the statistics are :mod:`imustation.analysis.pipeline.fleet`'s).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from imustation.analysis.pipeline.channel import ChannelAnalysis
+from imustation.analysis.pipeline.fleet import (
+    MIN_GROUP,
+    Z_LIMIT,
+    FleetRow,
+    flag_outliers,
+    fleet_csv,
+    fleet_markdown,
+    fleet_rows,
+    repeatability,
+)
+from imustation.analysis.pipeline.parallel import TaskFailure
+from imustation.analysis.reports import plots
+from imustation.analysis.reports.pages import CSS, html_table
+from imustation.errors import InputError
+
+
+@dataclass(frozen=True)
+class FleetReport:
+    """What :func:`write_fleet_report` wrote: the folder, the table rows, the failures (in run
+    order), a one-line summary and the files."""
+
+    out_dir: str
+    rows: tuple[FleetRow, ...]
+    failures: tuple[TaskFailure, ...]
+    summary: str
+    files: tuple[str, ...]
+
+    def outlier_lines(self) -> list[str]:
+        """One line per axis flagged against the fleet, with its robust z-scores."""
+        out = []
+        for r in self.rows:
+            if r.outliers:
+                z = ", ".join(f"{q} z {r.z[q]:+.1f}" for q in r.outliers)
+                out.append(f"outlier: {r.run} {r.key} {r.sensor}/{r.axis}: {z}")
+        return out
+
+    def summary_line(self) -> str:
+        """The summary and where the files are."""
+        return f"{self.summary} -> {self.out_dir}/fleet.{{csv,md,html}}, fleet_allan.png"
+
+
+def fleet_page(md: str, png: bytes, summary: str) -> str:
+    """Self-contained HTML: the Markdown tables as HTML and the Allan figure embedded as base64 PNG."""
+    img = base64.b64encode(png).decode("ascii")
+    rule = (
+        f"Outliers: robust z = 0.6745 (x − median)/MAD of log10 σ_w, σ_b, τ_b against every run of the same "
+        f"driver, sensor and axis; |z| > {Z_LIMIT:g} is flagged (groups of at least {MIN_GROUP} runs). "
+        "Values: ML_i fit of the standard model (σ_w, σ_b, τ_b), IEEE-952 Allan fit (N, B, K), ± standard error."
+    )
+    return (
+        "<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>imustation fleet</title>"
+        f"<style>{CSS}</style></head><body><h1>Fleet noise report</h1><p>{html.escape(summary)}</p>"
+        f"<p>{html.escape(rule)}</p>"
+        f'<figure><img src="data:image/png;base64,{img}" alt="fleet Allan deviation">'
+        '<figcaption>Allan deviation of every run, one panel per axis group (<a href="fleet_allan.png">PNG</a>); '
+        'outliers in colour. Tables: <a href="fleet.csv">fleet.csv</a>, <a href="fleet.md">fleet.md</a>.'
+        "</figcaption></figure>" + html_table(md) + "</body></html>\n"
+    )
+
+
+def write_fleet_report(
+    runs: Sequence[str],
+    results: Sequence[ChannelAnalysis | None],
+    failures: Sequence[TaskFailure],
+    out_dir: str,
+) -> FleetReport:
+    """Write the fleet report of ``results`` (None where a task failed) in ``out_dir``.
+
+    ``runs``: the run paths in the order given, which orders the failures. Raises
+    :class:`InputError` when every run failed.
+    """
+    order = {p: i for i, p in enumerate(runs)}
+    failures = sorted(failures, key=lambda f: (order.get(f.path, len(order)), f.channel or ""))
+    done = [r for r in results if r is not None]
+    if not done:
+        first = failures[0].error if failures else "no channels"
+        raise InputError(f"every run failed ({len(failures)} failures; first: {first})")
+    rows = flag_outliers(fleet_rows(done))
+    rep = repeatability(rows)
+    os.makedirs(out_dir, exist_ok=True)
+    md = fleet_markdown(rows, rep, failures)
+    curves = [
+        (f"{r.driver} {r.sensor} {r.axis}", r.sensor, f"{r.key} ({os.path.basename(r.run)})", res.allan.tau,
+         res.allan.adev, bool(r.outliers))
+        for r, res in zip(rows, done, strict=True)
+    ]  # fmt: skip
+    png_path = os.path.join(out_dir, "fleet_allan.png")
+    plots.fleet_allan_figure(curves).savefig(png_path, dpi=110)
+    with open(png_path, "rb") as fh:
+        png = fh.read()
+    n_runs = len({r.run for r in rows})
+    n_out = sum(1 for r in rows if r.outliers)
+    summary = (
+        f"{len(rows)} axes of {n_runs} runs, {len({r.key for r in rows})} devices; "
+        f"{n_out} outlier axes; {len(failures)} failures"
+    )
+    files = [png_path]
+    for name, text in (
+        ("fleet.csv", fleet_csv(rows, failures)),
+        ("fleet.md", md),
+        ("fleet.html", fleet_page(md, png, summary)),
+    ):
+        path = os.path.join(out_dir, name)
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        files.append(path)
+    return FleetReport(out_dir, tuple(rows), tuple(failures), summary, tuple(files))

@@ -1,0 +1,295 @@
+"""The report of one run: noise tables, figures and an HTML page, written to one folder.
+
+:func:`report_run` analyses every selected channel of a run file (after cutting each
+device's warm-up: from its own temperature with ``"auto"``, or a given duration), and
+writes the noise tables (CSV, Markdown, LaTeX), Allan/PSD/attitude/temperature figures
+(PNG, PDF), the bias temperature coefficients and ``index.html`` linking them with
+relative links (a self-contained folder, no network). :func:`report_runs` does so for
+several runs, one folder each, plus one table over all of them (docs/reports.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import html
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.choices import DEFAULT_MODEL
+from imustation.analysis.pipeline.loaders import load_run
+from imustation.analysis.reports import plots
+from imustation.analysis.reports.pages import CSS, figure_html, html_table
+from imustation.analysis.reports.tables import NoiseRow, noise_rows, table_csv, table_latex, table_markdown, units_of
+from imustation.analysis.reports.temperature import (
+    detect_warmup,
+    device_temperature,
+    fit_tempco,
+    thermometer_temperature,
+)
+from imustation.errors import InputError
+from imustation.runfile import open_run
+from imustation.units import format_duration, parse_duration
+
+#: bias block length of the temperature figure and regression, s
+BIAS_BLOCK_S = 60.0
+#: ``warmup`` values that exclude nothing
+NO_WARMUP = ("0", "none")
+#: the noise tables written per run and over several runs
+TABLES = (("noise.csv", table_csv), ("noise.md", table_markdown), ("noise.tex", table_latex))
+
+#: receives one line of progress (a channel being analysed)
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """What :func:`report_run` wrote: the run file, its report folder, the files written,
+    the noise-table rows and the warm-up cut per device (s)."""
+
+    path: str
+    folder: str
+    files: tuple[str, ...]
+    rows: tuple[NoiseRow, ...]
+    warmup_s: dict[str, float]
+
+    def summary(self) -> str:
+        """One line for the operator: the run and where its report is."""
+        return f"{self.path}: {len(self.files)} files in {self.folder}"
+
+
+def check_warmup(warmup: str) -> float | None:
+    """Seconds to cut from the start of every device, or None for ``"auto"`` (each device's own
+    temperature decides); ``"0"``/``"none"`` cut nothing. Raises :class:`InputError` otherwise."""
+    if warmup == "auto":
+        return None
+    return 0.0 if warmup in NO_WARMUP else parse_duration(warmup)
+
+
+def slug(text: str) -> str:
+    """``text`` as a file-name part: letters, digits, ``-`` and ``.`` kept, the rest ``_``."""
+    return "".join(c if c.isalnum() or c in "-." else "_" for c in text)
+
+
+def write_tables(rows: Sequence[NoiseRow], folder: str) -> list[str]:
+    """Write noise.csv, noise.md and noise.tex of ``rows`` in ``folder``; returns their paths."""
+    written = []
+    for name, fn in TABLES:
+        p = os.path.join(folder, name)
+        with open(p, "w", encoding="utf-8") as fh:
+            fh.write(fn(list(rows)))
+        written.append(p)
+    return written
+
+
+def _exclude_start(ch, n0: int) -> None:
+    """Drop the first ``n0`` samples from the channel's segments (warm-up)."""
+    segs = [(max(a, n0), b) for a, b in ch.segments if b > n0]
+    if not segs:
+        raise InputError(f"{ch.id}: the warm-up exclusion ({format_duration(n0 / ch.fs_hz)}) leaves no data")
+    ch.segments = segs
+
+
+def report_run(
+    path: str,
+    out_dir: str,
+    *,
+    globs: Sequence[str] = (),
+    model: str = DEFAULT_MODEL,
+    warmup: str = "auto",
+    progress: Progress | None = None,
+) -> RunReport:
+    """Analyse the run file ``path`` and write its tables, figures and ``index.html`` in ``out_dir``.
+
+    ``globs``: channels to report (default: every gyro/accel axis); ``model``: the noise
+    model fitted; ``warmup``: ``"auto"``, ``"0"``/``"none"`` or a duration (``"20m"``),
+    cut from the start of every device; ``progress`` gets a line per channel analysed.
+    """
+    fixed = check_warmup(warmup)
+    if not path.lower().endswith((".h5", ".hdf5")):
+        raise InputError(f"{path}: report needs run files (.h5)")
+    os.makedirs(out_dir, exist_ok=True)
+    channels = load_run(path, globs)
+    with open_run(path) as run:
+        run_attrs = dict(run.attrs)
+        temp_devices = [d for d, info in run.devices.items() if "temp" in info.channels and info.n > 0]
+        thermometer_names = list(run.thermometers)
+    temps = {d: device_temperature(path, d) for d in temp_devices}
+    therms = {}
+    for name in thermometer_names:
+        t, c = thermometer_temperature(path, name)
+        if len(t) >= 2:
+            therms[name] = (t, c)
+    written: list[str] = []
+    sections: list[str] = []
+    # warm-up: per device, from its own temperature when 'auto'
+    excluded: dict[str, float] = {}
+    for ch in channels:
+        dev = ch.meta["device"]
+        if dev not in excluded:
+            if fixed is None:
+                excluded[dev] = detect_warmup(*temps[dev]) if dev in temps else 0.0
+            else:
+                excluded[dev] = fixed
+        if excluded[dev] > 0:
+            _exclude_start(ch, int(round(excluded[dev] * ch.fs_hz)))
+    results = []
+    for ch in channels:
+        if progress is not None:
+            progress(f"analysing {ch.id} ({ch.n} samples) ...")
+        results.append(analyze_channel(ch, model=model))
+    rows = noise_rows(results)
+    written += write_tables(rows, out_dir)
+    sections.append("<h2>Noise table</h2>" + html_table(table_markdown(rows)))
+    sections.append(
+        '<p>Files: <a href="noise.csv">noise.csv</a>, <a href="noise.md">noise.md</a>, '
+        '<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: ML_i fit of the '
+        f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured.</p>"
+    )
+
+    def sources(dev):
+        """Temperatures to show and regress on: the device's own, then the room thermometers."""
+        own = [("internal", *temps[dev])] if dev in temps else []
+        return own + [(name, t, c) for name, (t, c) in therms.items()]
+
+    def span(dev):
+        if not sources(dev):
+            return None
+        _, t, c = sources(dev)[0]
+        keep = t >= excluded.get(dev, 0.0)
+        return (float(c[keep].min()), float(c[keep].max())) if keep.any() else None
+
+    def save(fig, name, caption):
+        written.extend(plots.save_figure(fig, os.path.join(out_dir, name)))
+        return figure_html(name, caption)
+
+    tempco_rows = []
+    figs = []
+    by_group: dict[tuple[str, str], list] = {}
+    for res in results:
+        ch = res.channel
+        dev = ch.meta["device"]
+        by_group.setdefault((dev, ch.id.split("/")[1]), []).append(res)
+        settings = plots.settings_line(ch, span(dev))
+        name_id = slug(ch.id)
+        figs.append(
+            save(plots.allan_figure(res, settings), f"allan_{name_id}", f"Allan deviation of {ch.id}: {settings}")
+        )
+        figs.append(save(plots.psd_figure(res, settings), f"psd_{name_id}", f"PSD near Nyquist of {ch.id}: {settings}"))
+        if ch.id.split("/")[1] == "gyro":
+            cap = f"attitude-error growth of {ch.id}: {settings}"
+            figs.append(save(plots.attitude_figure(res, settings), f"attitude_{name_id}", cap))
+    for (dev, sensor), group in by_group.items():
+        if len(group) > 1:
+            settings = plots.settings_line(group[0].channel, span(dev))
+            name = f"allan_{slug(dev)}_{sensor}"
+            figs.append(
+                save(plots.allan_multi_figure(group, f"Allan deviation — {dev} {sensor}", settings), name, settings)
+            )
+    gyros = [r for r in results if r.channel.id.split("/")[1] == "gyro"]
+    if len({r.channel.meta["device"] for r in gyros}) > 1:  # Fig. 8: the devices side by side
+        fig = plots.allan_multi_figure(gyros, "Allan deviation — all gyroscopes")
+        figs.append(save(fig, "allan_all_gyro", "all gyroscopes of the run"))
+    for (dev, sensor), group in by_group.items():
+        srcs = sources(dev)
+        if not srcs:
+            continue
+        _, disp_unit, factor = units_of(sensor, "B")
+        si_unit = units_of(sensor, "B")[0]
+        biases = []
+        for r in group:
+            ch = r.channel
+            bt, b = plots.bias_track(ch.data, ch.fs_hz, BIAS_BLOCK_S, ch.scale)
+            keep = bt >= excluded.get(dev, 0.0)
+            biases.append((ch.id, bt, (b - b[keep].mean() if keep.any() else b) * factor))
+            for src, t, c in srcs:
+                try:
+                    tc = fit_tempco(bt[keep], b[keep], t, c)
+                    tempco_rows.append((ch.id, src, tc, factor, disp_unit, si_unit))
+                except InputError as exc:
+                    tempco_rows.append((ch.id, src, None, factor, disp_unit, str(exc)))
+            ch.release()
+        src, t, c = srcs[0]
+        settings = plots.settings_line(group[0].channel, span(dev))
+        fig = plots.temperature_figure(
+            t,
+            c,
+            biases,
+            label=f"{dev} {sensor} ({src} temperature)",
+            bias_unit=disp_unit + " (mean removed)",
+            settings=settings,
+            warmup_s=excluded.get(dev, 0.0),
+        )
+        name = f"temperature_{slug(dev)}_{sensor}"
+        figs.append(save(fig, name, f"{src} temperature and {sensor} bias of {dev}: {settings}"))
+    if tempco_rows:
+        lines = [
+            "<h2>Bias temperature coefficient</h2><table><tr><th>channel</th><th>temperature</th>"
+            "<th>slope [SI/K]</th><th>slope [display/K]</th><th>± (OLS, lower bound)</th><th>span [K]</th>"
+            "<th>R²</th></tr>"
+        ]
+        for cid, src, tc, factor, disp, si in tempco_rows:
+            cells = f"<tr><td>{html.escape(cid)}</td><td>{html.escape(src)}</td>"
+            if tc is None:
+                lines.append(cells + f"<td colspan=5>{html.escape(si)}</td></tr>")
+                continue
+            lines.append(
+                cells + f"<td>{tc.slope:.3g} {html.escape(si)}/K</td>"
+                f"<td>{tc.slope * factor:.3g} {html.escape(disp)}/K</td><td>{tc.slope_stderr * factor:.2g}</td>"
+                f"<td>{tc.span_c:.2f}</td><td>{tc.r2:.2f}</td></tr>"
+            )
+        sections.append("\n".join(lines) + "</table>")
+    sections.append("<h2>Figures</h2>" + "\n".join(figs))
+    warm = ", ".join(f"{d}: {format_duration(s) if s > 0 else 'none'}" for d, s in excluded.items())
+    esc = html.escape
+    name = esc(os.path.basename(path))
+    att = {k: esc(str(run_attrs.get(k, d))) for k, d in (("station", ""), ("started_utc", ""), ("ended_utc", "open"))}
+    head = (
+        f"<p>Run file: {esc(os.path.abspath(path))}<br>station {att['station']}, started {att['started_utc']}, "
+        f"ended {att['ended_utc']}{', simulated' if run_attrs.get('simulated') else ''}<br>"
+        f"warm-up excluded ({esc(warmup)}): {esc(warm)}</p>"
+    )
+    page = (
+        "<!DOCTYPE html>\n<html><head><meta charset='utf-8'>"
+        f"<title>imustation report — {name}</title><style>{CSS}</style></head><body>"
+        f"<h1>Noise report — {name}</h1>" + head + "\n".join(sections) + "</body></html>\n"
+    )
+    p = os.path.join(out_dir, "index.html")
+    with open(p, "w", encoding="utf-8") as fh:
+        fh.write(page)
+    written.append(p)
+    return RunReport(path, out_dir, tuple(written), tuple(rows), excluded)
+
+
+def report_runs(
+    paths: Sequence[str],
+    out_dir: str,
+    *,
+    globs: Sequence[str] = (),
+    model: str = DEFAULT_MODEL,
+    warmup: str = "auto",
+    progress: Progress | None = None,
+    on_report: Callable[[RunReport], None] | None = None,
+) -> list[RunReport]:
+    """:func:`report_run` for every run, each in ``out_dir/<run name>``; with several runs also
+    noise.csv/.md/.tex over all of them in ``out_dir`` (devices named ``run:device``).
+
+    ``on_report`` gets each run's :class:`RunReport` as soon as it is written.
+    """
+    check_warmup(warmup)  # a bad value fails before the first run is analysed
+    reports = []
+    for path in paths:
+        stem = slug(os.path.splitext(os.path.basename(path))[0])
+        rep = report_run(path, os.path.join(out_dir, stem), globs=globs, model=model, warmup=warmup, progress=progress)
+        reports.append(rep)
+        if on_report is not None:
+            on_report(rep)
+    if len(reports) > 1:
+        stems = [os.path.basename(r.folder) for r in reports]
+        write_tables(
+            [dataclasses.replace(row, device=f"{stem}:{row.device}") for stem, r in zip(stems, reports, strict=True)
+             for row in r.rows],
+            out_dir,
+        )  # fmt: skip
+    return reports
