@@ -1,7 +1,7 @@
 """Generalized Method of Wavelet Moments (GMWM; Guerrier et al. 2013, JASA 108(503)).
 
 Haar wavelet variance (WV) of rate samples at dyadic scales ``tau_j = 2^j`` samples
-(noise-formulas.md §4): the MODWT Haar coefficient is half the difference of two
+(docs/reference/noise-formulas.md §4): the MODWT Haar coefficient is half the difference of two
 adjacent means of ``m = 2^(j-1)`` samples, so
 
     nu^2(tau_j) = AVAR(m = tau_j/2) / 2
@@ -24,7 +24,7 @@ log-parameters with ``Omega = diag(1/Var nu_hat_j)``, ``Var nu_hat_j = 2 nu_j^4 
 Gaussian process is a sum over all pairs of wavelet coefficients per pair of
 scales, or a parametric bootstrap of the fitted model; neither is affordable for a
 12 h record at 400 Hz inside one fit, and the diagonal is the usual simplification
-(noise-formulas.md §4). To avoid the downward bias of weights built from the noisy
+(docs/reference/noise-formulas.md §4). To avoid the downward bias of weights built from the noisy
 ``nu_hat_j`` themselves (small estimates get large weights), the weights are
 recomputed from the fitted model ``nu_j(theta_hat)`` and the fit repeated
 (``reweight`` times).

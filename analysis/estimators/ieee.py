@@ -1,7 +1,7 @@
 """IEEE Std 952-1997 Annex C coefficients from an Allan deviation curve.
 
 The Allan variance of the standard terms adds up (IEEE 952 C.1; Zhao et al.
-2011 eq. 22, Table 1; noise-formulas.md sec. 5):
+2011 eq. 22, Table 1; docs/reference/noise-formulas.md §5):
 
 .. math::
 
@@ -105,7 +105,7 @@ def gm_avar(tau: np.ndarray, T: float) -> np.ndarray:
     """AVAR of a first-order Gauss-Markov rate with q_c = 1 and correlation time ``T`` (s).
 
     (q_c T^2/tau) [1 - (T/2tau)(3 - 4 e^{-tau/T} + e^{-2tau/T})] (IEEE 952 Table B.1;
-    noise-formulas.md sec. 5); stationary variance s^2 = q_c T / 2.
+    docs/reference/noise-formulas.md §5); stationary variance s^2 = q_c T / 2.
     """
     a = tau / T
     bracket = np.where(

@@ -30,7 +30,7 @@ transition and process noise over intervals ``dt`` in closed form;
 balancing, and is what the tests check the closed forms against.
 
 Allan variance: every term has the continuous-time form (IEEE 952 Annex C,
-noise-formulas.md §5) and, with ``fs_hz``, the exact form for the sampled
+docs/reference/noise-formulas.md §5) and, with ``fs_hz``, the exact form for the sampled
 process where the two differ (Gauss-Markov as AR(1), rate random walk).
 PSD: **two-sided** ``S(f)`` of the rate, ``avar = 4 int_0^inf S sin^4(pi f tau)/(pi f tau)^2 df``;
 pass ``onesided=True`` for ``2 S(f)`` (the convention of ``scipy.signal.welch``).

@@ -2,7 +2,7 @@
 
 Units: if the rate is in rad/s and ``fs_hz`` in Hz, the PSD is in (rad/s)^2/Hz.
 
-One-sided vs two-sided (the factor-2 pitfall, noise-formulas.md sec. 5): the
+One-sided vs two-sided (the factor-2 pitfall, docs/reference/noise-formulas.md §5): the
 **one-sided** PSD ``G(f)``, ``0 <= f <= fs/2``, integrates over positive
 frequencies to the variance (``scipy.signal.welch`` default); the
 **two-sided** PSD ``S(f) = G(f)/2`` for ``f > 0`` (``S(-f) = S(f)``) integrates

@@ -1,6 +1,6 @@
 """Published parameter sets used as simulation defaults and as test oracles.
 
-Nikolic et al. 2016 (shared/seeds/000_656e830e0b18fdef.txt), Tables II-IV:
+Nikolic et al. 2016 (IEEE Sensors J. 16(1)), Tables II-IV:
 standard noise model (1a) identified with ML_i. Units: sigma_w rad s^-1/sqrt(Hz),
 sigma_b rad s^-2/sqrt(Hz), tau_b s.
 """

@@ -130,5 +130,5 @@ def channel_document(res: ChannelAnalysis) -> dict:
 
 
 def analysis_document(results: list[ChannelAnalysis]) -> dict:
-    """The JSON document of design.md ("Analysis contract")."""
+    """The JSON document of docs/analysis-json.md."""
     return {"format": DOC_FORMAT, "version": DOC_VERSION, "channels": [channel_document(r) for r in results]}

@@ -133,9 +133,7 @@ def tasks_of_channels(channels: Sequence[Channel]) -> list[ChannelTask]:
     return [ChannelTask(ch.source, ch.id, ch) for ch in channels]
 
 
-def analyze_task(
-    path: str, channel: str, options: AnalysisOptions, data: Channel | None = None
-) -> ChannelAnalysis:
+def analyze_task(path: str, channel: str, options: AnalysisOptions, data: Channel | None = None) -> ChannelAnalysis:
     """Read channel ``channel`` of ``path`` (or take ``data``, the channel in memory) and analyse it;
     the result holds no samples."""
     _limit_numba_threads()

@@ -1,7 +1,7 @@
 """Noise parameters for visual-inertial estimators: Kalibr, OpenVINS, VINS-Fusion, ORB-SLAM3.
 
 All four tools model each axis as white noise plus a random-walk bias
-(noise-formulas.md §3, Kalibr wiki "IMU-Noise-Model"):
+(docs/reference/noise-formulas.md §3, Kalibr wiki "IMU-Noise-Model"):
 
 * white:  E[n(t1) n(t2)] = sigma_g^2 delta(t1 - t2), ``sigma_g`` in rad/s/sqrt(Hz)
   (m/s^2/sqrt(Hz) for accelerometers) — the continuous-time density, i.e. the
@@ -34,7 +34,7 @@ written (conservative); every axis's value goes into the header comments.
 Key names and file conventions followed (public code, checked):
 
 * Kalibr: ``kalibr_common/ConfigReader.py`` ``ImuParameters`` (ethz-asl/kalibr;
-  noise-formulas.md §3.2): flat ``rostopic, update_rate, *_noise_density, *_random_walk``.
+  docs/reference/noise-formulas.md §3.2): flat ``rostopic, update_rate, *_noise_density, *_random_walk``.
 * OpenVINS: ``config/euroc_mav/kalibr_imu_chain.yaml`` (rpng/open_vins): the
   Kalibr keys under ``imu0:`` plus ``time_offset``, OpenCV ``%YAML:1.0`` header.
 * VINS-Fusion: ``vins_estimator/src/estimator/parameters.cpp`` (reads ``imu``,

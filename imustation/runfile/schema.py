@@ -26,7 +26,7 @@ TIME = "t"  # int64 ns since started_utc, host monotonic clock
 COUNTER = "counter"  # int64 device sample counter, where the device has one
 CELSIUS = "celsius"
 
-#: kinds of event a run file may hold (design.md, run-file format)
+#: kinds of event a run file may hold (docs/runfile.md)
 EVENT_KINDS = ("gap", "resync", "reconnect", "overrun", "checksum", "config", "note", "fault")
 EVENT_DTYPE = np.dtype(
     [
