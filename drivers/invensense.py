@@ -17,7 +17,8 @@ again, as Linux ``inv_mpu6050`` does; the MPU-6500's asynchronous FIFO_RST takes
 the same sequence. Datasheet rules, sources and tests:
 ``docs/reference/conformance-invensense.md``. Only whole frames are read; a partial frame
 stays in the FIFO for the next poll. INT_ENABLE doubles as a configuration
-marker (power-on value 0): a chip reset is detected on the next poll.
+marker (power-on value 0): a chip reset is detected on the next poll. INT_STATUS
+is read after the data, so an overflow during the poll is seen too.
 
 The AK8975 magnetometer of the MPU-9150 (§2.6) is not read.
 """
@@ -445,6 +446,16 @@ class InvenSenseIMU:
 
     # -- streaming -----------------------------------------------------------------------
     def read_block(self) -> Block:
+        """FIFO_COUNT, the whole frames, then INT_ENABLE..INT_STATUS.
+
+        The status is read *after* the data: FIFO_OFLOW_INT then also covers an
+        overflow between the count and the data read (a stalled host), which shifts
+        the 14-byte frames in the byte FIFO; such data is dropped, not stored.
+        """
+        count = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big")  # H first: latches both
+        full = count >= self.VARIANT.fifo_bytes
+        frames = 0 if full else count // FRAME_BYTES  # a partial frame stays for the next poll
+        data = self.regs.read(REG_FIFO_R_W, frames * FRAME_BYTES) if frames else b""
         head = self.regs.read(REG_INT_ENABLE, REG_INT_STATUS - REG_INT_ENABLE + 1)
         if head[0] != INT_ENABLE_VALUE:
             raise DeviceError(
@@ -452,18 +463,16 @@ class InvenSenseIMU:
                 f"set 0x{INT_ENABLE_VALUE:02X}); chip reset?"
             )
         status = head[-1]
-        count = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big")
         empty = np.zeros((0, 3), dtype=np.int16)
-        if status & INT_FIFO_OFLOW or count >= self.VARIANT.fifo_bytes:
-            # oldest bytes were overwritten: frame alignment is gone; start again
+        if status & INT_FIFO_OFLOW or full:
+            # oldest bytes were overwritten (maybe while this poll read): frame alignment is gone
             self._reset_fifo()
             self._stuck = False
             note = f"FIFO overrun ({count} bytes); FIFO reset, contents dropped"
             return Block({"gyro": empty, "accel": empty, "temp": np.zeros(0, np.int16)}, lost=-1, note=note)
-        frames = count // FRAME_BYTES  # a partial frame stays for the next poll
         lost, note = 0, ""
         if frames:
-            accel, temp, gyro = decode_frames(self.regs.read(REG_FIFO_R_W, frames * FRAME_BYTES))
+            accel, temp, gyro = decode_frames(data)
             if self._stuck:
                 self._stuck = False
                 lost, note = -1, "FIFO stopped filling (data ready without FIFO data); reset"

@@ -103,6 +103,7 @@ def make(driver="mpu9150", settings=None, gyro=(0.01, -0.02, 0.03), accel=(0.0, 
         plan,
     )
     drv, smbus = wire(DRIVER[driver], sim, settings)
+    drv.sim_smbus = smbus  # the simulated adapter, for tests that inject transfer faults
     return clock, sim, drv
 
 
@@ -170,6 +171,32 @@ def test_overflow_resets_fifo_and_reports_unknown_loss(driver):
     clock.sleep(info.poll_interval_s)
     again = drv.read_block()
     assert again.lost == 0 and again.n == round(info.poll_interval_s * 200)
+
+
+@pytest.mark.parametrize("driver", ["mpu9150", "mpu6500"])
+def test_overflow_between_count_and_data_read_drops_the_misaligned_bytes(driver):
+    # the host stalls after FIFO_COUNT was read: the FIFO overflows (oldest bytes lost, so the
+    # 14-byte alignment is gone) before the frames are read; they must not be stored
+    gyro_counts = np.array([131, -262, 1])
+    clock, sim, drv = make(driver, gyro=gyro_counts * chip.GYRO_RANGES[0].scale)
+    smbus = drv.sim_smbus
+    info = drv.open()
+    stall = {"armed": False}
+
+    def fault(addr, msgs):
+        if stall["armed"] and bytes(msgs[0])[0] == chip.REG_FIFO_R_W:
+            stall["armed"] = False
+            clock.sleep(2.0)
+
+    smbus.sim_fault = fault
+    clock.sleep(info.poll_interval_s)
+    stall["armed"] = True
+    block = drv.read_block()
+    assert not stall["armed"] and block.lost == -1 and block.n == 0
+    for _ in range(3):
+        clock.sleep(info.poll_interval_s)
+        block = drv.read_block()
+        assert block.lost == 0 and block.n and (block.channels["gyro"] == gyro_counts).all()
 
 
 @pytest.mark.parametrize("driver", ["mpu9150", "mpu6500"])
