@@ -100,6 +100,25 @@ def test_fifo_overrun_is_reported():
     assert again.lost == 0 and again.n == 20
 
 
+def test_reset_detected_even_with_the_power_on_range_and_bw():
+    # 2000 Hz / 523 Hz and +-2000 deg/s are BW and RANGE code 0, their power-on values, and a reset
+    # also leaves the FIFO in bypass: without a marker the chip would go silent, unnoticed
+    from imustation.drivers.sim.faults import FaultPlan, FaultSpec
+    from imustation.errors import DeviceError
+
+    clock = VirtualClock()
+    plan = FaultPlan([FaultSpec("reset", at_s=1.0)], clock)
+    sim = BMG160Sim(clock, lambda fs: ConstantSource(fs, (0.0, 0.0, 0.0)), plan)
+    bus = I2CBus(SimSMBus({0x68: sim}), "sim:test")
+    drv = BMX055Gyro(bus.device(0x68), {"rate_hz": 2000, "bandwidth_hz": 523, "gyro_range_dps": 2000}, sleep=clock.sleep)
+    info = drv.open()
+    with pytest.raises(DeviceError, match="configuration lost"):
+        for _ in range(50):
+            clock.sleep(info.poll_interval_s)
+            drv.read_block()
+    assert clock.now_ns() < 1.2e9
+
+
 def test_wrong_chip_id_is_a_clear_error():
     _, sim, _, drv = make()
     sim.regs[0x00] = 0x68  # some other chip
