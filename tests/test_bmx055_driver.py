@@ -10,9 +10,10 @@ from imustation.drivers import bmx055 as chip
 from imustation.drivers.bmx055 import BMX055Gyro, decode_rates, decode_temperature
 from imustation.drivers.bus.i2c import I2CBus
 from imustation.drivers.sim.bmx055 import BMG160Sim
+from imustation.drivers.sim.faults import FaultPlan, FaultSpec
 from imustation.drivers.sim.i2c import SimSMBus
 from imustation.drivers.sim.sources import NoiseSource
-from imustation.errors import ChipIdMismatch, NackError, SettingError
+from imustation.errors import ChipIdMismatch, DeviceError, NackError, SettingError
 from imustation.units import DEG2RAD
 
 
@@ -103,14 +104,12 @@ def test_fifo_overrun_is_reported():
 def test_reset_detected_even_with_the_power_on_range_and_bw():
     # 2000 Hz / 523 Hz and +-2000 deg/s are BW and RANGE code 0, their power-on values, and a reset
     # also leaves the FIFO in bypass: without a marker the chip would go silent, unnoticed
-    from imustation.drivers.sim.faults import FaultPlan, FaultSpec
-    from imustation.errors import DeviceError
-
     clock = VirtualClock()
     plan = FaultPlan([FaultSpec("reset", at_s=1.0)], clock)
     sim = BMG160Sim(clock, lambda fs: ConstantSource(fs, (0.0, 0.0, 0.0)), plan)
     bus = I2CBus(SimSMBus({0x68: sim}), "sim:test")
-    drv = BMX055Gyro(bus.device(0x68), {"rate_hz": 2000, "bandwidth_hz": 523, "gyro_range_dps": 2000}, sleep=clock.sleep)
+    settings = {"rate_hz": 2000, "bandwidth_hz": 523, "gyro_range_dps": 2000}
+    drv = BMX055Gyro(bus.device(0x68), settings, sleep=clock.sleep)
     info = drv.open()
     with pytest.raises(DeviceError, match="configuration lost"):
         for _ in range(50):
