@@ -4,8 +4,9 @@ Register map, framing, scales and worked examples: ``docs/reference/sensors.md``
 (sources there: Linux ``adis16400.c``/``adis.c`` [L-ADIS][L-ADISLIB], PX4
 ADIS16448 drivers [PX4-ADIS][PX4-ADIS-OLD], juchong's Arduino library [JC]).
 
-SPI mode 3, 16-bit frames, CS high for a stall time between frames; a register
-read returns its data on the *next* frame. Streaming uses the burst read
+SPI mode 3, 16-bit frames, CS high for a stall time between frames (also
+between two register sequences: the driver does not count on the bridge's USB
+turnaround for it); a register read returns its data on the *next* frame. Streaming uses the burst read
 (``3E 00`` then 12 words, plus a CRC-16 word when MSC_CTRL bit 4 is set). The
 chip has no FIFO: each burst gives the newest sample, so the station polls once
 per output period; a burst identical to the previous one is the same sample
@@ -232,12 +233,20 @@ class ADIS16448:
         """Read 16-bit registers, pipelined: frame k returns the register asked in frame k-1."""
         frames = [bytes([r & READ_MASK, 0]) for r in regs] + [bytes(2)]
         rx = self.spi.transfer_frames(frames, self._stall_s)
+        self._sleep(self._stall_s)  # the stall before whatever transfer comes next
         return [int.from_bytes(f, "big") for f in rx[1:]]
 
     def write_reg(self, reg: int, value: int) -> None:
         """Write a 16-bit register as two byte writes, low byte first."""
         frames = [bytes([WRITE_FLAG | reg, value & 0xFF]), bytes([WRITE_FLAG | (reg + 1), value >> 8 & 0xFF])]
         self.spi.transfer_frames(frames, self._stall_s)
+        self._sleep(self._stall_s)
+
+    def _burst(self) -> bytes:
+        """One burst transfer, then the stall: the next chip select may follow at once (catching up)."""
+        rx = self.spi.transfer(self._burst_tx)
+        self._sleep(self._stall_s)
+        return rx
 
     def _config_words(self) -> dict[int, int]:
         b = FIR_TAPS.index(self.settings["filter_taps"])
@@ -278,7 +287,7 @@ class ADIS16448:
         self._held.clear()
         self._age, self._lost, self._error = 0, 0, None
         if self._crc:
-            rx = self.spi.transfer(self._burst_tx)
+            rx = self._burst()
             if burst_crc(rx[4:26]) != CRC_WORD.unpack_from(rx, 26)[0]:
                 raise DeviceError(
                     f"{self.spi.where}: burst CRC does not match on the first read"
@@ -333,7 +342,7 @@ class ADIS16448:
         try:
             if self._polls % self._check_every == 0:
                 self._check_config()
-            rx = self.spi.transfer(self._burst_tx)
+            rx = self._burst()
         except (BusError, DeviceError) as exc:
             if not self._held:
                 raise

@@ -37,6 +37,11 @@ REG_LPM1 = 0x11  # 0x00 normal mode, §1.2 [L-BMG]
 LPM1_NORMAL = 0x00
 REG_SOFTRESET = 0x14  # write SOFTRESET_CMD, §1.2 [L-BMG]
 SOFTRESET_CMD = 0xB6
+REG_INT_EN_0 = 0x15  # bit7 data_en (new-data interrupt enable); reset value 0 (BMX055 data sheet, gyro map)
+#: the data-enable bit doubles as a configuration marker: BW and RANGE code 0 (2000 Hz / 523 Hz,
+#: +-2000 deg/s) equal their power-on values, so they alone cannot reveal a reset (after which
+#: the FIFO is back in bypass and the chip goes silent); the interrupt is not mapped to a pin
+CONFIG_MARKER = Field(REG_INT_EN_0, 7, 1)
 FIFO_MODE = Field(0x3E, 6, 2)  # FIFO_CONFIG_1 bits7:6: 0 bypass, 1 FIFO, 2 stream, §1.2 [B-BMG]
 FIFO_DATA_SELECT = Field(0x3E, 0, 2)  # 0 = X, Y, Z frames
 FIFO_MODE_STREAM = 2
@@ -182,12 +187,14 @@ class BMX055Gyro:
         self.regs.write(REG_LPM1, bytes([LPM1_NORMAL]))
         write_field(self.regs, BW, self._odr.code)
         write_field(self.regs, RANGE, self._range.code)
+        self.regs.write(REG_INT_EN_0, bytes([CONFIG_MARKER.encode(1)]))
         bw_back = BW.decode(self.regs.read(BW.reg, 1)[0])
         range_back = RANGE.decode(self.regs.read(RANGE.reg, 1)[0])
-        if (bw_back, range_back) != (self._odr.code, self._range.code):
+        marker_back = CONFIG_MARKER.decode(self.regs.read(REG_INT_EN_0, 1)[0])
+        if (bw_back, range_back, marker_back) != (self._odr.code, self._range.code, 1):
             raise DeviceError(
-                f"{self.regs.where}: BW/RANGE read back 0x{bw_back:02X}/0x{range_back:02X}, "
-                f"wrote 0x{self._odr.code:02X}/0x{self._range.code:02X}"
+                f"{self.regs.where}: BW/RANGE/data_en read back 0x{bw_back:02X}/0x{range_back:02X}/{marker_back}, "
+                f"wrote 0x{self._odr.code:02X}/0x{self._range.code:02X}/1"
             )
         self.regs.write(FIFO_MODE.reg, bytes([FIFO_MODE.encode(FIFO_MODE_STREAM) | FIFO_DATA_SELECT.encode(0)]))
         self._sleep(STARTUP_WAIT_S)
@@ -225,18 +232,19 @@ class BMX055Gyro:
         return decode_rates(self.regs.read(REG_RATE_X_LSB, 6))[0]
 
     def read_block(self) -> Block:
-        # One burst 0x08..0x10 gives TEMP, FIFO_STATUS and the RANGE/BW settings:
-        # a chip that lost its configuration (power glitch, reset) is caught here
-        # instead of silently delivering nothing or data at another scale.
-        status = self.regs.read(REG_TEMP, BW.reg - REG_TEMP + 1)
+        # One burst 0x08..0x15 gives TEMP, FIFO_STATUS, the RANGE/BW settings and the
+        # data_en marker: a chip that lost its configuration (power glitch, reset) is
+        # caught here instead of silently delivering nothing or data at another scale.
+        status = self.regs.read(REG_TEMP, REG_INT_EN_0 - REG_TEMP + 1)
         temp_raw = status[0] - 256 if status[0] >= 128 else status[0]
         fifo = status[REG_FIFO_STATUS - REG_TEMP]
         range_code = RANGE.decode(status[RANGE.reg - REG_TEMP])
         bw_code = BW.decode(status[BW.reg - REG_TEMP])
-        if (range_code, bw_code) != (self._range.code, self._odr.code):
+        marker = CONFIG_MARKER.decode(status[REG_INT_EN_0 - REG_TEMP])
+        if (range_code, bw_code, marker) != (self._range.code, self._odr.code, 1):
             raise DeviceError(
-                f"{self.regs.where}: configuration lost (RANGE/BW read 0x{range_code:02X}/0x{bw_code:02X}, "
-                f"set 0x{self._range.code:02X}/0x{self._odr.code:02X}); chip reset?"
+                f"{self.regs.where}: configuration lost (RANGE/BW/data_en read 0x{range_code:02X}/0x{bw_code:02X}/"
+                f"{marker}, set 0x{self._range.code:02X}/0x{self._odr.code:02X}/1); chip reset?"
             )
         count = FIFO_STATUS_COUNT.decode(fifo)
         overrun = bool(FIFO_STATUS_OVERRUN.decode(fifo))

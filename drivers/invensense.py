@@ -9,11 +9,16 @@ The chip samples gyro, accelerometer and temperature together; frames of
 ACCEL(6) TEMP(2) GYRO(6) = 14 big-endian bytes go through the on-chip FIFO,
 read once per poll (at most 40 % full). The FIFO is a byte stream whose size is
 not a multiple of 14, so an overflow (FIFO_OFLOW_INT, or a count at capacity)
-loses the frame alignment: the driver then resets the FIFO (USER_CTRL.FIFO_RST),
-drops its contents and reports a lost-sample block (``lost=-1``: the station
-measures the loss from time). Only whole frames are read; a partial frame
+loses the frame alignment: the driver then resets the FIFO, drops its contents
+and reports a lost-sample block (``lost=-1``: the station measures the loss from
+time). The reset is the sequence the MPU-6050 register map documents (FIFO_RST
+acts only while USER_CTRL.FIFO_EN is 0): clear FIFO_EN, set FIFO_RST, set FIFO_EN
+again, as Linux ``inv_mpu6050`` does; the MPU-6500's asynchronous FIFO_RST takes
+the same sequence. Datasheet rules, sources and tests:
+``docs/reference/conformance-invensense.md``. Only whole frames are read; a partial frame
 stays in the FIFO for the next poll. INT_ENABLE doubles as a configuration
-marker (power-on value 0): a chip reset is detected on the next poll.
+marker (power-on value 0): a chip reset is detected on the next poll. INT_STATUS
+is read after the data, so an overflow during the poll is seen too.
 
 The AK8975 magnetometer of the MPU-9150 (§2.6) is not read.
 """
@@ -54,12 +59,15 @@ REG_INT_STATUS = 0x3A  # bit4 FIFO_OFLOW_INT, bit0 DATA_RDY_INT; cleared by read
 REG_ACCEL_XOUT_H = 0x3B  # 0x3B..0x48: ACCEL xyz, TEMP, GYRO xyz, s16 big-endian, §2.4
 REG_USER_CTRL = 0x6A  # bit6 FIFO_EN, bit2 FIFO_RST, §2.5 [L-MPU-H]
 USER_CTRL_FIFO_EN = 0x40
-USER_CTRL_FIFO_RST = 0x04
+USER_CTRL_FIFO_RST = 0x04  # 6050 set: resets only while FIFO_EN = 0 (RM-MPU-6000A rev 4.2, Register 106)
 REG_PWR_MGMT_1 = 0x6B  # bit7 DEVICE_RESET, bit6 SLEEP, bits2:0 CLKSEL, §2.1
 PWR1_DEVICE_RESET = 0x80
 PWR1_SLEEP = 0x40
 CLKSEL = Field(REG_PWR_MGMT_1, 0, 3)
 CLKSEL_PLL_XGYRO = 1  # PLL with X gyro reference: recommended over the internal oscillator [I2CDEV]
+#: what CLKSEL = 1 selects, per chip (Register 107 of each register map), for the run file's metadata
+CLKSEL_1_6050 = "PLL with X axis gyroscope reference"
+CLKSEL_1_6500 = "auto: PLL if ready, else internal oscillator"
 CLKSEL_STOP = 7
 REG_PWR_MGMT_2 = 0x6C  # standby bits; 0 = every axis on, §2.1
 REG_FIFO_COUNT_H = 0x72  # byte count, big-endian, read H first, §2.5
@@ -87,6 +95,8 @@ class DlpfRow:
     gyro_bw_hz: float
     accel_bw_hz: float
     internal_hz: float  # gyroscope output rate feeding SMPLRT_DIV
+    #: SMPLRT_DIV divides this row's rate (MPU-6500: only for 0 < DLPF_CFG < 7, Register 25)
+    div_applies: bool = True
 
 
 #: MPU-6050/9150 CONFIG.DLPF_CFG, docs/reference/sensors.md §2.2 [I2CDEV] (code 7 reserved)
@@ -104,14 +114,14 @@ DLPF_6050: tuple[DlpfRow, ...] = (
 #: check UNCONFIRMED); accel: same code in A_DLPF_CFG as Linux does [L-MPU-C], nominal
 #: bandwidths 460/184/92/41/20/10/5/460 Hz
 DLPF_6500: tuple[DlpfRow, ...] = (
-    DlpfRow(0, 250, 460, 8000),
+    DlpfRow(0, 250, 460, 8000, div_applies=False),
     DlpfRow(1, 184, 184, 1000),
     DlpfRow(2, 92, 92, 1000),
     DlpfRow(3, 41, 41, 1000),
     DlpfRow(4, 20, 20, 1000),
     DlpfRow(5, 10, 10, 1000),
     DlpfRow(6, 5, 5, 1000),
-    DlpfRow(7, 3600, 460, 8000),
+    DlpfRow(7, 3600, 460, 8000, div_applies=False),
 )
 
 
@@ -152,6 +162,12 @@ ACCEL_RANGES = (
 MAX_DIV = 255
 #: the accelerometer output rate; above it samples repeat, §2.2 [RM6050-p12]
 ACCEL_OUTPUT_HZ = 1000.0
+#: the chips' I2C runs at most in fast mode, 400 kHz (I2C timing tables of the MPU-6000/6050 and
+#: MPU-6500 product specifications); a byte takes 9 SCL clocks (8 bits + ACK)
+I2C_MAX_HZ = 400_000
+I2C_CLOCKS_PER_BYTE = 9
+#: the fastest sample rate whose FIFO frames an otherwise idle I2C bus can carry, Hz
+MAX_I2C_RATE_HZ = I2C_MAX_HZ / (14 * I2C_CLOCKS_PER_BYTE)
 
 
 @dataclass(frozen=True)
@@ -170,6 +186,14 @@ class Variant:
     #: PWR_MGMT_1 after power-on (the simulator's; the driver always writes it)
     por_pwr_mgmt_1: int
     default_bandwidth_hz: float
+    #: what CLKSEL = 1 (the driver's clock) means on this chip (Register 107)
+    clock_source: str
+    #: the register map whose rules this row follows (named in error messages)
+    register_map: str
+    #: USER_CTRL.FIFO_RST acts only while USER_CTRL.FIFO_EN is 0, and FIFO_EN = 0 stops
+    #: FIFO writes (MPU-6050 set); else FIFO_RST is asynchronous and FIFO_EN = 0 only
+    #: stops serial access (MPU-6500). The driver's reset sequence suits both.
+    fifo_rst_needs_disable: bool
 
     @property
     def fifo_frames(self) -> int:
@@ -187,6 +211,9 @@ MPU9150 = Variant(
     has_accel_config2=False,
     por_pwr_mgmt_1=PWR1_SLEEP,  # powers up asleep, §2.1 [I2CDEV]
     default_bandwidth_hz=42,
+    clock_source=CLKSEL_1_6050,
+    register_map="MPU-6000/6050 Register Map rev 4.2",
+    fifo_rst_needs_disable=True,  # RM-MPU-6000A rev 4.2, Register 106
 )
 
 MPU6500 = Variant(
@@ -202,6 +229,9 @@ MPU6500 = Variant(
     # in docs/reference/sensors.md, UNCONFIRMED; only the simulator uses it
     por_pwr_mgmt_1=0x01,
     default_bandwidth_hz=41,
+    clock_source=CLKSEL_1_6500,
+    register_map="MPU-6500 Register Map rev 2.1",
+    fifo_rst_needs_disable=False,  # RM-MPU-6500A rev 2.1, Register 106: "Reset is asynchronous"
 )
 
 VARIANTS = {v.driver: v for v in (MPU9150, MPU6500)}
@@ -218,22 +248,62 @@ def decode_temperature(raw: int, variant: Variant) -> float:
     return raw / variant.temp_lsb_per_c + variant.temp_offset_c
 
 
+def _rates_of(rows: list[DlpfRow]) -> str:
+    """'bandwidth_hz 184, 92 give 1000/(1+div) Hz' for rows of one internal rate."""
+    bws = ", ".join(f"{r.gyro_bw_hz:g}" for r in rows)
+    internal = int(rows[0].internal_hz)
+    rate = f"{internal}/(1+div) Hz" if rows[0].div_applies else f"{internal} Hz"
+    return f"bandwidth_hz {bws} give {rate}"
+
+
 def sample_divider(variant: Variant, rate_hz: float, bandwidth_hz: float) -> tuple[DlpfRow, int]:
-    """(DLPF row, SMPLRT_DIV) for a rate and gyro bandwidth; SettingError if unreachable."""
+    """(DLPF row, SMPLRT_DIV) for a rate (Hz) and gyro bandwidth (Hz); SettingError if the chip cannot run so.
+
+    The sample rate is the gyro output rate / (1 + SMPLRT_DIV); on the MPU-6500 the
+    divider is ignored for DLPF_CFG 0 and 7 (Register 25), so those rows give their
+    8 kHz and nothing else.
+    """
     row = next(r for r in variant.dlpf if r.gyro_bw_hz == bandwidth_hz)
-    div_f = row.internal_hz / float(rate_hz) - 1.0
-    div = round(div_f)
-    if not (0 <= div <= MAX_DIV and math.isclose(row.internal_hz / (1 + div), rate_hz, rel_tol=1e-6)):
-        internal = int(row.internal_hz)
-        examples = ", ".join(f"{internal / (1 + d):g}" for d in (0, 1, 2, 3, 4, 7, 9, 19))
-        other = sorted({r.gyro_bw_hz for r in variant.dlpf if r.internal_hz != row.internal_hz})
+    groups: dict[tuple[float, bool], list[DlpfRow]] = {}
+    for r in variant.dlpf:
+        if (r.internal_hz, r.div_applies) != (row.internal_hz, row.div_applies):
+            groups.setdefault((r.internal_hz, r.div_applies), []).append(r)
+    others = "; ".join(_rates_of(rows) for rows in groups.values())
+    internal = int(row.internal_hz)
+    if not row.div_applies:
+        if math.isclose(row.internal_hz, rate_hz, rel_tol=1e-9):
+            return row, 0
         raise SettingError(
-            f"rate_hz = {rate_hz} with bandwidth_hz = {bandwidth_hz:g}: the {variant.model} samples at "
-            f"{internal}/(1+div) Hz, div 0..{MAX_DIV} ({examples}, ...); "
-            f"bandwidth_hz {', '.join(f'{b:g}' for b in other)} give "
-            f"{'8000' if internal == 1000 else '1000'}/(1+div) Hz"
+            f"rate_hz = {rate_hz:g} with bandwidth_hz = {bandwidth_hz:g}: with this filter (DLPF_CFG {row.code}) the "
+            f"{variant.model} samples at {internal} Hz and ignores SMPLRT_DIV ({variant.register_map}, Register 25: "
+            f"the divider applies only for 0 < DLPF_CFG < 7); {others}"
+        )
+    div = round(row.internal_hz / float(rate_hz) - 1.0)
+    if not (0 <= div <= MAX_DIV and math.isclose(row.internal_hz / (1 + div), rate_hz, rel_tol=1e-6)):
+        examples = ", ".join(f"{internal / (1 + d):g}" for d in (0, 1, 2, 3, 4, 7, 9, 19))
+        raise SettingError(
+            f"rate_hz = {rate_hz:g} with bandwidth_hz = {bandwidth_hz:g}: the {variant.model} samples at "
+            f"{internal}/(1+div) Hz, div 0..{MAX_DIV} ({examples}, ...); {others}"
         )
     return row, div
+
+
+def check_bus_throughput(variant: Variant, rate_hz: float, bandwidth_hz: float) -> None:
+    """SettingError if the FIFO frames at ``rate_hz`` (Hz) need more than the chip's 400 kHz I2C."""
+    if rate_hz <= MAX_I2C_RATE_HZ:
+        return
+    row = next(r for r in variant.dlpf if r.gyro_bw_hz == bandwidth_hz)
+    need_kbit = rate_hz * FRAME_BYTES * I2C_CLOCKS_PER_BYTE / 1000
+    hint = (
+        f"bandwidth_hz {bandwidth_hz:g} runs the chip at {row.internal_hz:g} Hz only: choose another bandwidth"
+        if not row.div_applies
+        else f"at most {math.floor(MAX_I2C_RATE_HZ)} Hz, e.g. {row.internal_hz / 3:g} (div 2) or 1000"
+    )
+    raise SettingError(
+        f"rate_hz = {rate_hz:g}: {FRAME_BYTES}-byte FIFO frames at that rate need {need_kbit:g} kbit/s of I2C "
+        f"({I2C_CLOCKS_PER_BYTE} clocks per byte), more than the {variant.model}'s 400 kHz fast-mode bus carries; "
+        f"{hint}"
+    )
 
 
 class InvenSenseIMU:
@@ -281,6 +351,7 @@ class InvenSenseIMU:
         if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not rate > 0:
             raise SettingError(f"rate_hz = {rate!r}: a positive number of Hz")
         sample_divider(cls.VARIANT, rate, out["bandwidth_hz"])
+        check_bus_throughput(cls.VARIANT, rate, out["bandwidth_hz"])
         return out
 
     # -- register values ---------------------------------------------------------------
@@ -321,7 +392,7 @@ class InvenSenseIMU:
                 f"wrote {config.hex(' ')} / 0x{CLKSEL.encode(CLKSEL_PLL_XGYRO):02X}"
             )
         self.regs.write(REG_FIFO_EN, bytes([FIFO_EN_FRAME]))
-        self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_EN | USER_CTRL_FIFO_RST]))
+        self._reset_fifo()  # leaves USER_CTRL.FIFO_EN set
         self._sleep(STARTUP_WAIT_S)
         # samples of the start-up time are not valid: drop them
         self._reset_fifo()
@@ -329,7 +400,14 @@ class InvenSenseIMU:
         self._stuck = False
 
     def _reset_fifo(self) -> None:
-        self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_EN | USER_CTRL_FIFO_RST]))
+        """Empty the FIFO: FIFO_EN off, FIFO_RST while it is off, FIFO_EN on (three writes).
+
+        A write of FIFO_EN | FIFO_RST with FIFO_EN already set is not documented to
+        reset anything on the MPU-6050 set (Register 106); this sequence is.
+        """
+        self.regs.write(REG_USER_CTRL, bytes([0]))
+        self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_RST]))
+        self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_EN]))
 
     def open(self) -> DriverInfo:
         who = self.identify()
@@ -352,7 +430,7 @@ class InvenSenseIMU:
                 "accel_range_g": self._accel.range_g,
                 "accel_fs_sel": self._accel.code,
                 "accel_sensitivity_lsb_per_g": self._accel.lsb_per_g,
-                "clock_source": "PLL, X gyro",
+                "clock_source": f"{v.clock_source} (CLKSEL = {CLKSEL_PLL_XGYRO})",
                 "fifo": "accel+temp+gyro, 14-byte frames",
                 "fifo_bytes": v.fifo_bytes,
             },
@@ -368,6 +446,16 @@ class InvenSenseIMU:
 
     # -- streaming -----------------------------------------------------------------------
     def read_block(self) -> Block:
+        """FIFO_COUNT, the whole frames, then INT_ENABLE..INT_STATUS.
+
+        The status is read *after* the data: FIFO_OFLOW_INT then also covers an
+        overflow between the count and the data read (a stalled host), which shifts
+        the 14-byte frames in the byte FIFO; such data is dropped, not stored.
+        """
+        count = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big")  # H first: latches both
+        full = count >= self.VARIANT.fifo_bytes
+        frames = 0 if full else count // FRAME_BYTES  # a partial frame stays for the next poll
+        data = self.regs.read(REG_FIFO_R_W, frames * FRAME_BYTES) if frames else b""
         head = self.regs.read(REG_INT_ENABLE, REG_INT_STATUS - REG_INT_ENABLE + 1)
         if head[0] != INT_ENABLE_VALUE:
             raise DeviceError(
@@ -375,18 +463,16 @@ class InvenSenseIMU:
                 f"set 0x{INT_ENABLE_VALUE:02X}); chip reset?"
             )
         status = head[-1]
-        count = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big")
         empty = np.zeros((0, 3), dtype=np.int16)
-        if status & INT_FIFO_OFLOW or count >= self.VARIANT.fifo_bytes:
-            # oldest bytes were overwritten: frame alignment is gone; start again
+        if status & INT_FIFO_OFLOW or full:
+            # oldest bytes were overwritten (maybe while this poll read): frame alignment is gone
             self._reset_fifo()
             self._stuck = False
             note = f"FIFO overrun ({count} bytes); FIFO reset, contents dropped"
             return Block({"gyro": empty, "accel": empty, "temp": np.zeros(0, np.int16)}, lost=-1, note=note)
-        frames = count // FRAME_BYTES  # a partial frame stays for the next poll
         lost, note = 0, ""
         if frames:
-            accel, temp, gyro = decode_frames(self.regs.read(REG_FIFO_R_W, frames * FRAME_BYTES))
+            accel, temp, gyro = decode_frames(data)
             if self._stuck:
                 self._stuck = False
                 lost, note = -1, "FIFO stopped filling (data ready without FIFO data); reset"

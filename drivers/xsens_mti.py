@@ -48,6 +48,7 @@ MID_REQ_PRODUCT_CODE = 0x1C
 MID_GOTO_CONFIG = 0x30
 MID_MTDATA2 = 0x36
 MID_WAKEUP = 0x3E
+MID_WAKEUP_ACK = 0x3F  # the host's answer to WakeUp keeps the device in config state, §5.2
 MID_RESET = 0x40
 MID_ERROR = 0x42
 MID_SET_OUTPUT_CONFIG = 0xC0

@@ -74,7 +74,9 @@ class RecordingSPI:
         return rx
 
     def transfer_frames(self, frames, gap_s):
-        return [self.transfer(f) for f in frames]
+        rx = self.inner.transfer_frames(frames, gap_s)  # the bridge keeps CS high for gap_s between them
+        self.frames += [(bytes(tx), r) for tx, r in zip(frames, rx, strict=True)]
+        return rx
 
     def ensure_open(self):
         self.inner.ensure_open()
@@ -197,3 +199,54 @@ def test_a_failed_transfer_hands_over_the_held_samples_first():
     assert 0 < k < round(adis.BATCH_S * 409.6) and age == 1
     assert n == len(blocks) - 1  # every poll before the failure read one new sample
     assert drv.drain().n == 0
+
+
+# --- the simulator holds the chip to its data sheet (docs/reference/conformance-adis16448.md) ----------
+
+
+def bare_adis():
+    clock = VirtualClock()
+    return clock, ADIS16448Sim(clock, lambda fs: NoiseSource.for_device("adis16448", "xyz", fs, {}, 1))
+
+
+def test_sim_needs_the_stall_time_between_transfers():
+    clock, chip = bare_adis()
+    chip.spi_transfer(bytes([adis.REG_PROD_ID, 0]), adis.SPI_MODE, 1e6)
+    assert chip.spi_transfer(bytes(2), adis.SPI_MODE, 1e6) == b"\xff\xff"  # CS high for 0 us: not understood
+    clock.sleep(9e-6)
+    chip.spi_transfer(bytes([adis.REG_PROD_ID, 0]), adis.SPI_MODE, 1e6)
+    clock.sleep(9e-6)
+    assert chip.spi_transfer(bytes(2), adis.SPI_MODE, 1e6) == b"\x40\x40"
+    assert chip.sim_stall_violations == 1
+
+
+@pytest.mark.parametrize("scheme", ["cp2130", "mcp2210"])
+def test_driver_keeps_the_stall_time_between_every_transfer(scheme):
+    # t_STALL 9 us between 16-bit frames; the driver used to rely on the USB turnaround between
+    # two register sequences (none on the simulated bus), so back-to-back writes were not understood
+    drv, _, chip, clock = rig(scheme)
+    info = drv.open()
+    for _ in range(1000):  # ~2.4 s: two configuration checks
+        clock.sleep(info.poll_interval_s)
+        drv.read_block()
+    assert chip.sim_stall_violations == 0
+
+
+def test_sim_smpl_prd_bit0_clear_waits_for_an_external_clock():
+    clock, chip = bare_adis()
+    for frame in (bytes([0x80 | adis.REG_SMPL_PRD, 0x00]), bytes([0x80 | adis.REG_SMPL_PRD + 1, 0x01])):
+        clock.sleep(9e-6)
+        chip.spi_transfer(frame, adis.SPI_MODE, 1e6)
+    clock.sleep(1.0)
+    assert chip._newest() == -1  # no sample without the external clock
+    clock.sleep(9e-6)
+    chip.spi_transfer(bytes([0x80 | adis.REG_SMPL_PRD, 0x01]), adis.SPI_MODE, 1e6)
+    clock.sleep(0.01)
+    assert chip._newest() >= 0
+
+
+def test_sim_ignores_a_reserved_range_code():
+    clock, chip = bare_adis()
+    clock.sleep(9e-6)
+    chip.spi_transfer(bytes([0x80 | adis.REG_SENS_AVG + 1, 0x03]), adis.SPI_MODE, 1e6)  # range 011: reserved
+    assert chip.regs[adis.REG_SENS_AVG] >> 8 == 0x04  # still +-1000 deg/s

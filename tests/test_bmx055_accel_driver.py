@@ -157,3 +157,49 @@ def test_wrong_chip_and_bad_settings():
     with pytest.raises(SettingError, match="read_mode = 'poll'"):
         BMX055Accel.check_settings({"read_mode": "poll"})
     assert BMX055Accel.check_settings({"rate_hz": 250})["bandwidth_hz"] == 125
+
+
+# --- the simulator holds the chip to its data sheet (docs/reference/conformance-bmx055.md) ----------
+
+
+def bare_accel():
+    clock = new_clock()
+    sim = BMA2x2Sim(clock, lambda fs: ConstantSource(fs, (0.0, 0.0, G0)))
+
+    def write(reg, *values):
+        sim.i2c_write(bytes([reg, *values]))
+
+    def read(reg, n):
+        sim.i2c_write(bytes([reg]))
+        return sim.i2c_read(n)
+
+    return clock, sim, write, read
+
+
+def test_sim_soft_reset_needs_1_8_ms_before_writes():
+    clock, sim, write, read = bare_accel()
+    write(chip.REG_SOFTRESET, chip.SOFTRESET_CMD)
+    write(chip.REG_PMU_RANGE, 0x05)
+    assert read(chip.REG_PMU_RANGE, 1)[0] == 0x03 and sim.sim_ignored_writes == 1
+    clock.sleep(0.0018)
+    write(chip.REG_PMU_RANGE, 0x05)
+    assert read(chip.REG_PMU_RANGE, 1)[0] == 0x05
+
+
+def test_sim_deep_suspend_takes_only_pmu_lpw_and_samples_nothing():
+    clock, sim, write, read = bare_accel()
+    write(chip.FIFO_MODE.reg, chip.FIFO_MODE.encode(chip.FIFO_MODE_STREAM))
+    write(chip.REG_PMU_LPW, 0x20)  # deep suspend
+    write(chip.REG_PMU_RANGE, 0x05)
+    clock.sleep(0.5)
+    assert read(chip.REG_PMU_RANGE, 1)[0] == 0x03 and read(chip.REG_FIFO_STATUS, 1)[0] == 0
+    write(chip.REG_PMU_LPW, chip.LPW_NORMAL)
+    clock.sleep(0.005)  # power-on PMU_BW 0x0F: 2000 Hz, 10 frames
+    assert read(chip.REG_FIFO_STATUS, 1)[0] == 10
+
+
+def test_sim_read_only_registers():
+    clock, sim, write, read = bare_accel()
+    for reg in (chip.REG_CHIP_ID, chip.REG_ACCD_X_LSB, chip.REG_TEMP, 0x0A, chip.REG_FIFO_STATUS):
+        write(reg, 0x55)
+    assert read(chip.REG_CHIP_ID, 1)[0] == chip.CHIP_ID_VALUE and read(0x0A, 1)[0] == 0

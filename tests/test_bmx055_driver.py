@@ -10,9 +10,10 @@ from imustation.drivers import bmx055 as chip
 from imustation.drivers.bmx055 import BMX055Gyro, decode_rates, decode_temperature
 from imustation.drivers.bus.i2c import I2CBus
 from imustation.drivers.sim.bmx055 import BMG160Sim
+from imustation.drivers.sim.faults import FaultPlan, FaultSpec
 from imustation.drivers.sim.i2c import SimSMBus
 from imustation.drivers.sim.sources import NoiseSource
-from imustation.errors import ChipIdMismatch, NackError, SettingError
+from imustation.errors import ChipIdMismatch, DeviceError, NackError, SettingError
 from imustation.units import DEG2RAD
 
 
@@ -100,6 +101,23 @@ def test_fifo_overrun_is_reported():
     assert again.lost == 0 and again.n == 20
 
 
+def test_reset_detected_even_with_the_power_on_range_and_bw():
+    # 2000 Hz / 523 Hz and +-2000 deg/s are BW and RANGE code 0, their power-on values, and a reset
+    # also leaves the FIFO in bypass: without a marker the chip would go silent, unnoticed
+    clock = VirtualClock()
+    plan = FaultPlan([FaultSpec("reset", at_s=1.0)], clock)
+    sim = BMG160Sim(clock, lambda fs: ConstantSource(fs, (0.0, 0.0, 0.0)), plan)
+    bus = I2CBus(SimSMBus({0x68: sim}), "sim:test")
+    settings = {"rate_hz": 2000, "bandwidth_hz": 523, "gyro_range_dps": 2000}
+    drv = BMX055Gyro(bus.device(0x68), settings, sleep=clock.sleep)
+    info = drv.open()
+    with pytest.raises(DeviceError, match="configuration lost"):
+        for _ in range(50):
+            clock.sleep(info.poll_interval_s)
+            drv.read_block()
+    assert clock.now_ns() < 1.2e9
+
+
 def test_wrong_chip_id_is_a_clear_error():
     _, sim, _, drv = make()
     sim.regs[0x00] = 0x68  # some other chip
@@ -135,3 +153,61 @@ def test_bad_settings_list_allowed_values():
         BMX055Gyro.check_settings({"gyro_range_dps": 300})
     with pytest.raises(SettingError, match="not a setting"):
         BMX055Gyro.check_settings({"odr": 400})
+
+
+# --- the simulator holds the chip to its data sheet (docs/reference/conformance-bmx055.md) ----------
+
+
+def bare_gyro():
+    clock = VirtualClock()
+    sim = BMG160Sim(clock, lambda fs: ConstantSource(fs, (0.0, 0.0, 0.0)))
+
+    def write(reg, *values):
+        sim.i2c_write(bytes([reg, *values]))
+
+    def read(reg, n):
+        sim.i2c_write(bytes([reg]))
+        return sim.i2c_read(n)
+
+    return clock, sim, write, read
+
+
+def test_sim_soft_reset_needs_30_ms_before_writes():
+    clock, sim, write, read = bare_gyro()
+    write(chip.REG_SOFTRESET, chip.SOFTRESET_CMD)
+    write(chip.RANGE.reg, 3)
+    assert read(chip.RANGE.reg, 1)[0] == 0 and sim.sim_ignored_writes == 1
+    clock.sleep(0.030)
+    write(chip.RANGE.reg, 3)
+    assert read(chip.RANGE.reg, 1)[0] == 3
+
+
+def test_sim_suspend_takes_only_lpm1_and_samples_nothing():
+    clock, sim, write, read = bare_gyro()
+    write(chip.FIFO_MODE.reg, chip.FIFO_MODE.encode(chip.FIFO_MODE_STREAM))
+    write(chip.REG_LPM1, 0x80)  # suspend
+    write(chip.RANGE.reg, 3)
+    clock.sleep(0.5)
+    assert read(chip.RANGE.reg, 1)[0] == 0 and read(chip.REG_FIFO_STATUS, 1)[0] == 0
+    write(chip.REG_LPM1, chip.LPM1_NORMAL)
+    clock.sleep(0.010)  # 2000 Hz power-on ODR: 20 frames
+    assert read(chip.REG_FIFO_STATUS, 1)[0] == 20
+
+
+@pytest.mark.parametrize("mode,frames,overrun", [(0, 0, False), (1, 100, True), (2, 100, True)])
+def test_sim_fifo_modes(mode, frames, overrun):
+    # bypass collects nothing; FIFO mode stops at 100 frames and flags the overrun; stream keeps the newest
+    clock, sim, write, read = bare_gyro()
+    write(chip.FIFO_MODE.reg, chip.FIFO_MODE.encode(mode))
+    clock.sleep(0.1)  # 200 frames at 2000 Hz
+    status = read(chip.REG_FIFO_STATUS, 1)[0]
+    assert chip.FIFO_STATUS_COUNT.decode(status) == frames and bool(chip.FIFO_STATUS_OVERRUN.decode(status)) is overrun
+
+
+def test_sim_read_only_registers():
+    clock, sim, write, read = bare_gyro()
+    for reg in (chip.REG_CHIP_ID, chip.REG_RATE_X_LSB, chip.REG_TEMP, 0x0A, chip.REG_FIFO_STATUS):
+        write(reg, 0x55)
+    assert read(chip.REG_CHIP_ID, 1)[0] == chip.CHIP_ID_VALUE and read(chip.REG_FIFO_STATUS, 1)[0] == 0
+    write(chip.BW.reg, 0x03)
+    assert read(chip.BW.reg, 1)[0] == 0x83  # bit 7 reads 1 whatever is written

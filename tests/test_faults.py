@@ -24,6 +24,18 @@ def test_one_shot_and_window():
     assert [k for _, k in plan.sim_log] == ["disconnect", "reset"]
 
 
+def test_slow_window_delays_each_transaction_inside_it():
+    clock = VirtualClock()
+    (spec,) = parse_faults([{"kind": "slow", "at_s": 10, "duration_s": 5, "delay_s": 0.004}])
+    plan = FaultPlan([spec], clock)
+    assert plan.delay_s() == 0.0
+    clock.sleep(12.0)
+    assert plan.delay_s() == 0.004 and plan.delay_s() == 0.004  # every transaction, not once
+    clock.sleep(5.0)
+    assert plan.delay_s() == 0.0
+    assert parse_faults([{"kind": "slow", "at_s": 1, "duration_s": 1}])[0].delay_s > 0  # a default delay
+
+
 def test_poisson_rate():
     clock = VirtualClock()
     plan = FaultPlan([FaultSpec("nack", every_s=10.0)], clock, seed=3)
@@ -42,6 +54,8 @@ def test_poisson_rate():
         ({"kind": "nack"}, "give at_s"),
         ({"kind": "nack", "at_s": -1}, "at_s = -1"),
         ({"kind": "nack", "every": 3}, "every: unknown key"),
+        ({"kind": "nack", "at_s": 1, "delay_s": 0.1}, "delay_s: only a 'slow' fault"),
+        ({"kind": "slow", "at_s": 1}, "'slow' fault needs duration_s"),
     ],
 )
 def test_bad_fault_specs(entry, needle):

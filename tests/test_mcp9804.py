@@ -147,3 +147,29 @@ def test_bad_settings(settings, needle):
 
 def test_default_settings():
     assert MCP9804.check_settings({}) == {"rate_hz": 1.0, "resolution_c": 0.0625}
+
+
+# --- the simulator holds the chip to its data sheet (docs/reference/conformance-mcp9804.md) ----------
+
+
+def test_sim_read_only_registers():
+    _, sim, _, dev = sim_bus()
+    for ptr in (0x00, 0x05, 0x06, 0x07):
+        dev.write(ptr, bytes.fromhex("1234"))
+    assert dev.read(0x00, 2) == bytes.fromhex("001F") and dev.read(0x06, 2) == bytes.fromhex("0054")
+    assert dev.read(0x07, 2) == bytes.fromhex("0201") and dev.read(0x05, 2) != bytes.fromhex("1234")
+
+
+def test_sim_lock_bits_freeze_the_limits_until_a_reset():
+    # DS22203C Register 5-2: Crit. Lock / Win. Lock stay set until a reset; SHDN cannot be set while locked
+    _, sim, _, dev = sim_bus()
+    dev.write(0x04, bytes.fromhex("0190"))  # T_CRIT 25 degC
+    dev.write(0x01, bytes.fromhex("00C0"))  # both locks
+    dev.write(0x04, bytes.fromhex("0200"))
+    dev.write(0x02, bytes.fromhex("0200"))
+    dev.write(0x01, bytes.fromhex("0100"))  # try to clear the locks and shut down
+    assert dev.read(0x04, 2) == bytes.fromhex("0190") and dev.read(0x02, 2) == bytes.fromhex("0000")
+    assert dev.read(0x01, 2) == bytes.fromhex("00C0")
+    sim._power_on()
+    dev.write(0x04, bytes.fromhex("0200"))
+    assert dev.read(0x04, 2) == bytes.fromhex("0200")

@@ -168,3 +168,41 @@ def test_reset_and_unplug_are_reported():
         drv.open()
     finally:
         unregister("mti-f")
+
+
+# --- Xbus states, as the simulator enforces them (docs/reference/conformance-mti.md) -----------------
+
+
+def bare_mti():
+    clock = VirtualClock()
+    sim = MTiSim(clock, lambda fs: NoiseSource.for_device("mti", "xyz", fs, {}, 3))
+
+    def ask(mid, payload=b""):
+        sim.receive(xb.encode(mid, payload))
+        return [m.mid for m in xb.parse_stream(sim.produce())[0] if m.mid != xb.MID_MTDATA2]
+
+    return clock, sim, ask
+
+
+def test_sim_answers_configuration_requests_only_in_config_state():
+    clock, sim, ask = bare_mti()
+    config = xb.output_configuration(100)
+    for mid in (xb.MID_REQ_DID, xb.MID_REQ_PRODUCT_CODE, xb.MID_REQ_FW_REV):
+        assert ask(mid) == [xb.MID_ERROR]  # measuring
+    assert ask(xb.MID_SET_OUTPUT_CONFIG, config) == [xb.MID_ERROR]
+    assert ask(xb.MID_GOTO_CONFIG) == [xb.MID_GOTO_CONFIG + 1]
+    assert ask(xb.MID_REQ_DID) == [xb.MID_DEVICE_ID]
+    assert ask(xb.MID_SET_OUTPUT_CONFIG, config) == [xb.MID_SET_OUTPUT_CONFIG + 1]
+
+
+@pytest.mark.parametrize("answer", [True, False])
+def test_sim_reset_sends_wakeup_and_waits_for_the_ack(answer):
+    # after Reset the device sends WakeUp; WakeUpAck keeps it in config, else it measures with the
+    # power-up configuration
+    clock, sim, ask = bare_mti()
+    assert ask(xb.MID_RESET) == [xb.MID_RESET + 1, xb.MID_WAKEUP]
+    if answer:
+        assert ask(xb.MID_WAKEUP_ACK) == []
+    clock.sleep(1.0)
+    packets = [m for m in xb.parse_stream(sim.produce())[0] if m.mid == xb.MID_MTDATA2]
+    assert (not packets) is answer and sim.measuring is not answer

@@ -15,6 +15,12 @@ noise, the magnetometer a fixed field, the barometer 1013.25 mbar plus white
 noise, the temperature the source's die temperature. Bursts are built a chunk
 of samples at a time with numpy (CRC included), so the simulator costs little
 per sample.
+
+Strict where the data sheet is (docs/reference/conformance-adis16448.md): a chip
+select asserted less than the stall time (9 us) after the previous one ended is
+not understood (MISO 0xFF, nothing happens); with SMPL_PRD bit 0 clear the chip
+waits for an external clock on DIO4 and produces nothing; range codes other than
+001/010/100 in SENS_AVG are reserved and ignored.
 """
 
 from __future__ import annotations
@@ -54,6 +60,10 @@ MAG_GAUSS = (0.21, 0.0, 0.43)  # a mid-latitude earth field, gauss (simulation c
 CHUNK = 4096  # samples built per numpy step (10 s at 409.6 Hz)
 DIAG_SPI_FAILURE = 1 << 3
 MISO_GARBAGE = 0xFF
+#: CS high time the chip needs between transfers, ns (data sheet timing table, t_STALL 9 us)
+STALL_MIN_NS = 9_000
+#: SENS_AVG bits 10:8 codes the chip knows (the others are reserved)
+_RANGE_CODES = frozenset(r.code for r in chip.GYRO_RANGES)
 
 
 def burst_crc_rows(words: np.ndarray) -> np.ndarray:
@@ -98,6 +108,9 @@ class ADIS16448Sim:
         self.rng = np.random.default_rng([seed, 0xAD15])
         self.sim_resets = 0
         self.sim_bursts = 0
+        #: transfers ignored because CS was high for less than the stall time (test back door)
+        self.sim_stall_violations = 0
+        self.cs_high_ns = -STALL_MIN_NS  # when the last transfer ended (chip select raised)
         self._power_on(0.0)  # powered up long before the station opens it
 
     # -- state ----------------------------------------------------------------------------
@@ -120,6 +133,11 @@ class ADIS16448Sim:
     @property
     def rate_hz(self) -> float:
         return chip.rate_hz(self.regs.get(chip.REG_SMPL_PRD, 0) >> chip.SMPL_PRD_D_SHIFT & 0x1F)
+
+    @property
+    def internal_clock(self) -> bool:
+        """SMPL_PRD bit 0: 1 = internal 819.2 SPS clock; 0 = sampling on an external clock (none here)."""
+        return bool(self.regs.get(chip.REG_SMPL_PRD, 0) & chip.SMPL_PRD_INTERNAL_CLOCK)
 
     @property
     def gyro_scale(self) -> float:
@@ -153,8 +171,8 @@ class ADIS16448Sim:
     def _newest(self) -> int:
         """Row in the current chunk of the newest sample due by now (-1 before the first)."""
         due = int((self.clock.now_ns() - self.t_start_ns) * self._rate / 1e9)
-        if due <= 0:
-            return -1
+        if due <= 0 or not self.internal_clock:
+            return -1  # nothing sampled since the last restart (an external clock never ticks here)
         while self.produced < due:
             self._build(max(CHUNK, due - self.produced))
         return due - 1 - self._chunk_first
@@ -164,8 +182,14 @@ class ADIS16448Sim:
         if self.plan is not None and self.plan.fire("reset"):
             self.sim_resets += 1
             self._power_on(POWER_ON_START_S)
-        if self.clock.now_ns() < self.busy_until_ns:
+        now = self.clock.now_ns()
+        stalled = now - self.cs_high_ns >= STALL_MIN_NS
+        self.cs_high_ns = now  # the transfer takes no time on the virtual clock
+        if now < self.busy_until_ns:
             return bytes(len(tx))
+        if not stalled:
+            self.sim_stall_violations += 1
+            return bytes([MISO_GARBAGE]) * len(tx)
         burst = len(tx) > 2 and tx[:2] == chip.BURST_CMD
         if mode != chip.SPI_MODE or hz > (chip.SPI_MAX_HZ_BURST if burst else chip.SPI_MAX_HZ_REGISTER):
             return bytes([MISO_GARBAGE]) * len(tx)
@@ -208,6 +232,8 @@ class ADIS16448Sim:
             return
         old = self.regs.get(reg, 0)
         new = (old & 0xFF00) | value if addr == reg else (old & 0x00FF) | value << 8
+        if reg == chip.REG_SENS_AVG and new >> chip.SENS_AVG_RANGE_SHIFT & 0x7 not in _RANGE_CODES and addr != reg:
+            return  # a reserved range code: the high byte is not taken
         self.regs[reg] = new
         if reg in (chip.REG_SMPL_PRD, chip.REG_SENS_AVG):
             self._newest()  # samples due so far belong to the old setting

@@ -8,6 +8,13 @@ port, little-endian s16 rates, s8 temperature (23 degC + 0.5 K/LSB).
 Samples are produced on the station's clock at the configured ODR: each read
 first draws every sample that became due since the last one from the signal
 source, so a virtual clock gives hours of data in seconds.
+
+Strict where the data sheet is (docs/reference/conformance-bmx055.md): for 30 ms
+after a soft reset the registers take no writes; in suspend and deep-suspend
+(LPM1) the chip samples nothing and takes no writes but LPM1 and the soft reset;
+bypass mode collects nothing, FIFO mode stops when full, stream mode keeps the
+newest frames; read-only registers (chip id, data, temperature, interrupt and
+FIFO status, BW bit 7) ignore writes.
 """
 
 from __future__ import annotations
@@ -25,6 +32,15 @@ from imustation.drivers.sim.sources import SignalSource
 #: power-on BW code (datasheet reset value not in docs/reference/sensors.md; 0x00 = 2000 Hz/523 Hz assumed)
 POR_BW_CODE = 0x00
 BW_RESERVED_BIT = 0x80  # §1.3: "A mock reading back BW should return 0x80 | code"
+#: after the soft reset the registers take no writes for this long (BMG160 data sheet, as
+#: Linux bmg160_core quotes it: "A delay of 30ms after reset is required")
+SOFTRESET_STARTUP_S = 0.030
+#: LPM1 bits: suspend (bit 7), deep suspend (bit 5); 0x00 = normal
+LPM1_SUSPEND, LPM1_DEEP_SUSPEND = 0x80, 0x20
+#: chip id, rate data, temperature, interrupt status 0..3, FIFO status
+_READ_ONLY = frozenset({chip.REG_CHIP_ID, *range(chip.REG_RATE_X_LSB, 0x0D), chip.REG_FIFO_STATUS})
+#: FIFO_CONFIG_1 mode bits 7:6
+FIFO_MODE_BYPASS, FIFO_MODE_FIFO = 0, 1
 
 
 _ODR_BY_CODE = {r.code: float(r.odr_hz) for r in chip.ODR_TABLE}
@@ -49,7 +65,10 @@ class BMG160Sim(RegisterFileChip):
         self.source_factory = source_factory
         self.source: SignalSource | None = None
         self.sim_resets = 0
+        #: writes ignored (starting after a reset, or suspended) (test back door)
+        self.sim_ignored_writes = 0
         self._power_on()
+        self.ready_ns = self.clock.now_ns()  # powered up long before the station opens it
 
     # -- state ------------------------------------------------------------------------
     def _power_on(self) -> None:
@@ -58,6 +77,7 @@ class BMG160Sim(RegisterFileChip):
         self.regs[chip.BW.reg] = BW_RESERVED_BIT | POR_BW_CODE
         self.fifo = bytearray()
         self.overrun = False
+        self.ready_ns = self.clock.now_ns() + int(SOFTRESET_STARTUP_S * 1e9)
         self._restart_timing()
 
     def _restart_timing(self) -> None:
@@ -75,7 +95,12 @@ class BMG160Sim(RegisterFileChip):
     @property
     def scale(self) -> float:
         code = chip.RANGE.decode(self.regs[chip.RANGE.reg])
-        return next(r.scale for r in chip.RANGE_TABLE if r.code == code)
+        # codes 5-7 are reserved: taken as code 0 (behaviour UNCONFIRMED; the driver never writes them)
+        return next((r.scale for r in chip.RANGE_TABLE if r.code == code), chip.RANGE_TABLE[0].scale)
+
+    @property
+    def suspended(self) -> bool:
+        return bool(self.regs[chip.REG_LPM1] & (LPM1_SUSPEND | LPM1_DEEP_SUSPEND))
 
     @property
     def fifo_mode(self) -> int:
@@ -91,6 +116,9 @@ class BMG160Sim(RegisterFileChip):
             self.sim_resets += 1
             self._power_on()
             return
+        if self.suspended:
+            self._restart_timing()  # no samples while suspended
+            return
         due = (self.clock.now_ns() - self.t_start_ns) * self.odr_hz / 1e9
         n = int(due) - self.produced
         if n <= 0:
@@ -103,13 +131,17 @@ class BMG160Sim(RegisterFileChip):
         self.latest = counts[-1]
         if self.plan is not None and self.plan.active("stuck_fifo"):
             return
-        if self.fifo_mode == chip.FIFO_MODE_STREAM:
-            depth = chip.FIFO_DEPTH_FRAMES * chip.FIFO_FRAME_BYTES
-            keep = counts[-chip.FIFO_DEPTH_FRAMES :].tobytes()
-            if len(self.fifo) + n * chip.FIFO_FRAME_BYTES > depth:
-                self.overrun = True
-            self.fifo += keep
+        mode = self.fifo_mode
+        if mode not in (FIFO_MODE_FIFO, chip.FIFO_MODE_STREAM):
+            return  # bypass (or the reserved mode 3): the FIFO collects nothing
+        depth = chip.FIFO_DEPTH_FRAMES * chip.FIFO_FRAME_BYTES
+        if len(self.fifo) + n * chip.FIFO_FRAME_BYTES > depth:
+            self.overrun = True
+        if mode == chip.FIFO_MODE_STREAM:  # keep the newest frames
+            self.fifo += counts[-chip.FIFO_DEPTH_FRAMES :].tobytes()
             del self.fifo[: max(0, len(self.fifo) - depth)]
+        else:  # FIFO mode: stop when full
+            self.fifo += counts[: chip.FIFO_DEPTH_FRAMES].tobytes()[: max(0, depth - len(self.fifo))]
 
     # -- register hooks ----------------------------------------------------------------
     def before_read(self, reg: int, n: int) -> None:
@@ -134,14 +166,19 @@ class BMG160Sim(RegisterFileChip):
                 self.sim_resets += 1
                 self._power_on()
             return
-        if reg == chip.REG_CHIP_ID:
-            return  # read-only
+        if reg in _READ_ONLY:
+            return
+        if self.clock.now_ns() < self.ready_ns or (self.suspended and reg != chip.REG_LPM1):
+            self.sim_ignored_writes += 1  # starting after the soft reset, or suspended
+            return
         self._advance()
         if reg == chip.BW.reg:
             self.regs[reg] = BW_RESERVED_BIT | (value & 0x07)
             self._restart_timing()
             return
         self.regs[reg] = value
+        if reg == chip.REG_LPM1:
+            self._restart_timing()
         if reg == chip.FIFO_MODE.reg:
             # writing FIFO_CONFIG_1 clears the FIFO and its overrun flag
             self.fifo.clear()

@@ -11,6 +11,11 @@ Assumptions (not in docs/reference/sensors.md, Bosch BMA2x2 reset values): power
 0x08 and above 0x0F as 0x0F (§1.7 "commonly documented as clamped"); FIFO
 frames carry ``new_data`` = 0; an empty FIFO reads as zeros. A burst read is one
 snapshot (the MSB shadowing of §1.1 is therefore implicit).
+
+Strict where the data sheet is (docs/reference/conformance-bmx055.md): for 1.8 ms
+after a soft reset the registers take no writes; samples only in normal mode; in
+deep-suspend only PMU_LPW and the soft reset take writes; read-only registers
+(chip id, data, temperature, interrupt and FIFO status) ignore writes.
 """
 
 from __future__ import annotations
@@ -27,8 +32,15 @@ from imustation.drivers.sim.sources import SignalSource
 
 POR_RANGE_CODE = 0x03
 POR_BW_CODE = 0x0F
+#: after the soft reset the registers take no writes for this long (BMA2x2 data sheets, as
+#: Linux bmc150-accel quotes them: "A delay of 1.8ms after reset is required")
+SOFTRESET_STARTUP_S = 0.0018
+#: PMU_LPW bits 7:5 of deep-suspend
+LPW_DEEP_SUSPEND = 0x20
 _BW_MIN, _BW_MAX = chip.BW_TABLE[0].code, chip.BW_TABLE[-1].code
 _DATA = range(chip.REG_ACCD_X_LSB, chip.REG_ACCD_X_LSB + 6)
+#: temperature, interrupt status 0..3, FIFO status: read-only
+_STATUS = frozenset({chip.REG_TEMP, 0x09, 0x0A, 0x0B, 0x0C, chip.REG_FIFO_STATUS})
 #: 12-bit signed range of the counts
 _MIN12, _MAX12 = -2048, 2047
 
@@ -55,7 +67,10 @@ class BMA2x2Sim(RegisterFileChip):
         self.sim_resets = 0
         #: samples drawn since power-on (test back door)
         self.sim_produced = 0
+        #: writes ignored (starting after a reset, or in deep suspend) (test back door)
+        self.sim_ignored_writes = 0
         self._power_on()
+        self.ready_ns = self.clock.now_ns()  # powered up long before the station opens it
 
     # -- state ------------------------------------------------------------------------
     def _power_on(self) -> None:
@@ -66,6 +81,7 @@ class BMA2x2Sim(RegisterFileChip):
         self.fifo = bytearray()
         self.overrun = False
         self.new = np.zeros(3, dtype=bool)
+        self.ready_ns = self.clock.now_ns() + int(SOFTRESET_STARTUP_S * 1e9)
         self._restart_timing()
 
     def _restart_timing(self) -> None:
@@ -167,8 +183,12 @@ class BMA2x2Sim(RegisterFileChip):
                 self.sim_resets += 1
                 self._power_on()
             return
-        if reg == chip.REG_CHIP_ID or reg in _DATA or reg in (chip.REG_TEMP, chip.REG_FIFO_STATUS):
+        if reg == chip.REG_CHIP_ID or reg in _DATA or reg in _STATUS:
             return  # read-only
+        deep_suspend = self.regs[chip.REG_PMU_LPW] >> 5 == LPW_DEEP_SUSPEND >> 5
+        if self.clock.now_ns() < self.ready_ns or (deep_suspend and reg != chip.REG_PMU_LPW):
+            self.sim_ignored_writes += 1  # starting after the soft reset, or in deep suspend
+            return
         self._advance()
         self.regs[reg] = value
         if reg in (chip.PMU_BW.reg, chip.REG_PMU_RANGE, chip.REG_PMU_LPW):

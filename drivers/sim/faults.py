@@ -6,7 +6,11 @@ A :class:`FaultPlan` holds fault specs from a ``[device.sim]`` table::
       {kind = "nack", every_s = 600},                      # Poisson, mean interval 600 s
       {kind = "disconnect", at_s = 3600, duration_s = 5},  # cable pulled at 1 h for 5 s
       {kind = "reset", at_s = 7200},                       # chip power-on reset at 2 h
+      {kind = "slow", at_s = 600, duration_s = 5, delay_s = 0.004},  # 5 s of 4 ms transactions
     ]
+
+A burst of NACKs is several ``nack`` entries at one ``at_s``: that many consecutive
+transactions are not acknowledged (the bus retries absorb a short burst).
 
 Buses and chip simulators ask ``plan.fire(kind)`` (an event of that kind has become
 due since the last ask: consume it) or ``plan.active(kind)`` (inside an event's
@@ -35,8 +39,11 @@ FAULT_KINDS = {
     "reset": "the chip performs a power-on reset (settings lost, must be re-initialised)",
     "disconnect": "the device is gone for duration_s (every transaction fails), then returns",
     "stall": "one transaction hangs for duration_s (clock stretching, a stalled bridge or host); FIFOs fill meanwhile",
+    "slow": "for duration_s every transaction takes delay_s longer (a slow or congested bus, a busy host)",
 }
-_SPEC_KEYS = ("kind", "at_s", "every_s", "duration_s")
+_SPEC_KEYS = ("kind", "at_s", "every_s", "duration_s", "delay_s")
+#: the extra time of each transaction of a ``slow`` window when ``delay_s`` is not given, s
+DEFAULT_SLOW_DELAY_S = 0.002
 
 
 @dataclass(frozen=True)
@@ -47,6 +54,8 @@ class FaultSpec:
     at_s: float | None = None
     every_s: float | None = None
     duration_s: float = 0.0
+    #: ``slow`` only: extra time of each transaction in the window, s
+    delay_s: float = 0.0
 
 
 def parse_faults(entries: Sequence[Mapping[str, object]], where: str = "sim.faults") -> tuple[FaultSpec, ...]:
@@ -65,7 +74,7 @@ def parse_faults(entries: Sequence[Mapping[str, object]], where: str = "sim.faul
         if kind not in FAULT_KINDS:
             raise SettingError(f"{w}.kind = {kind!r}: allowed {', '.join(FAULT_KINDS)}")
         nums = {}
-        for key in ("at_s", "every_s", "duration_s"):
+        for key in ("at_s", "every_s", "duration_s", "delay_s"):
             value = entry.get(key)
             if value is None:
                 continue
@@ -76,7 +85,12 @@ def parse_faults(entries: Sequence[Mapping[str, object]], where: str = "sim.faul
             raise SettingError(f"{w}: give at_s (one event) or every_s (mean interval), or both")
         if nums.get("every_s") == 0:
             raise SettingError(f"{w}.every_s: must be > 0")
-        specs.append(FaultSpec(kind, nums.get("at_s"), nums.get("every_s"), nums.get("duration_s", 0.0)))
+        if "delay_s" in nums and kind != "slow":
+            raise SettingError(f"{w}.delay_s: only a 'slow' fault has a per-transaction delay")
+        if kind == "slow" and not nums.get("duration_s"):
+            raise SettingError(f"{w}: a 'slow' fault needs duration_s (the length of the slow window)")
+        delay = nums.get("delay_s", DEFAULT_SLOW_DELAY_S) if kind == "slow" else 0.0
+        specs.append(FaultSpec(kind, nums.get("at_s"), nums.get("every_s"), nums.get("duration_s", 0.0), delay))
     return tuple(specs)
 
 
@@ -108,7 +122,7 @@ class FaultPlan:
         # earliest pending event, ns on the clock: buses ask several times per
         # transaction, and almost always nothing is due (see _collect)
         self._due_ns = self._earliest_ns()
-        self._windows: dict[str, list[tuple[float, float]]] = {}
+        self._windows: dict[str, list[tuple[float, float, float]]] = {}
         self._pending: dict[str, list[float]] = {}
         self.sim_log: list[tuple[int, str]] = []
 
@@ -132,7 +146,7 @@ class FaultPlan:
                 self._pending.setdefault(spec.kind, []).append(spec.duration_s)
                 self.sim_log.append((self.t0_ns + int(t * 1e9), spec.kind))
                 if spec.duration_s > 0:
-                    self._windows.setdefault(spec.kind, []).append((t, t + spec.duration_s))
+                    self._windows.setdefault(spec.kind, []).append((t, t + spec.duration_s, spec.delay_s))
                 if spec.every_s is not None:
                     t = t + float(self._rng.exponential(spec.every_s))
                 else:
@@ -155,12 +169,19 @@ class FaultPlan:
 
     def active(self, kind: str) -> bool:
         """True while the clock is inside a window of an event of ``kind`` (``duration_s``)."""
+        return bool(self._open_windows(kind))
+
+    def delay_s(self, kind: str = "slow") -> float:
+        """The extra time a transaction takes now: the largest ``delay_s`` of the open windows of ``kind``."""
+        return max((delay for _, _, delay in self._open_windows(kind)), default=0.0)
+
+    def _open_windows(self, kind: str) -> list[tuple[float, float, float]]:
         if kind not in self.kinds:
-            return False
+            return []
         self._collect()
         if not self._windows.get(kind):
-            return False
+            return []
         now = self._now_s()
-        windows = [w for w in self._windows.get(kind, []) if w[1] > now]
+        windows = [w for w in self._windows[kind] if w[1] > now]
         self._windows[kind] = windows
-        return any(start <= now < end for start, end in windows)
+        return [w for w in windows if w[0] <= now]

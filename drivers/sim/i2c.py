@@ -37,7 +37,8 @@ class SimSMBus:
     target applies to transactions addressed to it: ``disconnect`` (every
     transfer NACKed while active), ``nack`` (one transfer NACKed), ``short_read``
     (one read fails with EIO), ``corrupt`` (one bit of one read flipped),
-    ``stall`` (one transaction takes ``duration_s``: the clock advances).
+    ``stall`` (one transaction takes ``duration_s``: the clock advances), ``slow``
+    (every transaction of the window takes ``delay_s``).
     ``sim_fault`` (if set) is called with ``(address, msgs)`` before each
     transfer and may raise ``OSError`` (ad-hoc faults in tests).
     """
@@ -73,6 +74,9 @@ class SimSMBus:
             stall = plan.fire_duration("stall")
             if stall:
                 plan.clock.sleep(stall)
+            slow = plan.delay_s("slow")
+            if slow:
+                plan.clock.sleep(slow)
         for msg in msgs:
             target = self._target(msg.addr)
             if msg.flags & I2C_M_RD:

@@ -9,6 +9,25 @@ repeats the last byte when empty (§2.5 [I2CDEV]), INT_STATUS cleared on read,
 DEVICE_RESET, sleep (no samples while SLEEP is set or the clock is stopped),
 big-endian data registers, sample rate internal/(1+SMPLRT_DIV) with the
 accelerometer held at its 1 kHz output rate above that (§2.2).
+
+Strict where the register maps are (docs/reference/conformance-invensense.md
+lists each rule, its source and the test that checks it):
+
+* FIFO_RST on the MPU-6050 register set resets the FIFO only while
+  USER_CTRL.FIFO_EN is 0 (RM-MPU-6000A rev 4.2, Register 106); the MPU-6500's
+  FIFO_RST is an asynchronous reset (RM-MPU-6500A rev 2.1, Register 106). A
+  reset the map does not document does nothing.
+* USER_CTRL.FIFO_EN = 0: the MPU-6050's FIFO takes no data and cannot be read;
+  the MPU-6500's only stops serial access (its writes follow the FIFO_EN
+  register).
+* The sample rate is the one the chip runs at: SMPLRT_DIV divides the 1 kHz
+  (or, MPU-6050 with DLPF_CFG 0/7, 8 kHz) gyro output rate; on the MPU-6500 it
+  is ignored unless FCHOICE_B = 00 and 0 < DLPF_CFG < 7 (8 kHz with DLPF_CFG 0
+  or 7, 32 kHz with FCHOICE_B != 00).
+* For ``REGISTER_STARTUP_S`` after DEVICE_RESET the registers take no writes.
+* FIFO_COUNT_H latches both count bytes; read-only registers ignore writes;
+  interrupt status bits are set only for enabled sources and cleared only by
+  reading INT_STATUS.
 """
 
 from __future__ import annotations
@@ -26,14 +45,24 @@ from imustation.drivers.sim.sources import SignalSource
 #: FIFO_EN bit -> column of the (accel xyz, temp, gyro xyz) sample row, in FIFO write order
 _FIFO_COLUMNS = ((chip.FIFO_EN_ACCEL, (0, 1, 2)), (chip.FIFO_EN_TEMP, (3,)), (chip.FIFO_EN_XG, (4,)),
                  (chip.FIFO_EN_YG, (5,)), (chip.FIFO_EN_ZG, (6,)))  # fmt: skip
+#: sensor data 0x3B..0x48 and EXT_SENS_DATA 0x49..0x60 are read-only (both maps, section 3)
 _READ_ONLY = frozenset(
     {chip.REG_WHO_AM_I, chip.REG_INT_STATUS, chip.REG_FIFO_COUNT_H, chip.REG_FIFO_COUNT_H + 1}
-    | set(range(chip.REG_ACCEL_XOUT_H, chip.REG_ACCEL_XOUT_H + 14))
+    | set(range(chip.REG_ACCEL_XOUT_H, 0x61))
 )
 #: registers whose write changes the sampling (timing restarts)
-_TIMING = frozenset({chip.REG_SMPLRT_DIV, chip.DLPF_CFG.reg, chip.GYRO_FS_SEL.reg, chip.REG_PWR_MGMT_1})
-#: the MPU-6500's fastest internal rate (FCHOICE_B != 00), §3 [CR]
+_TIMING = frozenset(
+    {chip.REG_SMPLRT_DIV, chip.DLPF_CFG.reg, chip.GYRO_FS_SEL.reg, chip.A_FCHOICE_B.reg, chip.REG_PWR_MGMT_1}
+)
+#: USER_CTRL bits that clear themselves after the reset they trigger (both maps, Register 106)
+_USER_CTRL_SELF_CLEARING = chip.USER_CTRL_FIFO_RST | 0x02 | 0x01  # FIFO_RST, I2C_MST_RST, SIG_COND_RST
+#: the MPU-6500's gyro rate with FCHOICE_B != 00 (RM-MPU-6500A Register 26 table)
 FCHOICE_INTERNAL_HZ = 32000.0
+#: the MPU-6500's accelerometer rate with ACCEL_FCHOICE_B = 1 (RM-MPU-6500A Register 29 table)
+ACCEL_FCHOICE_HZ = 4000.0
+#: after DEVICE_RESET the registers take no writes for this long: the 100 ms wait of the
+#: reset sequence (RM-MPU-6000A rev 4.2, Register 107 note), used for both chips
+REGISTER_STARTUP_S = 0.100
 
 
 class InvenSenseSim(RegisterFileChip):
@@ -68,7 +97,10 @@ class InvenSenseSim(RegisterFileChip):
         self.sim_resets = 0
         #: samples taken since construction (test back door)
         self.sim_produced = 0
+        #: writes ignored because the registers were not ready after a reset (test back door)
+        self.sim_ignored_writes = 0
         self._power_on()
+        self.ready_ns = self.clock.now_ns()  # powered up long before the station opens it
 
     # -- state ----------------------------------------------------------------------
     def _power_on(self) -> None:
@@ -78,6 +110,8 @@ class InvenSenseSim(RegisterFileChip):
         self.fifo = bytearray()
         self.int_status = 0
         self.last_fifo_byte = 0
+        self.count_latch = 0
+        self.ready_ns = self.clock.now_ns() + int(REGISTER_STARTUP_S * 1e9)
         self._restart_timing()
 
     def _restart_timing(self) -> None:
@@ -87,28 +121,56 @@ class InvenSenseSim(RegisterFileChip):
         self.accel_drawn, self.accel_last = 0, np.zeros(3)
         # the registers these depend on are _TIMING registers, whose writes come here
         rate = self._rate = self.rate_hz
+        self._accel_hz = self.accel_output_hz
         self._running = self.running
         if self.gyro_src is None or self.gyro_src.fs_hz != rate:
             self.gyro_src = self.gyro_factory(rate)
-        accel_fs = min(rate, chip.ACCEL_OUTPUT_HZ)
+        accel_fs = min(rate, self._accel_hz)
         if self.accel_src is None or self.accel_src.fs_hz != accel_fs:
             self.accel_src = self.accel_factory(accel_fs)
 
     @property
+    def _fchoice_b(self) -> int:
+        return chip.GYRO_FCHOICE_B.decode(self.regs[chip.GYRO_FCHOICE_B.reg]) if self.variant.has_accel_config2 else 0
+
+    @property
     def internal_hz(self) -> float:
-        if self.variant.has_accel_config2 and chip.GYRO_FCHOICE_B.decode(self.regs[chip.GYRO_FCHOICE_B.reg]):
+        """Gyroscope output rate before SMPLRT_DIV, Hz."""
+        if self._fchoice_b:
             return FCHOICE_INTERNAL_HZ
         code = chip.DLPF_CFG.decode(self.regs[chip.DLPF_CFG.reg])
-        return 8000.0 if code in (0, 7) else 1000.0  # §2.2 [I2CDEV]
+        return 8000.0 if code in (0, 7) else 1000.0
 
     @property
     def rate_hz(self) -> float:
+        """The sample rate the chip runs at (FIFO and data registers), Hz."""
+        code = chip.DLPF_CFG.decode(self.regs[chip.DLPF_CFG.reg])
+        if self.variant.has_accel_config2 and (self._fchoice_b or code in (0, 7)):
+            # MPU-6500 Register 25: SMPLRT_DIV only for FCHOICE_B = 00 and 0 < DLPF_CFG < 7
+            return self.internal_hz
         return self.internal_hz / (1 + self.regs[chip.REG_SMPLRT_DIV])
+
+    @property
+    def accel_output_hz(self) -> float:
+        """Accelerometer output rate: 1 kHz (MPU-6500 with ACCEL_FCHOICE_B = 1: 4 kHz)."""
+        if self.variant.has_accel_config2 and chip.A_FCHOICE_B.decode(self.regs[chip.A_FCHOICE_B.reg]):
+            return ACCEL_FCHOICE_HZ
+        return chip.ACCEL_OUTPUT_HZ
 
     @property
     def running(self) -> bool:
         pwr = self.regs[chip.REG_PWR_MGMT_1]
         return not pwr & chip.PWR1_SLEEP and chip.CLKSEL.decode(pwr) != chip.CLKSEL_STOP
+
+    @property
+    def _fifo_takes_data(self) -> bool:
+        if self.variant.fifo_rst_needs_disable:  # MPU-6050 set: a disabled FIFO cannot be written
+            return bool(self.regs[chip.REG_USER_CTRL] & chip.USER_CTRL_FIFO_EN)
+        return True  # MPU-6500: the FIFO_EN register alone decides what is written
+
+    @property
+    def _fifo_readable(self) -> bool:
+        return bool(self.regs[chip.REG_USER_CTRL] & chip.USER_CTRL_FIFO_EN)
 
     def _scales(self) -> tuple[float, float]:
         g = chip.GYRO_FS_SEL.decode(self.regs[chip.GYRO_FS_SEL.reg])
@@ -116,19 +178,23 @@ class InvenSenseSim(RegisterFileChip):
         return chip.GYRO_RANGES[g].scale, chip.ACCEL_RANGES[a].scale
 
     def _accel(self, n: int) -> np.ndarray:
-        """Accelerometer values for the next ``n`` samples (held at 1 kHz above 1 kHz)."""
+        """Accelerometer values for the next ``n`` samples (held at its output rate above it)."""
         assert self.accel_src is not None
         rate = self._rate
-        if rate <= chip.ACCEL_OUTPUT_HZ:
+        if rate <= self._accel_hz:
             return self.accel_src.next(n)
         k = np.arange(self.produced, self.produced + n)
-        idx = np.floor(k * chip.ACCEL_OUTPUT_HZ / rate).astype(np.int64)
+        idx = np.floor(k * self._accel_hz / rate).astype(np.int64)
         fresh = self.accel_src.next(int(idx[-1]) + 1 - self.accel_drawn)
         pool = np.vstack([self.accel_last[None, :], fresh])  # row 0 = accel sample accel_drawn - 1
         out = pool[idx - (self.accel_drawn - 1)]
         self.accel_drawn += len(fresh)
         self.accel_last = pool[-1]
         return out
+
+    def _raise(self, flag: int) -> None:
+        """Set an interrupt status bit if its source is enabled (same bit in INT_ENABLE)."""
+        self.int_status |= flag & self.regs[chip.REG_INT_ENABLE]
 
     def _advance(self) -> None:
         """Take every sample due by now; data registers, DATA_RDY and FIFO.
@@ -159,10 +225,10 @@ class InvenSenseSim(RegisterFileChip):
         self.produced += n
         self.sim_produced += n
         self.latest = counts[-1]
-        self.int_status |= chip.INT_DATA_RDY
+        self._raise(chip.INT_DATA_RDY)
         if self.plan is not None and self.plan.active("stuck_fifo"):
             return
-        if not self.regs[chip.REG_USER_CTRL] & chip.USER_CTRL_FIFO_EN:
+        if not self._fifo_takes_data:
             return
         enabled = self.regs[chip.REG_FIFO_EN]
         cols = [c for bit, cs in _FIFO_COLUMNS if enabled & bit for c in cs]
@@ -171,7 +237,7 @@ class InvenSenseSim(RegisterFileChip):
         cap = self.variant.fifo_bytes
         fit = cap // (2 * len(cols)) + 1  # rows beyond a FIFO-full cannot survive
         if len(self.fifo) + n * 2 * len(cols) > cap:
-            self.int_status |= chip.INT_FIFO_OFLOW
+            self._raise(chip.INT_FIFO_OFLOW)
         if self.variant.has_accel_config2 and chip.CONFIG_FIFO_MODE.decode(self.regs[chip.CONFIG_FIFO_MODE.reg]):
             # MPU-6500 FIFO_MODE = 1: when full, further writes are dropped (§3 [PX4-6500])
             self.fifo += counts[:fit, cols].astype(">i2").tobytes()[: max(0, cap - len(self.fifo))]
@@ -185,15 +251,23 @@ class InvenSenseSim(RegisterFileChip):
         self._advance()
         self.regs[chip.REG_ACCEL_XOUT_H : chip.REG_ACCEL_XOUT_H + 14] = self.latest.astype(">i2").tobytes()
         self.regs[chip.REG_INT_STATUS] = self.int_status
-        self.regs[chip.REG_FIFO_COUNT_H : chip.REG_FIFO_COUNT_H + 2] = len(self.fifo).to_bytes(2, "big")
 
     def on_read(self, reg: int) -> int:
-        value = self.regs[reg]
         if reg == chip.REG_INT_STATUS:
-            self.int_status = 0  # cleared by reading [RM6050]
-        return value
+            value, self.int_status = self.int_status, 0  # cleared by reading INT_STATUS (Register 58)
+            return value
+        if reg == chip.REG_FIFO_COUNT_H:
+            # reading FIFO_COUNT_H latches both count bytes (Registers 114/115, both maps)
+            self.count_latch = len(self.fifo)
+            return self.count_latch >> 8
+        if reg == chip.REG_FIFO_COUNT_H + 1:
+            return self.count_latch & 0xFF
+        return self.regs[reg]
 
     def read_stream(self, reg: int, n: int) -> bytes:
+        if not self._fifo_readable:
+            # a disabled FIFO cannot be read (Register 106): the port gives nothing new
+            return bytes([self.last_fifo_byte]) * n
         out = bytearray(self.fifo[:n])
         del self.fifo[:n]
         if out:
@@ -204,16 +278,31 @@ class InvenSenseSim(RegisterFileChip):
     def on_write(self, reg: int, value: int) -> None:
         if reg in _READ_ONLY:
             return
+        if self.clock.now_ns() < self.ready_ns:
+            self.sim_ignored_writes += 1  # still starting up after DEVICE_RESET
+            return
         if reg == chip.REG_PWR_MGMT_1 and value & chip.PWR1_DEVICE_RESET:
             self.sim_resets += 1
             self._power_on()
             return
         self._advance()
         if reg == chip.REG_USER_CTRL:
-            if value & chip.USER_CTRL_FIFO_RST:
+            if value & chip.USER_CTRL_FIFO_RST and self._fifo_reset_takes(value):
                 self.fifo.clear()
-                self.int_status &= ~chip.INT_FIFO_OFLOW
-            value &= ~(chip.USER_CTRL_FIFO_RST | 0x01)  # FIFO_RST and SIG_COND_RST clear themselves
+            value &= ~_USER_CTRL_SELF_CLEARING & 0xFF
         self.regs[reg] = value
         if reg in _TIMING:
             self._restart_timing()
+
+    def _fifo_reset_takes(self, value: int) -> bool:
+        """Whether a USER_CTRL write with FIFO_RST set resets the FIFO.
+
+        MPU-6050 set: only "while FIFO_EN equals 0" (RM-MPU-6000A rev 4.2, Register
+        106). Whether a write that clears FIFO_EN and sets FIFO_RST at once counts
+        is not said; the safe reading is taken: FIFO_EN must already be 0 and stay 0.
+        MPU-6500: "Reset is asynchronous" (RM-MPU-6500A rev 2.1, Register 106).
+        """
+        if not self.variant.fifo_rst_needs_disable:
+            return True
+        was_enabled = self.regs[chip.REG_USER_CTRL] & chip.USER_CTRL_FIFO_EN
+        return not was_enabled and not value & chip.USER_CTRL_FIFO_EN

@@ -10,8 +10,13 @@ Shutdown (CONFIG bit 8) stops conversions; T_A keeps its last value.
 
 Assumptions (UNCONFIRMED, not in docs/reference/sensors.md): a pointer with bits 7:4 set is
 ignored (the pointer keeps its value); reading more bytes than a register has
-repeats its bytes; T_A reads 0x0000 until the first conversion completes; the
-window/critical lock bits are stored but not enforced.
+repeats its bytes; T_A reads 0x0000 until the first conversion completes.
+
+Strict where the data sheet is (docs/reference/conformance-mcp9804.md): T_A, the
+capability and the id registers ignore writes; CONFIG's T_CRIT lock (bit 7) and
+window lock (bit 6) stay set until a reset and freeze T_CRIT / T_UPPER and
+T_LOWER; SHDN cannot be set while a lock bit is set (MCP9804 data sheet DS22203C,
+Register 5-2).
 """
 
 from __future__ import annotations
@@ -30,6 +35,8 @@ RESOLUTION_POR = 0x03  # 0.0625 degC, §7 Register 5-7
 #: limit registers: bit 12 sign, bits 11:2 value (0.25 degC); other bits read 0, §7
 LIMIT_MASK = 0x1FFC
 _WRITABLE16 = (chip.PTR_CONFIG, PTR_T_UPPER, PTR_T_LOWER, PTR_T_CRIT)
+#: CONFIG lock bits (Register 5-2): set once, cleared only by a reset
+CONFIG_CRIT_LOCK, CONFIG_WIN_LOCK = 1 << 7, 1 << 6
 
 
 def _s13(word: int) -> int:
@@ -122,10 +129,19 @@ class MCP9804Sim:
             self._start_conversions()
         elif self.pointer in _WRITABLE16 and len(payload) >= 2:
             word = (payload[0] << 8) | payload[1]
+            config = self.regs16[chip.PTR_CONFIG]
+            if self.pointer == PTR_T_CRIT and config & CONFIG_CRIT_LOCK:
+                return  # locked until a reset
+            if self.pointer in (PTR_T_UPPER, PTR_T_LOWER) and config & CONFIG_WIN_LOCK:
+                return
             if self.pointer != chip.PTR_CONFIG:
                 word &= LIMIT_MASK
-            elif (self.regs16[chip.PTR_CONFIG] ^ word) & chip.CONFIG_SHDN and not word & chip.CONFIG_SHDN:
-                self._start_conversions()  # leaving shutdown starts converting again
+            else:
+                word |= config & (CONFIG_CRIT_LOCK | CONFIG_WIN_LOCK)  # a lock bit cannot be cleared
+                if word & (CONFIG_CRIT_LOCK | CONFIG_WIN_LOCK) and not config & chip.CONFIG_SHDN:
+                    word &= ~chip.CONFIG_SHDN  # shutdown cannot be entered while a lock bit is set
+                if (config ^ word) & chip.CONFIG_SHDN and not word & chip.CONFIG_SHDN:
+                    self._start_conversions()  # leaving shutdown starts converting again
             self.regs16[self.pointer] = word
 
     def i2c_read(self, n: int) -> bytes:

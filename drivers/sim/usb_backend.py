@@ -10,8 +10,9 @@ and IN transfers as its bridge chip does (see ``drivers/sim/cp2130.py`` and
 Faults (from the function's :class:`~imustation.drivers.sim.faults.FaultPlan`):
 ``disconnect`` - the device is absent from enumeration and every transfer fails
 with ENODEV while active; ``nack`` - one OUT transfer times out (the bridge
-retries); ``corrupt`` - one SPI byte read back has a bit flipped (applied by the
-bridge simulators).
+retries); ``stall`` - one OUT transfer completes ``duration_s`` late; ``slow`` -
+every OUT transfer of the window ``delay_s`` late; ``corrupt`` - one SPI byte read
+back has a bit flipped (applied by the bridge simulators).
 """
 
 from __future__ import annotations
@@ -133,8 +134,13 @@ class SimUSBFunction:
     def gate(self, out: bool) -> None:
         if not self.present():
             raise _gone()
-        if out and self.plan is not None and self.plan.fire("nack"):
-            raise _timeout()
+        if out and self.plan is not None:
+            if self.plan.fire("nack"):
+                raise _timeout()
+            # the transfer is late (a stalled bridge or host; a slow window): the chip's clock runs on
+            late = (self.plan.fire_duration("stall") or 0.0) + self.plan.delay_s("slow")
+            if late:
+                self.plan.clock.sleep(late)
 
     # -- handlers -------------------------------------------------------------------------
     def control(self, request_type: int, request: int, value: int, index: int, data: bytes | int) -> bytes | int:

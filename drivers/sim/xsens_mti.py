@@ -16,6 +16,13 @@ Faults: ``checksum`` (one packet with a wrong checksum), ``corrupt`` (garbage
 bytes between two packets), ``short_read`` (bytes of one packet lost on the
 line), ``reset`` (WakeUp, back to the power-up configuration),
 ``disconnect`` (the port vanishes, see the pyserial handler).
+
+Xbus states, strictly (docs/reference/conformance-mti.md): the identity requests
+and SetOutputConfiguration are answered only in config state (Error 4 in
+measurement state: the stricter reading of a source that does not say); after a
+reset (the fault, or a Reset message, acknowledged) the device sends WakeUp and
+waits ``WAKEUP_ACK_WINDOW_S`` for WakeUpAck, which keeps it in config state;
+without it, it starts measuring with the power-up configuration.
 """
 
 from __future__ import annotations
@@ -45,6 +52,10 @@ ACCEL_NOISE = 0.01  # white accel noise per sample, m/s^2 (simulation choice)
 ERR_INVALID_MESSAGE = 4
 ERR_INVALID_PARAMETER = 33
 GARBAGE = bytes([0xFA, 0xFF, 0x36, 0x13, 0x00, 0xFA, 0x42])  # looks like a frame start, is not
+#: how long a device that sent WakeUp waits for WakeUpAck before measuring (UNCONFIRMED)
+WAKEUP_ACK_WINDOW_S = 0.5
+#: requests the simulated device answers only in config state
+CONFIG_ONLY = frozenset({xb.MID_REQ_DID, xb.MID_REQ_PRODUCT_CODE, xb.MID_REQ_FW_REV, xb.MID_SET_OUTPUT_CONFIG})
 
 
 class MTiSim(SerialDeviceSim):
@@ -60,12 +71,30 @@ class MTiSim(SerialDeviceSim):
         self._rx = b""
         self._out = bytearray()
         self._counter = 0
+        #: station-clock time until which the device waits for WakeUpAck (None: not waiting)
+        self.wakeup_until_ns: int | None = None
         self._power_on()
 
     def _power_on(self) -> None:
         self.config = POWER_ON_CONFIG
         self.measuring = True
         self._start()
+
+    def _reset(self) -> None:
+        """A reset: WakeUp, then wait for WakeUpAck before measuring with the power-up configuration."""
+        self.sim_resets += 1
+        self._power_on()
+        self.measuring = False
+        self.wakeup_until_ns = self.clock.now_ns() + int(WAKEUP_ACK_WINDOW_S * 1e9)
+        self._send(xb.MID_WAKEUP)
+
+    def _wakeup_window(self) -> None:
+        """Without WakeUpAck in time the device starts measuring (from the end of the window)."""
+        if self.wakeup_until_ns is not None and self.clock.now_ns() >= self.wakeup_until_ns:
+            self.measuring = True
+            self._start()
+            self.t_start_ns = self.wakeup_until_ns
+            self.wakeup_until_ns = None
 
     def _start(self) -> None:
         self.t_start_ns = self.clock.now_ns()
@@ -92,8 +121,18 @@ class MTiSim(SerialDeviceSim):
 
     def _handle(self, m: xb.Message) -> None:
         ack = m.mid + 1
-        if m.mid == xb.MID_GOTO_CONFIG:
+        if m.mid == xb.MID_WAKEUP_ACK:
+            if self.wakeup_until_ns is not None:
+                self.wakeup_until_ns = None  # stays in config state
+            return  # an acknowledgement is never answered
+        if m.mid in CONFIG_ONLY and self.measuring:
+            self._send(xb.MID_ERROR, bytes([ERR_INVALID_MESSAGE]))
+        elif m.mid == xb.MID_RESET:
+            self._send(ack)
+            self._reset()
+        elif m.mid == xb.MID_GOTO_CONFIG:
             self.measuring = False
+            self.wakeup_until_ns = None
             self._send(ack)
         elif m.mid == xb.MID_GOTO_MEASUREMENT:
             self.measuring = True
@@ -124,15 +163,14 @@ class MTiSim(SerialDeviceSim):
     # -- device -> host ----------------------------------------------------------------------
     def produce(self) -> bytes:
         if self.plan is not None and self.plan.fire("reset"):
-            self.sim_resets += 1
-            self._power_on()
-            self._send(xb.MID_WAKEUP)
+            self._reset()
         self._emit()
         out = bytes(self._out)
         self._out.clear()
         return out
 
     def _emit(self) -> None:
+        self._wakeup_window()
         if not self.measuring:
             return
         due = int((self.clock.now_ns() - self.t_start_ns) * self.rate_hz / 1e9)

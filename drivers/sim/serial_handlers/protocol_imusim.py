@@ -5,6 +5,11 @@ per second on the station clock, 8N1); a device simulator with a fixed baud
 rate gives unusable bytes to a port opened at another rate. While the device's
 ``disconnect`` fault is active the port behaves as an unplugged USB-serial
 adapter: reads and writes fail, and reopening fails until it returns.
+
+The host side is modelled too: the kernel keeps at most ``TTY_BUFFER_BYTES`` of
+unread input (no flow control: what arrives beyond is dropped), and the device's
+``stall`` / ``slow`` faults make the host's read late (a busy or stalled host), so
+a long stall loses bytes as it does on a real tty.
 """
 
 from __future__ import annotations
@@ -14,6 +19,9 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 from imustation.drivers.sim.serial_handlers import DEVICES, SCHEME
 
 BITS_PER_BYTE = 10  # 8N1: start + 8 data + stop
+#: unread input a Linux tty keeps (n_tty's N_TTY_BUF_SIZE); a USB-serial adapter adds a few
+#: hundred bytes of its own FIFO, not modelled
+TTY_BUFFER_BYTES = 4096
 
 
 class Serial(SerialBase):
@@ -36,6 +44,8 @@ class Serial(SerialBase):
         device.produce()  # what the device sent while no port was open is lost
         self._line = bytearray()
         self._credit = 0.0
+        #: bytes dropped because the host's buffer was full (test back door)
+        self.sim_dropped = 0
         self._t_ns = device.clock.now_ns()
         self.is_open = True
 
@@ -56,10 +66,26 @@ class Serial(SerialBase):
         self._line += self.device.produce()
         self._credit = min(self._credit + (now - self._t_ns) * 1e-9 * self.baudrate / BITS_PER_BYTE, 1e9)
         self._t_ns = now
+        arrived = min(len(self._line), int(self._credit))
+        if arrived > TTY_BUFFER_BYTES:
+            # the host's buffer filled up while nobody read: the rest of what arrived is lost
+            drop = arrived - TTY_BUFFER_BYTES
+            del self._line[TTY_BUFFER_BYTES:arrived]
+            self._credit -= drop
+            self.sim_dropped += drop
+
+    def _host_late(self) -> None:
+        """The device's ``stall`` / ``slow`` faults: this read call returns late."""
+        plan = self.device.plan
+        if plan is not None:
+            late = (plan.fire_duration("stall") or 0.0) + plan.delay_s("slow")
+            if late:
+                self.device.clock.sleep(late)
 
     @property
     def in_waiting(self) -> int:
         self._check()
+        self._host_late()
         self._pull()
         return min(len(self._line), int(self._credit))
 
