@@ -37,6 +37,8 @@ CHUNK_INTERNAL = 1 << 18
 #: the filter state starts stationary: the pre-roll lasts until the impulse response is below this
 _SETTLED = 1e-9
 _SQRT2 = math.sqrt(2.0)
+#: -3 dB point of a mean over an interval T, in 1/T: sinc(x) = 1/sqrt(2)
+_SINC_HALF_POWER = 0.44294647068945225
 
 
 @dataclass(frozen=True)
@@ -300,7 +302,7 @@ def bma2x2(code: int) -> ChipFilter:
 
 
 def _kept(ratio: int) -> str:
-    return f", every {ratio}th sample kept" if ratio > 1 else ""
+    return f", 1 sample of every {ratio} kept" if ratio > 1 else ""
 
 
 def _unfiltered(chip: str, fs_hz: float, why: str) -> ChipFilter:
@@ -374,7 +376,7 @@ def adis16448(decimation: int, taps: int) -> ChipFilter:
 def interval_mean(chip: str, fs_out_hz: float) -> ChipFilter:
     """A chip that outputs the mean rate over each output interval (Xsens MTi, KVH DSP-3000)."""
     return ChipFilter(
-        chip, float(fs_out_hz), interval_mean=True, bandwidth_hz=0.4429 * fs_out_hz, delay_s=0.5 / fs_out_hz,
+        chip, float(fs_out_hz), interval_mean=True, bandwidth_hz=_SINC_HALF_POWER * fs_out_hz, delay_s=0.5 / fs_out_hz,
         structure="mean over each output interval", source="issue 21 (MTi / DSP-3000 output averaging)",
     )  # fmt: skip
 
