@@ -64,7 +64,7 @@ def test_every_setting_has_the_datasheet_bandwidth_and_delay():
 
 
 def test_adis16448_bartlett_filter_halves_the_power_where_linux_says():
-    # SENS_AVG B = 4: two 16-tap stages; "approximately 16 Hz" (datasheet), fs/50 (Linux estimate, sensors.md §4.3)
+    # SENS_AVG B = 4: two 16-tap stages; "approximately 16 Hz" (ADIS16448 datasheet), fs/50 (Linux's estimate)
     f = filters.adis16448(0, 16)
     assert f.model_bandwidth_hz() == pytest.approx(819.2 / 50, rel=0.01)
     assert f.model_delay_s() == pytest.approx(15 / 819.2)  # (N - 1) samples of two N-tap averages

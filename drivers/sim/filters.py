@@ -251,29 +251,28 @@ def design_lowpass(bandwidth_hz: float, delay_s: float | None, fs_hz: float) -> 
 
 # --- the chips ------------------------------------------------------------------------------
 
-#: BMX055 gyro (BMG160) internal data rate, Hz: the unfiltered ODR of BW code 0x00 (sensors.md §1.3)
+#: BMX055 gyro (BMG160) internal data rate, Hz: the unfiltered ODR of BW code 0x00 (BMX055 datasheet, gyro BW)
 BMG160_INTERNAL_HZ = 2000.0
-#: BMX055 accelerometer (BMA2x2) internal rate, Hz: the 0.5 ms update time of PMU_BW 0x0F (sensors.md §1.7)
+#: BMX055 accelerometer (BMA2x2) internal rate, Hz: the 0.5 ms update time of PMU_BW 0x0F (BMX055 datasheet)
 BMA2X2_INTERNAL_HZ = 2000.0
-#: ADIS16448 internal sample rate, Hz (sensors.md §4.3)
+#: ADIS16448 internal sample rate, Hz (ADIS16448 datasheet, SMPL_PRD)
 ADIS16448_INTERNAL_HZ = 819.2
-#: InvenSense accelerometer output rate, Hz (sensors.md §2.2)
+#: InvenSense accelerometer output rate, Hz (MPU-6000/6050 Register Map rev 4.2, register 25)
 INVENSENSE_ACCEL_HZ = 1000.0
 
-#: MPU-6050/9150 DLPF_CFG delays, ms: code -> (gyro, accel); sensors.md §2.2 [I2CDEV]
-#: (MPU-6000/6050 Register Map rev 4.2, register 26)
+#: MPU-6050/9150 DLPF_CFG delays, ms: code -> (gyro, accel) (MPU-6000/6050 Register Map rev 4.2, register 26)
 DELAYS_6050_MS = {0: (0.98, 0.0), 1: (1.9, 2.0), 2: (2.8, 3.0), 3: (4.8, 4.9), 4: (8.3, 8.5), 5: (13.4, 13.8),
                   6: (18.6, 19.0)}  # fmt: skip
-#: MPU-6500 delays, ms: gyro DLPF_CFG (FCHOICE_B = 00) from sensors.md §3 (MPU-9250 map [CR]);
-#: accel A_DLPF_CFG from the MPU-6500 register map (register 29 table: 1.94, 5.80, 7.80,
-#: 11.80, 19.80, 35.70, 66.96, 1.94 ms) - not in sensors.md, UNCONFIRMED
+#: MPU-6500 delays, ms: gyro DLPF_CFG (FCHOICE_B = 00) from the MPU-9250 Register Map rev 1.4,
+#: register 26 (the MPU-9250 holds the MPU-6500 die; UNCONFIRMED for the MPU-6500 itself);
+#: accel A_DLPF_CFG from the MPU-6500 Register Map, register 29 (UNCONFIRMED: not re-checked)
 DELAYS_6500_MS = {0: (0.97, 1.94), 1: (2.9, 5.80), 2: (3.9, 7.80), 3: (5.9, 11.80), 4: (9.9, 19.80),
                   5: (17.85, 35.70), 6: (33.48, 66.96), 7: (0.17, 1.94)}  # fmt: skip
 
 
 @cache
 def bmg160(code: int) -> ChipFilter:
-    """BMX055 gyro, BW register code 0..7 (ODR and -3 dB bandwidth from sensors.md §1.3)."""
+    """BMX055 gyro, BW register code 0..7 (ODR and -3 dB bandwidth: the driver's table)."""
     from imustation.drivers import bmx055 as chip
 
     row = next(r for r in chip.ODR_TABLE if r.code == code)
@@ -282,13 +281,13 @@ def bmg160(code: int) -> ChipFilter:
     return ChipFilter(
         f"BMX055 gyro BW 0x{code:02X}", float(row.odr_hz), ratio, b, a, pure_delay=pure,
         bandwidth_hz=float(row.bandwidth_hz), structure=f"{text} at 2 kHz{_kept(ratio)}",
-        source="BMX055 datasheet BW register (sensors.md §1.3); structure and delay: our choice",
+        source="BMX055 datasheet, gyro register 0x10 (BW); structure and delay: our choice",
     )  # fmt: skip
 
 
 @cache
 def bma2x2(code: int) -> ChipFilter:
-    """BMX055 accelerometer, PMU_BW code 0x08..0x0F (bandwidth = rate / 2, sensors.md §1.7)."""
+    """BMX055 accelerometer, PMU_BW code 0x08..0x0F (bandwidth = rate / 2: the driver's table)."""
     from imustation.drivers import bmx055_accel as chip
 
     row = next(r for r in chip.BW_TABLE if r.code == code)
@@ -297,7 +296,7 @@ def bma2x2(code: int) -> ChipFilter:
     return ChipFilter(
         f"BMX055 accel PMU_BW 0x{code:02X}", float(row.odr_hz), ratio, b, a, pure_delay=pure,
         bandwidth_hz=float(row.bandwidth_hz), structure=f"{text} at 2 kHz{_kept(ratio)}",
-        source="BMX055 datasheet PMU_BW (sensors.md §1.7); structure and delay: our choice",
+        source="BMX055 datasheet, accelerometer register 0x10 (PMU_BW); structure and delay: our choice",
     )  # fmt: skip
 
 
@@ -327,7 +326,8 @@ def invensense_gyro(driver: str, dlpf_cfg: int, smplrt_div: int, fchoice_b: int 
         f"{variant.model} gyro DLPF_CFG {dlpf_cfg}", row.internal_hz / ratio, ratio, b, a, pure_delay=pure,
         bandwidth_hz=float(row.gyro_bw_hz), delay_s=delay,
         structure=f"{text} at {row.internal_hz / 1000:g} kHz{_kept(ratio)}",
-        source="DLPF_CFG bandwidth and delay, sensors.md §2.2 / §3",
+        source=("MPU-9250 Register Map rev 1.4, register 26 (UNCONFIRMED for the MPU-6500)" if variant.has_accel_config2
+                else "MPU-6000/6050 Register Map rev 4.2, register 26"),
     )  # fmt: skip
 
 
@@ -353,22 +353,22 @@ def invensense_accel(driver: str, dlpf_cfg: int, fs_out_hz: float, fchoice_b: in
     return ChipFilter(
         f"{variant.model} accel DLPF {dlpf_cfg}", float(fs_out_hz), ratio, b, a, pure_delay=pure,
         bandwidth_hz=float(row.accel_bw_hz), delay_s=delay, structure=f"{text} {where}",
-        source=("A_DLPF_CFG bandwidth sensors.md §3, delay MPU-6500 register map (UNCONFIRMED)"
-                if variant.has_accel_config2 else "DLPF_CFG accel bandwidth and delay, sensors.md §2.2"),
+        source=("MPU-6500 Register Map, register 29 (UNCONFIRMED)" if variant.has_accel_config2
+                else "MPU-6000/6050 Register Map rev 4.2, register 26"),
     )  # fmt: skip
 
 
 @cache
 def adis16448(decimation: int, taps: int) -> ChipFilter:
     """ADIS16448: SENS_AVG Bartlett FIR (two cascaded ``taps``-tap averages, taps = 2^B) at 819.2 Hz,
-    then SMPL_PRD's average-and-decimate over 2^D samples (sensors.md §4.3)."""
+    then SMPL_PRD's average-and-decimate over 2^D samples (ADIS16448 datasheet, SENS_AVG / SMPL_PRD)."""
     ratio = 2**decimation
     boxcars = tuple(n for n in (taps, taps, ratio) if n > 1)
     text = f"Bartlett FIR 2 x {taps} taps" if taps > 1 else "no Bartlett FIR"
     return ChipFilter(
         f"ADIS16448 D={decimation} taps={taps}", ADIS16448_INTERNAL_HZ / ratio, ratio, boxcars=boxcars,
         structure=f"{text}, then the mean of {ratio} sample(s) at 819.2 Hz",
-        source="ADIS16448 datasheet, SENS_AVG / SMPL_PRD (sensors.md §4.3)",
+        source="ADIS16448 datasheet, SENS_AVG (0x38) / SMPL_PRD (0x36)",
     )  # fmt: skip
 
 
@@ -377,7 +377,8 @@ def interval_mean(chip: str, fs_out_hz: float) -> ChipFilter:
     """A chip that outputs the mean rate over each output interval (Xsens MTi, KVH DSP-3000)."""
     return ChipFilter(
         chip, float(fs_out_hz), interval_mean=True, bandwidth_hz=_SINC_HALF_POWER * fs_out_hz, delay_s=0.5 / fs_out_hz,
-        structure="mean over each output interval", source="issue 21 (MTi / DSP-3000 output averaging)",
+        structure="mean over each output interval",
+        source="the rate output is the angle over the output interval divided by it (UNCONFIRMED)",
     )  # fmt: skip
 
 
