@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import math
 
 import numpy as np
@@ -148,3 +149,28 @@ def _toml(v) -> str:
     if isinstance(v, float) and math.isnan(v):
         return "nan"
     return str(v).lower() if isinstance(v, bool) else str(v)
+
+
+def test_demo_runs_the_realistic_lab(tmp_path):
+    table = tmp_path / "real.csv"
+    res = CliRunner().invoke(
+        cli, ["demo", "--lab", "--profile", "datasheet", "--duration", "30s", "--table", str(table)]
+    )
+    assert res.exit_code == 0, res.output
+    rows = list(csv.DictReader(table.open()))
+    assert {r["channel"].split("/")[0] for r in rows} == {
+        "bmx055",
+        "bmx055-accel",
+        "mpu9150",
+        "mpu6500",
+        "adis",
+        "mti",
+        "fog",
+    }
+    # sigma_w is compared with the datasheet white noise; the profile simulates no Gauss-Markov term
+    for row in rows:
+        assert (row["error_pct"] == "nan") == (row["param"] != "sigma_w"), row
+    mti = next(r for r in rows if r["channel"] == "mti/gyro/x" and r["param"] == "sigma_w")
+    assert float(mti["simulated"]) == DATASHEET["mti"]["sigma_w"].value
+    bad = CliRunner().invoke(cli, ["demo", "--profile", "datasheet"])
+    assert bad.exit_code == 2 and "--profile chooses the lab's config" in bad.output
