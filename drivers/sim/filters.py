@@ -209,7 +209,6 @@ def design_lowpass(bandwidth_hz: float, delay_s: float | None, fs_hz: float) -> 
     Butterworth. The bilinear transform is pre-warped at the bandwidth (exact -3 dB) and
     keeps the analog DC group delay. See the module docstring for the choice.
     """
-    from scipy.optimize import brentq
     from scipy.signal import bilinear
 
     if bandwidth_hz >= 0.4999 * fs_hz:
@@ -222,6 +221,8 @@ def design_lowpass(bandwidth_hz: float, delay_s: float | None, fs_hz: float) -> 
         if p >= _SQRT2:
             return "butterworth", 1.0 / _SQRT2, _SQRT2 / wc
         if p > _damping_delay_product(_ZETA_MAX):
+            from scipy.optimize import brentq
+
             zeta = brentq(lambda z: _damping_delay_product(z) - p, 1.0 / _SQRT2, _ZETA_MAX, xtol=1e-12)
             return "two-pole", zeta, d
         return "one-pole", math.inf, 1.0 / wc

@@ -58,11 +58,12 @@ SIM_KEYS = (
 )
 
 _ANY, _POSITIVE, _NON_NEGATIVE = "a number", "a number > 0", "a number >= 0"
+_TIME = "a number > 0 (inf: no decay)"
 #: key -> what a value (or each of a list's values, one per axis, where ``per_axis``) must be
 _VALUES: dict[str, tuple[str, bool]] = {
     "sigma_w": (_POSITIVE, True),
     "sigma_b": (_NON_NEGATIVE, True),
-    "tau_b": (_POSITIVE, True),
+    "tau_b": (_TIME, True),
     "b_on_dps": (_ANY, True),
     "turn_on_bias_std_dps": (_NON_NEGATIVE, False),
     "bias_instability": (_NON_NEGATIVE, True),
@@ -83,11 +84,11 @@ _VALUES["accel_turn_on_bias_std_mg"] = _VALUES.pop("accel_turn_on_bias_std_dps")
 def _number_problem(value: Any, kind: str) -> bool:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return True
-    if kind == _POSITIVE:
-        return not value > 0  # inf allowed (a random-walk bias: tau_b = inf)
+    if kind == _TIME:
+        return not value > 0  # tau_b = inf: a random-walk bias
     if not math.isfinite(value):
         return True
-    return kind == _NON_NEGATIVE and value < 0
+    return (kind == _POSITIVE and value <= 0) or (kind == _NON_NEGATIVE and value < 0)
 
 
 def sim_value_problem(key: str, value: Any, n_axes: int) -> str | None:
@@ -105,7 +106,7 @@ def sim_value_problem(key: str, value: Any, n_axes: int) -> str | None:
     if key not in _VALUES:
         return None
     kind, per_axis = _VALUES[key]
-    if isinstance(value, list) and per_axis:
+    if isinstance(value, (list, tuple)) and per_axis:
         if len(value) != n_axes or any(_number_problem(v, kind) for v in value):
             return f"{kind}, or a list of {n_axes} (one per axis)"
         return None
