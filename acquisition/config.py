@@ -19,8 +19,9 @@ from typing import Any
 
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.bus.url import KNOWN_SCHEMES, parse_bus_url
+from imustation.drivers.sim import sim_axes
 from imustation.drivers.sim.faults import parse_faults
-from imustation.drivers.sim.sources import SIM_KEYS
+from imustation.drivers.sim.simkeys import SIM_KEYS, sim_value_problem
 from imustation.errors import ConfigError, ImustationError
 
 STATION_KEYS = {"name": str, "flush_interval_s": (int, float), "seed": int}
@@ -143,9 +144,12 @@ def _parse_device(path: str, i: int, entry: Any, names: set[str]) -> DeviceConfi
     sim = entry.get("sim", {})
     if not isinstance(sim, dict):
         raise ConfigError(path, f"{where}.sim", "must be a table")
-    for key in sim:
+    for key, value in sim.items():
         if key not in SIM_KEYS:
             raise ConfigError(path, f"{where}.sim.{key}", f"unknown key (allowed: {', '.join(SIM_KEYS)})")
+        problem = sim_value_problem(key, value, len(sim_axes(driver)))
+        if problem:
+            raise ConfigError(path, f"{where}.sim.{key}", f"{value!r}: expected {problem}")
     try:
         parse_faults(sim.get("faults", []), "sim.faults")
     except ImustationError as exc:

@@ -11,9 +11,11 @@ At ``--sim-level model`` every device is a :class:`ModelDevice`: the station sti
 opens the driver once on its chip simulator (so identity, settings, channels and
 scales are the driver's own), then polls the device's noise sources directly - the
 same sources, seeds and temperatures the chip simulators read
-(:func:`imustation.drivers.sim.device_sources`), converted to counts as the chip
-simulators convert them. Scheduler, counters, gap and fault handling, recorder,
-flushes, rotation, status and workers are the ones a bus-level capture runs.
+(:func:`imustation.drivers.sim.device_sources`: the output filter the settings select,
+drawn at the chip's internal rate, and any noise terms of the device's profile; the
+same samples as the bus level), converted to counts as the chip simulators convert
+them. Scheduler, counters, gap and fault handling, recorder, flushes, rotation, status
+and workers are the ones a bus-level capture runs.
 Thermometers stay on their (simulated) I2C bus: three readings per second cost
 nothing.
 

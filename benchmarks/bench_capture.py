@@ -11,9 +11,12 @@ docs/capture.md) or ``bus`` (byte-level chip simulators behind the bus code).
     python benchmarks/bench_capture.py                    # 12 h, model level, prints the ratio
     python benchmarks/bench_capture.py --sim-level bus    # the byte-level capture (~15-25 min)
     python benchmarks/bench_capture.py --hours 1 --profile
+    python benchmarks/bench_capture.py --realistic         # configs/lab-realistic.toml (datasheet noise)
 
 Same-run references: at the model level, the same noise sources written straight to
-a run file (``acquisition.synthesize``, no station) for up to 1 h; at both levels,
+a run file (``acquisition.synthesize``, no station) for up to 1 h, and for a config on
+the datasheet profile (output filters, bias instability, temperature: docs/simulation.md)
+the same lab on the paper's profile for up to 1 h (what the realism costs); at both levels,
 one simulated CP2130 transfer through pyusb (the floor of a FIFO-less SPI chip at
 the bus level; it also shows the machine's speed, which drifts by up to 2x here).
 """
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import dataclasses
 import os
 import pstats
 import resource
@@ -76,6 +80,14 @@ def lab_config(path: str, only: list[str] | None = None):
     return parse_config(data, path=path, text="")
 
 
+def paper_variant(cfg):
+    """The config with every device on the paper's profile (its seed and faults kept)."""
+    devices = tuple(
+        dataclasses.replace(d, sim={k: v for k, v in d.sim.items() if k in ("seed", "faults")}) for d in cfg.devices
+    )
+    return dataclasses.replace(cfg, devices=devices)
+
+
 def _cpu_s() -> float:
     """CPU seconds of this process and its finished children (the worker processes)."""
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -118,6 +130,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=12.0, help="virtual hours to record (default 12)")
     ap.add_argument("--config", default=config_path("lab-example.toml"))
+    ap.add_argument(
+        "--realistic", action="store_true", help="the lab on its datasheet profile (configs/lab-realistic.toml)"
+    )
     ap.add_argument("--profile", action="store_true", help="print the 25 costliest functions")
     ap.add_argument("--devices", help="comma-separated device/thermometer names of the config (default: all)")
     ap.add_argument(
@@ -130,7 +145,8 @@ def main() -> None:
         help="model (default): devices at the noise-model level; bus: chip simulators behind the bus code",
     )
     args = ap.parse_args()
-    cfg = lab_config(args.config, args.devices.split(",") if args.devices else None)
+    path = config_path("lab-realistic.toml") if args.realistic else args.config
+    cfg = lab_config(path, args.devices.split(",") if args.devices else None)
     rates = ", ".join(f"{d.name} ({d.driver}, {output_rate(d):g} Hz)" for d in cfg.devices)
     print(f"devices: {rates}; thermometers: {len(cfg.thermometers)}")
     duration = args.hours * 3600.0
@@ -175,6 +191,16 @@ def main() -> None:
             f"reference, same run: the same sources written straight to a run file without the station "
             f"(acquisition.synthesize, one process, {ref_s / 3600:g} h) = {ref_s / ref_wall:.0f}x real time"
         )
+        if any(d.sim.get("profile") == "datasheet" for d in cfg.devices):
+            with tempfile.TemporaryDirectory() as tmp:
+                t0 = time.perf_counter()
+                capture(paper_variant(cfg), os.path.join(tmp, "paper.h5"), ref_s, simulate=True, workers=workers,
+                        sim_level="model")  # fmt: skip
+                paper_wall = time.perf_counter() - t0
+            print(
+                f"reference, same run: the same lab on the paper's profile (no output filters, no further "
+                f"terms; {ref_s / 3600:g} h, same workers) = {ref_s / paper_wall:.0f}x real time"
+            )
     floor_after = transport_floor_us()
     floor = min(floor_before, floor_after)
     print(

@@ -2,7 +2,8 @@
 
 These fakes ship beside the real drivers and answer exactly as the chips do
 (register files, FIFOs), driven by signal sources (the standard noise model
-with the paper's Table IV parameters, or a replayed recording). Test-only back
+with the paper's Table IV parameters or a device's datasheet values, through
+the output filter its settings select; or a replayed recording). Test-only back
 doors carry a ``sim_`` prefix.
 """
 
@@ -13,7 +14,8 @@ from collections.abc import Callable
 from typing import Any
 
 from imustation.drivers.sim.i2c import SimSMBus
-from imustation.drivers.sim.sources import ACCEL_SIM_KEYS, GYRO_SIM_KEYS, NoiseSource, SignalSource
+from imustation.drivers.sim.simkeys import ACCEL_SIM_KEYS, GYRO_SIM_KEYS
+from imustation.drivers.sim.sources import NoiseSource, SignalSource, with_filter
 
 __all__ = [
     "SimSMBus",
@@ -24,6 +26,7 @@ __all__ = [
     "simulated_truth",
     "station_device_seed",
     "device_sources",
+    "sim_axes",
 ]
 
 _XYZ = ("x", "y", "z")
@@ -90,13 +93,18 @@ def _with_replays(driver: str, settings: dict, sources: dict[str, SourceFactory]
     from imustation.drivers.sim.sources import ReplaySource
 
     out = dict(sources)
-    axes = ("z",) if driver == "dsp3000" else _XYZ
+    axes = sim_axes(driver)
     rate = _configured_rate(driver, settings)
     for channel, key in (("gyro", "replay"), ("accel", "accel_replay")):
         if key in sim and channel in out:
             source = ReplaySource.open(str(sim[key]), rate, axes, sim)
             out[channel] = lambda fs, source=source: source
     return out
+
+
+def sim_axes(driver: str) -> tuple[str, ...]:
+    """The axes a driver's simulated gyro/accelerometer sources have (the DSP-3000 is single-axis)."""
+    return ("z",) if driver == "dsp3000" else _XYZ
 
 
 def _plan(clock, sim: dict, seed: int):
@@ -202,8 +210,7 @@ def simulated_truth(config) -> dict:
             if ("replay" if channel == "gyro" else "accel_replay") in dev.sim:
                 continue  # a recording: no model to compare with
             src = factory(output_rate(dev))
-            axes = ("z",) if dev.driver == "dsp3000" else _XYZ
-            for axis, model in zip(axes, src.models, strict=True):
+            for axis, model in zip(sim_axes(dev.driver), src.models, strict=True):
                 out[f"{dev.name}/{channel}/{axis}"] = model
     return out
 
@@ -213,11 +220,52 @@ def device_sources(dev, seed: int) -> dict[str, SignalSource]:
 
     ``dev`` is a configured device, ``seed`` its per-device seed
     (:func:`station_device_seed`; ``sim.seed`` overrides it as in the simulators).
-    Used to synthesise a run file at the noise-model level (acquisition.synthesize).
+    Each source is told the output filter the device's settings select, as the chip
+    simulators tell theirs from the registers the driver writes (:func:`.filters.for_device`).
+    Used at the noise-model level (acquisition.modelsim, acquisition.synthesize).
     """
+    from imustation.drivers.sim import filters
+
     factories = _with_replays(dev.driver, dev.settings, SOURCES[dev.driver](dev.sim, seed), dev.sim)
     rate = output_rate(dev)
-    return {channel: factory(rate) for channel, factory in factories.items()}
+    chip_filters = filters.for_device(dev.driver, dev.settings)
+    out: dict[str, SignalSource] = {}
+    for channel, factory in factories.items():
+        chip_filter = chip_filters.get(channel)
+        fs = rate if chip_filter is None else chip_filter.fs_out_hz
+        source = with_filter(factory(fs), chip_filter)
+        # an InvenSense accelerometer outputs 1 kHz: above that the chip repeats its samples
+        out[channel] = source if math.isclose(fs, rate, rel_tol=1e-6) else _Held(source, rate)
+    return out
+
+
+class _Held:
+    """A source read faster than it produces: sample ``k`` of the output is the source's
+    ``floor(k fs_src / fs_hz)`` (what the InvenSense simulator does above 1 kHz)."""
+
+    def __init__(self, source: SignalSource, fs_hz: float):
+        import numpy as np
+
+        self._np = np
+        self.source, self.fs_hz = source, float(fs_hz)
+        self.k = 0
+        self.drawn = 0
+        self.last = None
+
+    def next(self, n: int):
+        np = self._np
+        idx = np.floor(np.arange(self.k, self.k + n) * self.source.fs_hz / self.fs_hz).astype(np.int64)
+        self.k += n
+        fresh = self.source.next(int(idx[-1]) + 1 - self.drawn)
+        pool = fresh if self.last is None else np.vstack([self.last[None, :], fresh])
+        first = self.drawn - (0 if self.last is None else 1)  # source index of pool[0]
+        out = pool[idx - first]
+        self.drawn += len(fresh)
+        self.last = pool[-1]
+        return out
+
+    def temperature(self, t_s: float) -> float:
+        return self.source.temperature(t_s)
 
 
 def station_device_seed(station_seed: int, name: str) -> int:

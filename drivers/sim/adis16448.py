@@ -31,8 +31,9 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import adis16448 as chip
+from imustation.drivers.sim import filters
 from imustation.drivers.sim.faults import FaultPlan
-from imustation.drivers.sim.sources import SignalSource
+from imustation.drivers.sim.sources import SignalSource, fits, with_filter
 
 #: power-on register values; datasheet defaults are UNCONFIRMED (docs/reference/sensors.md §4.2)
 #: except SENS_AVG range code 100 (+-1000 deg/s) [PX4-ADIS]
@@ -127,8 +128,10 @@ class ADIS16448Sim:
         self._chunk_bytes = b""  # burst words of the current chunk as on MISO (big-endian), 26 bytes a sample
         self._chunk_first = 0
         fs = self._rate = self.rate_hz
-        if self.source is None or self.source.fs_hz != fs:
-            self.source = self.source_factory(fs)
+        d = self.regs.get(chip.REG_SMPL_PRD, 0) >> chip.SMPL_PRD_D_SHIFT & 0x1F
+        out_filter = filters.adis16448(d, 2 ** (self.regs.get(chip.REG_SENS_AVG, 0) & 0x7))
+        if not fits(self.source, fs, out_filter):
+            self.source = with_filter(self.source_factory(fs), out_filter)
 
     @property
     def rate_hz(self) -> float:

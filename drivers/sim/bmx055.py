@@ -25,9 +25,10 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import bmx055 as chip
+from imustation.drivers.sim import filters
 from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.regfile import RegisterFileChip
-from imustation.drivers.sim.sources import SignalSource
+from imustation.drivers.sim.sources import SignalSource, fits, with_filter
 
 #: power-on BW code (datasheet reset value not in docs/reference/sensors.md; 0x00 = 2000 Hz/523 Hz assumed)
 POR_BW_CODE = 0x00
@@ -85,8 +86,9 @@ class BMG160Sim(RegisterFileChip):
         self.produced = 0
         self.latest = np.zeros(3, dtype="<i2")
         odr = self.odr_hz
-        if self.source is None or self.source.fs_hz != odr:
-            self.source = self.source_factory(odr)
+        out_filter = filters.bmg160(chip.BW.decode(self.regs[chip.BW.reg]))
+        if not fits(self.source, odr, out_filter):
+            self.source = with_filter(self.source_factory(odr), out_filter)
 
     @property
     def odr_hz(self) -> float:

@@ -26,9 +26,10 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import bmx055_accel as chip
+from imustation.drivers.sim import filters
 from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.regfile import RegisterFileChip
-from imustation.drivers.sim.sources import SignalSource
+from imustation.drivers.sim.sources import SignalSource, fits, with_filter
 
 POR_RANGE_CODE = 0x03
 POR_BW_CODE = 0x0F
@@ -89,8 +90,9 @@ class BMA2x2Sim(RegisterFileChip):
         self.produced = 0
         self.latest = np.zeros(3, dtype=np.int16)
         odr = self.odr_hz
-        if self.source is None or self.source.fs_hz != odr:
-            self.source = self.source_factory(odr)
+        out_filter = filters.bma2x2(min(max(chip.PMU_BW.decode(self.regs[chip.PMU_BW.reg]), _BW_MIN), _BW_MAX))
+        if not fits(self.source, odr, out_filter):
+            self.source = with_filter(self.source_factory(odr), out_filter)
 
     @property
     def odr_hz(self) -> float:

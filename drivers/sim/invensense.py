@@ -38,9 +38,10 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import invensense as chip
+from imustation.drivers.sim import filters
 from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.regfile import RegisterFileChip
-from imustation.drivers.sim.sources import SignalSource
+from imustation.drivers.sim.sources import SignalSource, fits, with_filter
 
 #: FIFO_EN bit -> column of the (accel xyz, temp, gyro xyz) sample row, in FIFO write order
 _FIFO_COLUMNS = ((chip.FIFO_EN_ACCEL, (0, 1, 2)), (chip.FIFO_EN_TEMP, (3,)), (chip.FIFO_EN_XG, (4,)),
@@ -123,11 +124,27 @@ class InvenSenseSim(RegisterFileChip):
         rate = self._rate = self.rate_hz
         self._accel_hz = self.accel_output_hz
         self._running = self.running
-        if self.gyro_src is None or self.gyro_src.fs_hz != rate:
-            self.gyro_src = self.gyro_factory(rate)
-        accel_fs = min(rate, self._accel_hz)
-        if self.accel_src is None or self.accel_src.fs_hz != accel_fs:
-            self.accel_src = self.accel_factory(accel_fs)
+        gyro_filter = self._gyro_filter()
+        if not fits(self.gyro_src, rate, gyro_filter):
+            self.gyro_src = with_filter(self.gyro_factory(rate), gyro_filter)
+        self._check_accel_source()
+
+    def _gyro_filter(self) -> filters.ChipFilter:
+        dlpf = chip.DLPF_CFG.decode(self.regs[chip.DLPF_CFG.reg])
+        return filters.invensense_gyro(self.variant.driver, dlpf, self.regs[chip.REG_SMPLRT_DIV], self._fchoice_b)
+
+    def _check_accel_source(self) -> None:
+        """The accelerometer source for its output rate and filter (the MPU-6500's ACCEL_CONFIG2
+        is no timing register: a write there takes effect at the next sample)."""
+        accel_fs = min(self._rate, self._accel_hz)
+        if self.variant.has_accel_config2:
+            reg = self.regs[chip.A_DLPF_CFG.reg]
+            code, bypass = chip.A_DLPF_CFG.decode(reg), chip.A_FCHOICE_B.decode(reg)
+        else:
+            code, bypass = chip.DLPF_CFG.decode(self.regs[chip.DLPF_CFG.reg]), 0
+        accel_filter = filters.invensense_accel(self.variant.driver, code, accel_fs, bypass)
+        if not fits(self.accel_src, accel_fs, accel_filter):
+            self.accel_src = with_filter(self.accel_factory(accel_fs), accel_filter)
 
     @property
     def _fchoice_b(self) -> int:
@@ -179,6 +196,7 @@ class InvenSenseSim(RegisterFileChip):
 
     def _accel(self, n: int) -> np.ndarray:
         """Accelerometer values for the next ``n`` samples (held at its output rate above it)."""
+        self._check_accel_source()
         assert self.accel_src is not None
         rate = self._rate
         if rate <= self._accel_hz:

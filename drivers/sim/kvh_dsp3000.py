@@ -21,9 +21,10 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import kvh_dsp3000 as chip
+from imustation.drivers.sim import filters
 from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.serial_device import SerialDeviceSim
-from imustation.drivers.sim.sources import SignalSource
+from imustation.drivers.sim.sources import SignalSource, with_filter
 from imustation.units import RAD2DEG
 
 START_UP_S = 1.0  # flag-0 lines after power-on (duration UNCONFIRMED; simulation choice)
@@ -37,7 +38,7 @@ class DSP3000Sim(SerialDeviceSim):
                  rate_hz: float = chip.NOMINAL_RATE_HZ):  # fmt: skip
         super().__init__(clock, plan)
         self.rate_hz = float(rate_hz)
-        self.source = source_factory(self.rate_hz)
+        self.source = with_filter(source_factory(self.rate_hz), filters.interval_mean("KVH DSP-3000", self.rate_hz))
         self.mode = "rate"
         self.integrated_deg = 0.0
         self.sim_resets = 0

@@ -34,9 +34,10 @@ import numpy as np
 
 from imustation.clock import Clock
 from imustation.drivers import xsens_mti as xb
+from imustation.drivers.sim import filters
 from imustation.drivers.sim.faults import FaultPlan
 from imustation.drivers.sim.serial_device import SerialDeviceSim
-from imustation.drivers.sim.sources import SignalSource
+from imustation.drivers.sim.sources import SignalSource, fits, with_filter
 from imustation.units import G0
 
 POWER_ON_CONFIG = (
@@ -100,8 +101,9 @@ class MTiSim(SerialDeviceSim):
         self.t_start_ns = self.clock.now_ns()
         self.emitted = 0
         fs = self.rate_hz
-        if self.source is None or self.source.fs_hz != fs:
-            self.source = self.source_factory(fs)
+        out_filter = filters.interval_mean("Xsens MTi", fs)
+        if not fits(self.source, fs, out_filter):
+            self.source = with_filter(self.source_factory(fs), out_filter)
 
     @property
     def rate_hz(self) -> float:
