@@ -32,6 +32,7 @@ import numpy as np
 
 from imustation import __version__
 from imustation.errors import DiskFullError, ImustationError, RunFileError
+from imustation.h5swmr import open_swmr_reader
 
 FORMAT = "imustation-run"
 FORMAT_VERSION = 1
@@ -658,8 +659,10 @@ class RunFile:
         ]
 
     def dataset(self, device: str, name: str) -> h5py.Dataset:
+        from imustation.runfile_checks import CheckedDataset
+
         try:
-            return self.h5[f"{DEVICES}/{device}/{name}"]
+            return CheckedDataset(self.h5[f"{DEVICES}/{device}/{name}"], self.path, f"{device}/{name}")
         except KeyError:
             raise RunFileError(f"{self.path}: no dataset {device}/{name}") from None
 
@@ -729,7 +732,7 @@ def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
     try:
         # a live reader takes no file lock at all: even the short one HDF5 holds while
         # opening could make the capture's final reopen (to set ended_utc) fail
-        h5 = h5py.File(p, "r", libver="latest", swmr=True, **({"locking": False} if live else {}))
+        h5 = open_swmr_reader(p, locking=False if live else None)
     except OSError as first:
         if live:
             raise RunFileError(f"{p}: not a readable SWMR run file ({first.__class__.__name__})") from None
@@ -737,13 +740,11 @@ def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
             h5 = h5py.File(p, "r")
         except OSError as exc:
             raise RunFileError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__})") from None
-    attrs = {k: _plain(v) for k, v in h5.attrs.items()}
-    fmt = attrs.get("format")
-    if fmt != FORMAT:
+    from imustation.runfile_checks import check_run  # it reads this module's schema names
+
+    try:
+        attrs = check_run(h5, p)
+    except RunFileError:
         h5.close()
-        raise RunFileError(f"{p}: not an imustation run file (format attribute is {fmt!r})")
-    version = attrs.get("format_version")
-    if version != FORMAT_VERSION:
-        h5.close()
-        raise RunFileError(f"{p}: run-file format version {version} is not supported (this is v1)")
+        raise
     return RunFile(path=p, h5=h5, attrs=attrs)
