@@ -24,8 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from imustation.errors import RunFileError
+from imustation.errors import InputError, RunFileError
 from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
+
+#: shortest part of a rotated capture, s: every part is a new HDF5 file (created, fsynced,
+#: renamed, reopened to be marked complete), so parts of milliseconds only make files
+MIN_ROTATE_S = 1.0
+#: most parts a capture may plan (their names are checked and kept up front)
+MAX_PARTS = 10_000
 
 
 class OutputLock:
@@ -71,6 +77,24 @@ def part_path(output: str, part: int) -> str:
     return f"{stem}.{part:03d}{ext or '.h5'}"
 
 
+def rotation_parts(duration_s: float, rotate_s: float | None) -> int:
+    """Parts a capture of ``duration_s`` seconds rotated every ``rotate_s`` seconds makes (1 without rotation).
+
+    Raises :class:`InputError` for a part shorter than MIN_ROTATE_S or more than MAX_PARTS parts.
+    """
+    if rotate_s is None:
+        return 1
+    if not rotate_s >= MIN_ROTATE_S:  # also NaN
+        raise InputError(f"--rotate {rotate_s:g}s: parts must last at least {MIN_ROTATE_S:g} s")
+    n = math.ceil(duration_s / rotate_s)
+    if n > MAX_PARTS:
+        raise InputError(
+            f"--rotate {rotate_s:g}s over --duration {duration_s:g}s makes {n:.3g} parts; at most {MAX_PARTS}"
+            " (choose a longer --rotate)"
+        )
+    return n
+
+
 class Recorder:
     """Writes a capture into one run file, or into parts of ``rotate_s`` station seconds.
 
@@ -109,7 +133,7 @@ class Recorder:
         self.lock = OutputLock(self.output)
         #: station time the capture ends, ns: no part starts there (nothing would follow)
         self._end_ns = int(round(duration_s * 1e9))
-        n_parts = math.ceil(duration_s / rotate_s) if rotate_s else 1
+        n_parts = rotation_parts(duration_s, rotate_s)
         self.planned = [part_path(self.output, k) for k in range(1, n_parts + 1)] if rotate_s else [self.output]
 
     # -- life cycle ---------------------------------------------------------------
