@@ -34,6 +34,7 @@ import numpy as np
 
 from imustation.analysis.choices import TIME_UNITS
 from imustation.analysis.imu_decode import IMU_MD5, decode_imu_cdr
+from imustation.analysis.sample_checks import refuse_impossible
 from imustation.analysis.timestamps import StampChecker, StampReport
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
@@ -507,8 +508,10 @@ def load_npy_log(path: str, time_unit: str | None = None) -> Block:
     """An (n, 4) or (n, 7) array: time, gyro x,y,z[, accel x,y,z] (memory-mapped)."""
     try:
         arr = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:
         raise InputError(f"{path}: not a readable .npy array ({exc})") from None
+    if not isinstance(arr, np.ndarray):
+        raise InputError(f"{path}: a .npz archive, not a .npy array (save one array with numpy.save)")
     if arr.ndim != 2 or arr.shape[1] not in (4, 7) or arr.dtype.kind not in "iuf":
         raise InputError(f"{path}: array of shape {arr.shape}; import needs (n, 4) or (n, 7): time, gyro[, accel]")
     t = np.asarray(arr[:, 0], dtype=np.float64)
@@ -546,6 +549,17 @@ class ImportResult:
 def _device_name(topic: str) -> str:
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", topic.strip("/")) or "imu"
     return name
+
+
+def _refuse_shared_names(path: str, names: dict[str, str]) -> None:
+    """Two topics whose names map to one device or thermometer name (/imu/a, /imu_a) cannot both be stored."""
+    seen: dict[str, str] = {}
+    for topic, name in names.items():
+        if name in seen:
+            raise InputError(
+                f"{path}: topics {seen[name]} and {topic} both map to the name {name!r}; import one at a time (--topic)"
+            )
+        seen[name] = topic
 
 
 def _iso(ns: int) -> str:
@@ -590,6 +604,10 @@ class _Sink:
     def write(self, blk: Block) -> None:
         t, gyro, accel = blk
         start = self.check.r.n
+        source = f"{self.w.devices[self.name].settings['source']}: {self.name}"
+        refuse_impossible(f"{source} gyro", gyro, "rad/s", start)
+        if accel is not None:
+            refuse_impossible(f"{source} accel", accel, "m/s^2", start)
         rel = t - self.t0
         self.check.update(t)
         chans = {"gyro": gyro}
@@ -660,6 +678,7 @@ def import_recording(
         heads = {t: np.concatenate(v) if v else np.empty(0, np.int64) for t, v in probe.items()}
         t0 = min(int(v.min()) for v in heads.values() if len(v))
         names = {t: _device_name(t) for t in heads}
+        _refuse_shared_names(source, {**names, **tnames})
         fmt = "mcap" if source.endswith(".mcap") else "rosbag1" if source.endswith(".bag") else "rosbag2"
         specs = [_device_spec(names[t], _probe_rate(source, heads[t]), source, t, fmt, True) for t in heads]
         writer = RunWriter(

@@ -650,13 +650,9 @@ class RunFile:
         return list(self.h5.get(THERMOMETERS, {}).keys())
 
     def events(self) -> list[Event]:
-        if EVENTS not in self.h5:
-            return []
-        rows = self.h5[EVENTS][()]
-        return [
-            Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
-            for r in rows
-        ]
+        from imustation.runfile_checks import read_events
+
+        return read_events(self.path, self.h5)
 
     def dataset(self, device: str, name: str) -> h5py.Dataset:
         from imustation.runfile_checks import CheckedDataset
@@ -687,9 +683,12 @@ class RunFile:
 
     def temperatures(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Thermometer ``name``: times (ns) and readings (degC), equal lengths."""
+        from imustation.runfile_checks import damaged_file
+
         g = self.h5[f"{THERMOMETERS}/{name}"]
         n = min(g[TIME].shape[0], g[CELSIUS].shape[0])
-        return g[TIME][:n], g[CELSIUS][:n]
+        with damaged_file(self.path, f"thermometer {name}"):
+            return g[TIME][:n], g[CELSIUS][:n]
 
     def refresh(self) -> None:
         """SWMR reader: see what the writer flushed since the file was opened (or last refreshed).

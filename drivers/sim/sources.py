@@ -155,7 +155,7 @@ class NoiseSource:
         N(0, turn_on_bias_std_dps^2) with the seed.
         """
         _check_keys(sim)
-        seed = int(sim.get("seed", default_seed))
+        seed = sim_seed(sim, default_seed)
         return cls._build(
             TABLE_IV.get(table_key, {}),
             axes,
@@ -187,7 +187,7 @@ class NoiseSource:
         sample. The stream is independent of the same device's gyro stream.
         """
         _check_keys(sim)
-        seed = (int(sim.get("seed", default_seed)) + _ACCEL_SEED_SALT) % (2**31)
+        seed = (sim_seed(sim, default_seed) + _ACCEL_SEED_SALT) % (2**31)
         gravity = sim.get("gravity_g", DEFAULT_GRAVITY_G)
         if (
             not isinstance(gravity, (list, tuple))
@@ -238,6 +238,8 @@ class NoiseSource:
                 value = float(value)
             except (TypeError, ValueError):
                 raise SettingError(f"sim.{key} = {value!r}: expected a number") from None
+            if not math.isfinite(value):
+                raise SettingError(f"sim.{key} = {value!r}: expected a finite number")
             if not value > 0 and key != b_on_key:
                 raise SettingError(f"sim.{key} = {value!r}: must be > 0")
             return value
@@ -257,11 +259,29 @@ class NoiseSource:
             models,
             fs_hz,
             seed,
-            temp_c=float(sim.get("temp_c", 30.0)),
-            temp_drift_c=float(sim.get("temp_drift_c", 0.5)),
-            temp_period_s=float(sim.get("temp_period_s", 6 * 3600.0)),
+            temp_c=sim_number(sim, "temp_c", 30.0),
+            temp_drift_c=sim_number(sim, "temp_drift_c", 0.5),
+            temp_period_s=sim_number(sim, "temp_period_s", 6 * 3600.0, positive=True),
             offset=offset,
         )
+
+
+def sim_number(sim: Mapping[str, object], key: str, default: float, *, positive: bool = False) -> float:
+    """``sim[key]`` (or ``default``) as a finite float; ``positive``: also > 0. SettingError otherwise."""
+    value = sim.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SettingError(f"sim.{key} = {value!r}: expected a finite number")
+    if positive and not value > 0:
+        raise SettingError(f"sim.{key} = {value!r}: must be > 0")
+    return float(value)
+
+
+def sim_seed(sim: Mapping[str, object], default: int) -> int:
+    """``sim["seed"]`` (or ``default``): an integer 0 .. 2^63 - 1 (numpy's seeds are non-negative)."""
+    seed = sim.get("seed", default)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise SettingError(f"sim.seed = {seed!r}: expected an integer 0 .. 2^63-1")
+    return seed
 
 
 def _check_keys(sim: Mapping[str, object]) -> None:

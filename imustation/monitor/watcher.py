@@ -38,6 +38,7 @@ from imustation.analysis.temperature import TEMP_READ_HZ, detect_warmup
 from imustation.errors import ImustationError
 from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
 from imustation.runfile import Event, RunFile, open_run
+from imustation.runfile_checks import parse_events
 
 #: station seconds over which ``rate_recent_hz`` is measured
 RATE_WINDOW_S = 10.0
@@ -295,8 +296,7 @@ class Monitor:
             return
         rows = ds[self._events_pos :]
         self._events_pos += len(rows)
-        for r in rows:  # events are rare (one per gap or fault), not per sample
-            ev = Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
+        for ev in parse_events(run.path, rows):  # events are rare (one per gap or fault), not per sample
             self._events.append(
                 {"t_s": ev.t_ns * 1e-9, "source": ev.source, "kind": ev.kind, "lost": ev.lost, "detail": ev.detail}
             )
