@@ -18,30 +18,65 @@ import errno
 import fcntl
 import math
 import os
+import re
 import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from imustation.errors import InputError, RunFileError
-from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
+from imustation.errors import DiskFullError, InputError, RunFileError
+from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES, DeviceSpec, RunWriter, utc_now_iso
 
 #: shortest part of a rotated capture, s: every part is a new HDF5 file (created, fsynced,
 #: renamed, reopened to be marked complete), so parts of milliseconds only make files
 MIN_ROTATE_S = 1.0
 #: most parts a capture may plan (their names are checked and kept up front)
 MAX_PARTS = 10_000
+#: free space a capture needs at its start beyond the reserve and the ballast: a disk
+#: without it would end the capture at its first flush with nothing written
+START_ROOM_BYTES = 2**20
+
+
+_PART_NAME = re.compile(r"^(?P<stem>.+)\.\d{3,}(?P<ext>\.[^./]*)?$")
+
+
+def run_of_part(path: str) -> str | None:
+    """The output whose rotated parts include ``path`` (``run.002.h5`` -> ``run.h5``), or None."""
+    m = _PART_NAME.match(path)
+    return m.group("stem") + (m.group("ext") or ".h5") if m else None
 
 
 class OutputLock:
-    """Exclusive lock on ``<path>.lock`` for the life of a capture."""
+    """Exclusive lock on ``<path>.lock`` for the life of a capture.
+
+    A name that is also a part name of a rotated run (``run.001.h5`` of ``run.h5``)
+    locks that run's name as well, so the whole name set of a rotated capture is
+    locked: nobody writes ``run.001.h5`` (even with --overwrite) or a later part while
+    ``run.h5 --rotate`` records, and that capture never finds its next part taken.
+    """
 
     def __init__(self, path: str):
         self.path = path + ".lock"
         self._fd: int | None = None
+        run = run_of_part(path)
+        self._run = OutputLock(run) if run is not None else None
 
     def acquire(self) -> None:
+        if self._run is not None:
+            try:
+                self._run.acquire()
+            except RunFileError as exc:
+                raise RunFileError(f"{self.path[:-5]} is a part name of {self._run.path[:-5]}: {exc}") from None
+            try:
+                self._acquire()
+            except BaseException:
+                self._run.release()
+                raise
+        else:
+            self._acquire()
+
+    def _acquire(self) -> None:
         try:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
@@ -61,14 +96,15 @@ class OutputLock:
         self._fd = fd
 
     def release(self) -> None:
-        if self._fd is None:
-            return
-        try:
-            os.unlink(self.path)
-        except OSError:
-            pass
-        os.close(self._fd)
-        self._fd = None
+        if self._fd is not None:
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            os.close(self._fd)
+            self._fd = None
+        if self._run is not None:
+            self._run.release()
 
 
 def part_path(output: str, part: int) -> str:
@@ -145,6 +181,27 @@ class Recorder:
                 if os.path.exists(p):
                     self.lock.release()
                     raise RunFileError(f"{p}: file exists; choose another name or --overwrite")
+        try:
+            self._check_room()
+        except DiskFullError:
+            self.lock.release()
+            raise
+
+    def _check_room(self) -> None:
+        """Refuse a disk that holds no data beyond the reserve and the ballast (a capture that
+        would stop at once, its file empty)."""
+        reserve = int(self.writer_options.get("min_free_bytes", DEFAULT_MIN_FREE_BYTES))
+        ballast = int(self.writer_options.get("ballast_bytes", DEFAULT_BALLAST_BYTES))
+        if reserve <= 0:
+            return
+        st = os.statvfs(os.path.dirname(os.path.abspath(self.output)))
+        free = st.f_bavail * st.f_frsize
+        if free < reserve + ballast + START_ROOM_BYTES:
+            mib = 2**20
+            raise DiskFullError(
+                f"{self.output}: {free / mib:.1f} MiB free; a capture keeps {reserve / mib:g} MiB in reserve and "
+                f"{ballast / mib:g} MiB of ballast and needs {START_ROOM_BYTES / mib:g} MiB more for data; free space"
+            )
 
     def start(self, devices: Sequence[DeviceSpec], thermometers: Sequence[str]) -> None:
         self.devices = list(devices)

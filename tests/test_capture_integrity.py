@@ -1,0 +1,111 @@
+"""Captures that readers, other captures and small disks cannot break or replace (issue 24)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from imustation.acquisition.recorder import OutputLock, run_of_part
+from imustation.cli import cli
+from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter, open_run
+
+#: wall seconds a helper process may take to start (far above normal)
+START_LIMIT_S = 120
+
+READERS = {
+    "open_run": "from imustation.runfile import open_run\nf = open_run(sys.argv[1])\n",
+    "h5py-swmr": "import h5py\nf = h5py.File(sys.argv[1], 'r', libver='latest', swmr=True)\n",
+}
+
+
+def _writer(path) -> RunWriter:
+    dev = DeviceSpec(
+        "g", "test", "m", "bus", "id", 100.0, {}, (ChannelSpec("gyro", "<i2", "rad/s", 1e-3, 0.0, ("x", "y", "z")),)
+    )
+    w = RunWriter(path, station="s", config_text="", simulated=True, devices=[dev], fsync=False, ballast_bytes=0)
+    w.append("g", np.arange(1000, dtype=np.int64) * 10_000_000, {"gyro": np.zeros((1000, 3), np.int16)})
+    w.flush()
+    return w
+
+
+@pytest.mark.parametrize("reader", sorted(READERS))
+def test_a_reader_holding_the_file_does_not_break_the_end_of_a_capture(tmp_path, reader):
+    """A SWMR reader holds HDF5's shared lock while the file is open: the writer's reopen to set
+    ended_utc failed after 5 s with BlockingIOError (capture exit 1, file INCOMPLETE)."""
+    path = tmp_path / "held.h5"
+    w = _writer(path)
+    code = "import sys\n" + READERS[reader] + "print('open', flush=True)\nsys.stdin.read()\n"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(path)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout.readline().strip() == "open"  # the reader has the file open (and stays)
+        w.close()
+    finally:
+        proc.stdin.close()
+        proc.wait(START_LIMIT_S)
+    with open_run(path) as run:
+        assert run.complete and run.devices["g"].n == 1000
+
+
+def test_part_names_belong_to_their_run():
+    assert run_of_part("/d/rot.001.h5") == "/d/rot.h5" and run_of_part("rot.0042.hdf5") == "rot.hdf5"
+    assert run_of_part("rot.h5") is None and run_of_part("rot.1.h5") is None
+
+
+def test_the_whole_name_set_of_a_rotated_capture_is_locked(tmp_path, demo_config):
+    """Capture A writes rot.h5 --rotate: B may not write rot.001.h5 (even with --overwrite: it
+    replaced A's open part) nor a later part (A died at its next rotation)."""
+    out = tmp_path / "rot.h5"
+    part1 = tmp_path / "rot.001.h5"
+    part1.write_bytes(b"capture A's open part")
+    a = OutputLock(str(out))  # what capture A holds while it records
+    a.acquire()
+    try:
+        for name, extra in (("rot.001.h5", ["--overwrite"]), ("rot.002.h5", [])):
+            res = CliRunner().invoke(
+                cli,
+                ["capture", demo_config.path, "--simulate", "--duration", "10s", "-o", str(tmp_path / name), *extra],
+            )
+            assert res.exit_code == 2, res.output
+            lines = [ln for ln in res.output.splitlines() if ln.strip()]
+            assert len(lines) == 1 and f"{name} is a part name of" in lines[0] and "another capture" in lines[0], lines
+            assert not (tmp_path / (name + ".lock")).exists()
+        assert part1.read_bytes() == b"capture A's open part"
+        assert not (tmp_path / "rot.002.h5").exists()
+    finally:
+        a.release()
+    # A's lock gone, the part name is free again
+    b = OutputLock(str(tmp_path / "rot.002.h5"))
+    b.acquire()
+    b.release()
+
+
+@pytest.fixture
+def small_filesystem(tmp_path):
+    """An 8 MiB tmpfs (needs root and a kernel that lets us mount; skipped otherwise)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode().strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def test_a_disk_smaller_than_reserve_and_ballast_is_refused_at_the_start(small_filesystem, demo_config):
+    """A 20 MiB disk used to give a capture that wrote 0 samples: the 16 MiB reserve and the
+    4 MiB ballast took it all. Refused before any device or file is touched."""
+    out = small_filesystem / "run.h5"
+    res = CliRunner().invoke(cli, ["capture", demo_config.path, "--simulate", "--duration", "10s", "-o", str(out)])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "MiB free" in lines[0] and "reserve" in lines[0], lines
+    assert list(small_filesystem.iterdir()) == []
