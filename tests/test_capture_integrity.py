@@ -109,3 +109,54 @@ def test_a_disk_smaller_than_reserve_and_ballast_is_refused_at_the_start(small_f
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert len(lines) == 1 and "MiB free" in lines[0] and "reserve" in lines[0], lines
     assert list(small_filesystem.iterdir()) == []
+
+
+KILLED_WRITER = """
+import os, signal, sys
+import numpy as np
+from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
+spec = (ChannelSpec("gyro", "<i2", "rad/s", 1e-3, 0.0, ("x", "y", "z")),)
+dev = DeviceSpec("g", "test", "m", "bus", "id", 100.0, {}, spec)
+w = RunWriter(sys.argv[1], station="s", config_text="", simulated=True, devices=[dev], ballast_bytes=0)
+t = np.arange(3000, dtype=np.int64) * 10_000_000
+w.append("g", t[:2000], {"gyro": (np.arange(6000) % 300).reshape(2000, 3).astype(np.int16)})
+w.event(int(t[1999]), "g", "gap", "a gap", lost=3)
+w.flush()
+w.append("g", t[2000:], {"gyro": np.ones((1000, 3), np.int16)})  # read, never flushed
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_recover_makes_a_killed_capture_a_plain_complete_file(tmp_path):
+    """After kill -9 the file opened only with a SWMR-aware reader ("already open for write,
+    use h5clear"); `imustation recover` makes it a plain, complete file marked recovered."""
+    import h5py
+
+    path = tmp_path / "killed.h5"
+    res = subprocess.run([sys.executable, "-c", KILLED_WRITER, str(path)], capture_output=True, timeout=START_LIMIT_S)
+    assert res.returncode == -9, res.stderr
+    with pytest.raises(OSError, match="already open for write"):
+        h5py.File(path, "r")
+    out = CliRunner().invoke(cli, ["inspect", str(path)])
+    assert out.exit_code == 0 and f"imustation recover {path}" in out.output
+    with open_run(path) as run:
+        before = run.read("g", "gyro")
+    assert len(before) == 2000
+
+    out = CliRunner().invoke(cli, ["recover", str(path)])
+    assert out.exit_code == 0, out.output
+    assert "recovered" in out.output and "before-recover" in out.output
+    with h5py.File(path, "r") as f:  # any HDF5 reader, no SWMR
+        assert f["devices/g/gyro"].shape == (2000, 3)
+    with open_run(path) as run:
+        assert run.complete and "cut off by a crash" in run.attrs["recovered"]
+        assert np.array_equal(run.read("g", "gyro"), before)
+        events = run.events()
+        assert [e.kind for e in events] == ["gap", "note"] and events[0].lost == 3
+        assert "never written" in events[-1].detail
+        assert run.attrs["ended_utc"] > run.attrs["started_utc"]
+    assert (tmp_path / "killed.h5.before-recover").exists()
+    out = CliRunner().invoke(cli, ["recover", str(path)])
+    assert out.exit_code == 0 and "nothing to recover" in out.output
+    out = CliRunner().invoke(cli, ["inspect", str(path)])
+    assert "recovered" in out.output and "INCOMPLETE" not in out.output
