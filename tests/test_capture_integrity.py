@@ -160,3 +160,36 @@ def test_recover_makes_a_killed_capture_a_plain_complete_file(tmp_path):
     assert out.exit_code == 0 and "nothing to recover" in out.output
     out = CliRunner().invoke(cli, ["inspect", str(path)])
     assert "recovered" in out.output and "INCOMPLETE" not in out.output
+
+
+SIGTERM_AT_START = """
+import os, signal, sys
+import imustation.acquisition as acq
+from imustation.cli import main
+real = acq.load_config
+
+def load_config(path):  # SIGTERM while the capture starts up (here: as the config is read)
+    os.kill(os.getpid(), signal.SIGTERM)
+    return real(path)
+
+acq.load_config = load_config
+sys.argv = ["imustation", "capture", *sys.argv[1:]]
+main()
+"""
+
+
+def test_sigterm_during_start_up_still_leaves_a_finished_file(tmp_path, demo_config):
+    """SIGTERM in the first moments (imports, config, opening devices) killed the process with
+    nothing left; now the capture creates its file and finishes it at once, with the stop noted."""
+    out = tmp_path / "early.h5"
+    argv = [demo_config.path, "--simulate", "--duration", "1h", "-o", str(out), "--quiet"]
+    res = subprocess.run(
+        [sys.executable, "-c", SIGTERM_AT_START, *argv], capture_output=True, text=True, timeout=START_LIMIT_S
+    )
+    assert res.returncode == 0, res.stderr
+    assert "stopped by signal SIGTERM" in res.stdout + res.stderr
+    with open_run(out) as run:
+        assert run.complete
+        assert any(e.kind == "note" and "stopped by signal SIGTERM" in e.detail for e in run.events())
+        assert run.devices["bmx055"].n < 400 * 3600
+    assert not os.path.exists(str(out) + ".lock")
