@@ -419,7 +419,9 @@ def build_corpus(folder: Path, seed: int = 1, size: str = "small") -> list[Case]
     cases: list[Case] = []
     readers = RUN_READERS if size == "large" else {k: RUN_READERS[k] for k in ("inspect", "analyze", "monitor")}
 
-    def add_run(name: str, path: Path, refuse: Callable[[str], bool]) -> None:
+    quick = {k: RUN_READERS[k] for k in ("inspect", "analyze", "monitor")}
+
+    def add_run(name: str, path: Path, refuse: Callable[[str], bool], readers: dict = readers) -> None:
         for cmd, argv in readers.items():
             args = tuple(a.format(path=path, out=folder / f"{name}.{cmd}") for a in argv)
             cases.append(
@@ -441,14 +443,14 @@ def build_corpus(folder: Path, seed: int = 1, size: str = "small") -> list[Case]
         cut = rng.randrange(0, len(raw))
         p = folder / f"cut{i}.h5"
         p.write_bytes(raw[:cut])
-        add_run(f"cut{cut}", p, lambda cmd: True)
+        add_run(f"cut{cut}", p, lambda cmd: True, quick)
     for i in range(4 if size != "large" else 40):
         data = bytearray(raw)
         pos = rng.randrange(len(data))
         data[pos] ^= 1 << rng.randrange(8)
         p = folder / f"flip{i}.h5"
         p.write_bytes(bytes(data))
-        add_run(f"flip{pos}", p, lambda cmd: False)
+        add_run(f"flip{pos}", p, lambda cmd: False, quick)
     arrays = array_inputs(folder, rng)
     for name, path, expect in arrays:
         for cmd, argv in ARRAY_READERS.items():
