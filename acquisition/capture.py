@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from imustation.acquisition.config import StationConfig
@@ -63,6 +63,7 @@ def capture(
     replay: str | os.PathLike | None = None,
     workers: int = 1,
     sim_level: str = "bus",
+    early_stop: Sequence[int] = (),
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -80,6 +81,9 @@ def capture(
         the drivers must ask exactly what they asked when it was recorded.
     workers : simulation on the virtual clock only: processes to poll the bus
         groups in (see :mod:`~imustation.acquisition.workers`); 1 = this one.
+    early_stop : SIGINT/SIGTERM received before this call (the CLI records them from its
+        start, read once the capture's own handlers are in place): the capture opens its
+        devices, creates its file and finishes it at once, with the stop's note.
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
@@ -123,6 +127,8 @@ def capture(
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, stop.handler)
+    if early_stop:
+        stop.signum = early_stop[0]
     started = False
     try:
         specs = station.open()

@@ -73,6 +73,8 @@ def load_config(path: str | os.PathLike) -> StationConfig:
         raise ConfigError(p, None, "not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(p, None, f"invalid TOML: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise ConfigError(p, None, "invalid TOML: arrays or tables nested too deep") from None
     return parse_config(data, path=p, text=text)
 
 
@@ -88,6 +90,8 @@ def parse_config(data: Mapping[str, Any], *, path: str = "<config>", text: str =
             raise ConfigError(path, f"station.{key}", f"unknown key (allowed: {', '.join(STATION_KEYS)})")
         if not isinstance(value, STATION_KEYS[key]) or isinstance(value, bool):
             raise ConfigError(path, f"station.{key}", f"wrong type {type(value).__name__}")
+    if not 0 <= station.get("seed", 1) < 2**63:
+        raise ConfigError(path, "station.seed", f"{station['seed']}: an integer 0 .. 2^63-1")
     flush = float(station.get("flush_interval_s", 1.0))
     if not 0.05 <= flush <= 60:
         raise ConfigError(path, "station.flush_interval_s", f"{flush} outside 0.05 .. 60 s")
@@ -171,9 +175,12 @@ def _parse_thermometer(path: str, i: int, entry: Any, names: set[str]) -> Thermo
     if driver not in THERMOMETER_DRIVERS:
         known = ", ".join(sorted(THERMOMETER_DRIVERS)) or "none yet"
         raise ConfigError(path, f"{where}.driver", f"{driver!r} is not a thermometer driver (known: {known})")
+    sim = entry.get("sim", {})
+    if not isinstance(sim, dict):
+        raise ConfigError(path, f"{where}.sim", "must be a table")
     settings = {k: v for k, v in entry.items() if k not in DEVICE_CORE_KEYS}
     try:
         settings = THERMOMETER_DRIVERS[driver].check_settings(settings)
     except ImustationError as exc:
         raise ConfigError(path, f"{where} ({name})", str(exc)) from None
-    return ThermometerConfig(name, str(driver), bus, address, settings, dict(entry.get("sim", {})), i)
+    return ThermometerConfig(name, str(driver), bus, address, settings, dict(sim), i)

@@ -18,6 +18,7 @@ import errno
 import fcntl
 import math
 import os
+import re
 import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -25,18 +26,58 @@ from typing import Any
 import numpy as np
 
 from imustation.acquisition.station import OpenedDevice
-from imustation.errors import RunFileError
-from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
+from imustation.errors import DiskFullError, InputError, RunFileError
+from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES, DeviceSpec, RunWriter, utc_now_iso
+
+#: shortest part of a rotated capture, s: every part is a new HDF5 file (created, fsynced,
+#: renamed, reopened to be marked complete), so parts of milliseconds only make files
+MIN_ROTATE_S = 1.0
+#: most parts a capture may plan (their names are checked and kept up front)
+MAX_PARTS = 10_000
+#: free space a capture needs at its start beyond the reserve and the ballast: a disk
+#: without it would end the capture at its first flush with nothing written
+START_ROOM_BYTES = 2**20
+
+
+_PART_NAME = re.compile(r"^(?P<stem>.+)\.\d{3,}(?P<ext>\.[^./]*)?$")
+
+
+def run_of_part(path: str) -> str | None:
+    """The output whose rotated parts include ``path`` (``run.002.h5`` -> ``run.h5``), or None."""
+    m = _PART_NAME.match(path)
+    return m.group("stem") + (m.group("ext") or ".h5") if m else None
 
 
 class OutputLock:
-    """Exclusive lock on ``<path>.lock`` for the life of a capture."""
+    """Exclusive lock on ``<path>.lock`` for the life of a capture.
+
+    A name that is also a part name of a rotated run (``run.001.h5`` of ``run.h5``)
+    locks that run's name as well, so the whole name set of a rotated capture is
+    locked: nobody writes ``run.001.h5`` (even with --overwrite) or a later part while
+    ``run.h5 --rotate`` records, and that capture never finds its next part taken.
+    """
 
     def __init__(self, path: str):
         self.path = path + ".lock"
         self._fd: int | None = None
+        run = run_of_part(path)
+        self._run = OutputLock(run) if run is not None else None
 
     def acquire(self) -> None:
+        if self._run is not None:
+            try:
+                self._run.acquire()
+            except RunFileError as exc:
+                raise RunFileError(f"{self.path[:-5]} is a part name of {self._run.path[:-5]}: {exc}") from None
+            try:
+                self._acquire()
+            except BaseException:
+                self._run.release()
+                raise
+        else:
+            self._acquire()
+
+    def _acquire(self) -> None:
         try:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
@@ -56,14 +97,15 @@ class OutputLock:
         self._fd = fd
 
     def release(self) -> None:
-        if self._fd is None:
-            return
-        try:
-            os.unlink(self.path)
-        except OSError:
-            pass
-        os.close(self._fd)
-        self._fd = None
+        if self._fd is not None:
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            os.close(self._fd)
+            self._fd = None
+        if self._run is not None:
+            self._run.release()
 
 
 def run_file_device(dev: OpenedDevice) -> DeviceSpec:
@@ -87,6 +129,24 @@ def part_path(output: str, part: int) -> str:
     """``run.h5``, part 3 -> ``run.003.h5``."""
     stem, ext = os.path.splitext(output)
     return f"{stem}.{part:03d}{ext or '.h5'}"
+
+
+def rotation_parts(duration_s: float, rotate_s: float | None) -> int:
+    """Parts a capture of ``duration_s`` seconds rotated every ``rotate_s`` seconds makes (1 without rotation).
+
+    Raises :class:`InputError` for a part shorter than MIN_ROTATE_S or more than MAX_PARTS parts.
+    """
+    if rotate_s is None:
+        return 1
+    if not rotate_s >= MIN_ROTATE_S:  # also NaN
+        raise InputError(f"--rotate {rotate_s:g}s: parts must last at least {MIN_ROTATE_S:g} s")
+    n = math.ceil(duration_s / rotate_s)
+    if n > MAX_PARTS:
+        raise InputError(
+            f"--rotate {rotate_s:g}s over --duration {duration_s:g}s makes {n:.3g} parts; at most {MAX_PARTS}"
+            " (choose a longer --rotate)"
+        )
+    return n
 
 
 class Recorder:
@@ -127,7 +187,7 @@ class Recorder:
         self.lock = OutputLock(self.output)
         #: station time the capture ends, ns: no part starts there (nothing would follow)
         self._end_ns = int(round(duration_s * 1e9))
-        n_parts = math.ceil(duration_s / rotate_s) if rotate_s else 1
+        n_parts = rotation_parts(duration_s, rotate_s)
         self.planned = [part_path(self.output, k) for k in range(1, n_parts + 1)] if rotate_s else [self.output]
 
     # -- life cycle ---------------------------------------------------------------
@@ -139,6 +199,27 @@ class Recorder:
                 if os.path.exists(p):
                     self.lock.release()
                     raise RunFileError(f"{p}: file exists; choose another name or --overwrite")
+        try:
+            self._check_room()
+        except DiskFullError:
+            self.lock.release()
+            raise
+
+    def _check_room(self) -> None:
+        """Refuse a disk that holds no data beyond the reserve and the ballast (a capture that
+        would stop at once, its file empty)."""
+        reserve = int(self.writer_options.get("min_free_bytes", DEFAULT_MIN_FREE_BYTES))
+        ballast = int(self.writer_options.get("ballast_bytes", DEFAULT_BALLAST_BYTES))
+        if reserve <= 0:
+            return
+        st = os.statvfs(os.path.dirname(os.path.abspath(self.output)))
+        free = st.f_bavail * st.f_frsize
+        if free < reserve + ballast + START_ROOM_BYTES:
+            mib = 2**20
+            raise DiskFullError(
+                f"{self.output}: {free / mib:.1f} MiB free; a capture keeps {reserve / mib:g} MiB in reserve and "
+                f"{ballast / mib:g} MiB of ballast and needs {START_ROOM_BYTES / mib:g} MiB more for data; free space"
+            )
 
     def start(self, devices: Sequence[OpenedDevice], thermometers: Sequence[str]) -> None:
         """Create the first part for the opened ``devices`` and the ``thermometers`` (names)."""

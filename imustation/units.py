@@ -15,12 +15,13 @@ DPH2RADPS = DEG2RAD / 3600.0
 #: one sidereal day, s; earth rate = 2 pi / sidereal day
 EARTH_RATE = 2.0 * math.pi / 86164.0905
 
-_DURATION_RE = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(d|h|m|min|s|ms)?", re.IGNORECASE)
+# longest unit first: with "m" before "min"/"ms" the alternation stopped at "m" and 90min, 500ms failed
+_DURATION_RE = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(min|ms|d|h|m|s)?", re.IGNORECASE)
 _UNIT_S = {"d": 86400.0, "h": 3600.0, "m": 60.0, "min": 60.0, "s": 1.0, "ms": 1e-3, None: 1.0}
 
 
 def parse_duration(text: str | float | int) -> float:
-    """Parse ``"12h"``, ``"1h30m"``, ``"90s"``, ``"2.5h"`` or plain seconds into seconds.
+    """Parse ``"12h"``, ``"1h30m"``, ``"90min"``, ``"500ms"``, ``"2.5h"`` or plain seconds into seconds.
 
     Raises :class:`InputError` naming the text and the accepted forms.
     """

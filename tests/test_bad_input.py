@@ -107,3 +107,29 @@ def test_bad_rate_value(tmp_path):
 def test_no_matching_channel(tmp_path, sim_run):
     path, _ = sim_run
     assert_one_line_error(run("analyze", str(path), "--channel", "nope/*"), "no channels matching nope/*")
+
+
+@pytest.mark.parametrize(
+    "text,seconds",
+    [("90min", 5400.0), ("500ms", 0.5), ("1h30m", 5400.0), ("5m30s", 330.0), ("1d2h", 93600.0), ("45", 45.0)],
+)
+def test_parse_duration_takes_every_unit_it_defines(text, seconds):
+    from imustation.units import parse_duration
+
+    assert parse_duration(text) == pytest.approx(seconds)
+
+
+@pytest.mark.parametrize(
+    "rotate,duration,needles",
+    [
+        ("1s", "1000000d", ["--rotate 1s", "parts", "at most 10000"]),
+        ("0.01s", "1m", ["--rotate 0.01s", "at least 1 s"]),
+    ],
+)
+def test_rotation_is_bounded_before_anything_is_written(tmp_path, demo_config, rotate, duration, needles):
+    """Part names used to be built for every part up front (out of memory for 8.6e10 parts), and
+    --rotate 0.01s made tens of thousands of files; both are refused before any file exists."""
+    out = tmp_path / "rot.h5"
+    res = run("capture", demo_config.path, "--simulate", "-o", str(out), "--rotate", rotate, "--duration", duration)
+    assert_one_line_error(res, *needles)
+    assert list(tmp_path.iterdir()) == []

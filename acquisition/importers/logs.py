@@ -201,8 +201,10 @@ def load_npy_log(path: str, time_unit: str | None = None) -> Rows:
     """An (n, 4) or (n, 7) array: time, gyro x,y,z[, accel x,y,z] (memory-mapped)."""
     try:
         arr = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:
         raise InputError(f"{path}: not a readable .npy array ({exc})") from None
+    if not isinstance(arr, np.ndarray):
+        raise InputError(f"{path}: a .npz archive, not a .npy array (save one array with numpy.save)")
     if arr.ndim != 2 or arr.shape[1] not in (4, 7) or arr.dtype.kind not in "iuf":
         raise InputError(f"{path}: array of shape {arr.shape}; import needs (n, 4) or (n, 7): time, gyro[, accel]")
     t = np.asarray(arr[:, 0], dtype=np.float64)

@@ -21,6 +21,7 @@ from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.acquisition.importers.sources import Recording, open_recording
 from imustation.acquisition.importers.timestamps import StampChecker, StampReport
 from imustation.runfile import RunWriter
+from imustation.sample_checks import refuse_impossible
 
 #: rows queued (all devices) before the run writer flushes: 2^16 rows = 3.7 MB (its default, 2^20, is 59 MB)
 WRITE_ROWS = 1 << 16
@@ -55,8 +56,9 @@ class ImportResult:
 class _Sink:
     """Writes blocks of one device and logs the stamp problems as events."""
 
-    def __init__(self, target: Target, name: str, t0: int, with_accel: bool, period_ns: float):
+    def __init__(self, target: Target, name: str, t0: int, with_accel: bool, period_ns: float, source: str = ""):
         self.w, self.name, self.t0, self.with_accel = target, name, t0, with_accel
+        self.where = f"{source}: {name}" if source else name
         self.check = StampChecker(period_ns=period_ns)
         self._logged = 0
         self._prev_last = 0
@@ -64,6 +66,10 @@ class _Sink:
     def write(self, blk: Rows) -> None:
         t, gyro, accel = blk
         start = self.check.r.n
+        # a flipped bit in a float's exponent must not become a "measured" 4e19 rad/s
+        refuse_impossible(f"{self.where} gyro", gyro, "rad/s", start)
+        if accel is not None:
+            refuse_impossible(f"{self.where} accel", accel, "m/s^2", start)
         rel = t - self.t0
         self.check.update(t)
         chans = {"gyro": gyro}
@@ -102,7 +108,9 @@ def feed(rec: Recording, target: Target, progress: Progress | None = None) -> Im
     ``progress(done, total)`` after each Imu block. Returns the result without ``path``.
     """
     sinks = {
-        key: _Sink(target, spec.name, rec.t0, any(c.name == "accel" for c in spec.channels), 1e9 / spec.rate_hz)
+        key: _Sink(
+            target, spec.name, rec.t0, any(c.name == "accel" for c in spec.channels), 1e9 / spec.rate_hz, rec.source
+        )
         for key, spec in rec.devices.items()
     }
     readings = dict.fromkeys(rec.thermometers, 0)

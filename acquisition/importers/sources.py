@@ -121,6 +121,7 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
     devices = {t: _device_spec(_device_name(t), _probe_rate(source, h), source, t, fmt, True) for t, h in heads.items()}
     t0 = min(int(v.min()) for v in heads.values())
     thermometers = {t: _device_name(t) for t in temps}
+    _refuse_shared_names(source, {**{t: d.name for t, d in devices.items()}, **thermometers})
     notes: list[str] = []
 
     def blocks() -> Iterator[tuple[str, int | None, Rows]]:
@@ -147,6 +148,17 @@ def _open_log(
     spec = _device_spec("imu", _probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, with_accel)
     keyed = (("", pos, blk) for pos, blk in chain([first], blocks))
     return Recording(source, fmt, int(t.min()), {"": spec}, keyed, total)
+
+
+def _refuse_shared_names(path: str, names: dict[str, str]) -> None:
+    """Two topics whose names map to one device or thermometer name (/imu/a, /imu_a) cannot both be stored."""
+    seen: dict[str, str] = {}
+    for topic, name in names.items():
+        if name in seen:
+            raise InputError(
+                f"{path}: topics {seen[name]} and {topic} both map to the name {name!r}; import one at a time (--topic)"
+            )
+        seen[name] = topic
 
 
 def _device_name(topic: str) -> str:

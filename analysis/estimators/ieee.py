@@ -38,6 +38,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from imustation.analysis.estimators.allan import AllanResult
+from imustation.errors import InputError
 
 B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643: flat ADEV of flicker noise / B
 TERMS = ("Q", "N", "B", "K", "R")
@@ -131,6 +132,10 @@ def fit_terms(res: AllanResult) -> tuple[np.ndarray, np.ndarray, float]:
     if np.count_nonzero(ok) < 3:
         ok = avar > 0
     tau, avar, edf = tau[ok], avar[ok], edf[ok]
+    if len(tau) < 2:
+        raise InputError(
+            "the Allan variance is zero or undefined at every tau (a constant or non-finite signal): nothing to fit"
+        )
     A = _basis(tau)
     grid = [math.nan] + list(np.logspace(np.log10(tau[0]), np.log10(tau[-1]), _GM_GRID))
     best = None
@@ -138,13 +143,18 @@ def fit_terms(res: AllanResult) -> tuple[np.ndarray, np.ndarray, float]:
         G = A if math.isnan(T) else np.column_stack([A, gm_avar(tau, T)])
         for mask in range(1, 1 << 5):
             cols = [j for j in range(5) if mask >> j & 1] + ([] if math.isnan(T) else [5])
-            theta_s, w, chi2 = _irls(G[:, cols], avar, edf)
+            try:
+                theta_s, w, chi2 = _irls(G[:, cols], avar, edf)
+            except RuntimeError:  # scipy's nnls gave up (e.g. a pure ramp's exact tau^2 curve): not a candidate
+                continue
             k = int(np.count_nonzero(theta_s)) + (0 if math.isnan(T) else 1)  # T is a parameter too
             crit = chi2 + k * math.log(len(tau))
             if best is None or crit < best[0] - 1e-9:
                 theta = np.zeros(6)
                 theta[cols] = theta_s
                 best = (crit, theta, w, T, G)
+    if best is None:
+        raise InputError("the IEEE-952 fit found no solution for any set of terms (non-negative least squares failed)")
     _, theta, w, T, G = best
     active = theta[: G.shape[1]] > 0
     se = np.full(6, np.nan)

@@ -16,6 +16,7 @@ import numpy as np
 
 from imustation.errors import InputError
 from imustation.runfile import open_run
+from imustation.sample_checks import refuse_impossible
 
 
 class NoChannelsError(InputError):
@@ -94,7 +95,10 @@ class Channel:
         with open_run(path) as run:
             ds = run.dataset(device, name)
             for i in range(0, n, rows):
-                yield ds[i : min(i + rows, n), column]
+                block = ds[i : min(i + rows, n), column]
+                if block.dtype.kind == "f":  # integer counts are bounded by the chip's range
+                    refuse_impossible(f"{path}: {self.id}", block * self.scale, self.units, i)
+                yield block
 
     def rate(self) -> np.ndarray:
         """Samples in SI units (float64)."""
@@ -218,10 +222,14 @@ def _array_channels(path: str, arr: np.ndarray, fs_hz: float | None) -> list[Cha
 
 def load_npy(path: str, fs_hz: float | None) -> list[Channel]:
     try:
-        arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+        # memory-mapped first: a header claiming more rows than the file holds fails here
+        # instead of allocating them
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
         raise InputError(f"{path}: not a readable .npy array ({exc})") from None
-    return _array_channels(path, arr, fs_hz)
+    if not isinstance(arr, np.ndarray):
+        raise InputError(f"{path}: a .npz archive, not a .npy array (save one array with numpy.save)")
+    return _array_channels(path, np.array(arr), fs_hz)
 
 
 def load_csv(path: str, fs_hz: float | None) -> list[Channel]:
@@ -230,6 +238,8 @@ def load_csv(path: str, fs_hz: float | None) -> list[Channel]:
             first = fh.readline()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start} of its first line)") from None
     delim = "," if "," in first else None
     try:
         [float(v) for v in first.replace(",", " ").split()]

@@ -177,17 +177,13 @@ def make_thermometer_simulator(driver: str, clock, settings: dict, sim: dict, se
     if driver != "mcp9804":
         raise SettingError(f"thermometer driver {driver!r} has no simulator")
     from imustation.drivers.sim.mcp9804 import MCP9804Sim
+    from imustation.drivers.sim.sources import sim_number, sim_seed
 
-    seed = int(sim.get("seed", seed))
+    seed = sim_seed(sim, seed)
     plan = _plan(clock, sim, seed)
-    try:
-        temp_c = float(sim.get("temp_c", THERMOMETER_TEMP_C))
-        drift_c = float(sim.get("temp_drift_c", THERMOMETER_DRIFT_C))
-        period_s = float(sim.get("temp_period_s", THERMOMETER_PERIOD_S))
-    except (TypeError, ValueError):
-        raise SettingError("sim.temp_c, temp_drift_c, temp_period_s: expected numbers") from None
-    if not period_s > 0:
-        raise SettingError(f"sim.temp_period_s = {period_s}: must be > 0")
+    temp_c = sim_number(sim, "temp_c", THERMOMETER_TEMP_C)
+    drift_c = sim_number(sim, "temp_drift_c", THERMOMETER_DRIFT_C)
+    period_s = sim_number(sim, "temp_period_s", THERMOMETER_PERIOD_S, positive=True)
     phase = float(np.random.default_rng([seed, 0x7E4A]).uniform(0.0, 2.0 * math.pi))
 
     def ambient(t_s: float) -> float:

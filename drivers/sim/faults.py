@@ -21,6 +21,7 @@ run file's event log.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -44,6 +45,9 @@ FAULT_KINDS = {
 _SPEC_KEYS = ("kind", "at_s", "every_s", "duration_s", "delay_s")
 #: the extra time of each transaction of a ``slow`` window when ``delay_s`` is not given, s
 DEFAULT_SLOW_DELAY_S = 0.002
+#: shortest mean interval between faults, s: a plan draws every fault of the capture, and
+#: every_s = 1e-300 never finished drawing them
+MIN_EVERY_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -78,13 +82,13 @@ def parse_faults(entries: Sequence[Mapping[str, object]], where: str = "sim.faul
             value = entry.get(key)
             if value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
-                raise SettingError(f"{w}.{key} = {value!r}: a non-negative number of seconds")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
+                raise SettingError(f"{w}.{key} = {value!r}: a finite, non-negative number of seconds")
             nums[key] = float(value)
         if "at_s" not in nums and "every_s" not in nums:
             raise SettingError(f"{w}: give at_s (one event) or every_s (mean interval), or both")
-        if nums.get("every_s") == 0:
-            raise SettingError(f"{w}.every_s: must be > 0")
+        if nums.get("every_s", MIN_EVERY_S) < MIN_EVERY_S:
+            raise SettingError(f"{w}.every_s = {nums['every_s']:g}: at least {MIN_EVERY_S:g} s between faults")
         if "delay_s" in nums and kind != "slow":
             raise SettingError(f"{w}.delay_s: only a 'slow' fault has a per-transaction delay")
         if kind == "slow" and not nums.get("duration_s"):

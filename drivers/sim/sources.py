@@ -206,7 +206,7 @@ class NoiseSource:
         are drawn from N(0, turn_on_bias_std_dps^2) with the seed.
         """
         _check_keys(sim)
-        seed = int(sim.get("seed", default_seed))
+        seed = sim_seed(sim, default_seed)
         return cls._build(
             TABLE_IV.get(table_key, {}),
             table_key,
@@ -241,7 +241,7 @@ class NoiseSource:
         temperature (and its warm-up) is the device's.
         """
         _check_keys(sim)
-        seed = (int(sim.get("seed", default_seed)) + _ACCEL_SEED_SALT) % (2**31)
+        seed = (sim_seed(sim, default_seed) + _ACCEL_SEED_SALT) % (2**31)
         gravity = sim.get("gravity_g", DEFAULT_GRAVITY_G)
         if (
             not isinstance(gravity, (list, tuple))
@@ -332,6 +332,24 @@ class NoiseSource:
             bias_tempco=tempco,
             filtering=bool(eff.get("filter", profile == "datasheet")),
         )
+
+
+def sim_number(sim: Mapping[str, object], key: str, default: float, *, positive: bool = False) -> float:
+    """``sim[key]`` (or ``default``) as a finite float; ``positive``: also > 0. SettingError otherwise."""
+    value = sim.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SettingError(f"sim.{key} = {value!r}: expected a finite number")
+    if positive and not value > 0:
+        raise SettingError(f"sim.{key} = {value!r}: must be > 0")
+    return float(value)
+
+
+def sim_seed(sim: Mapping[str, object], default: int) -> int:
+    """``sim["seed"]`` (or ``default``): an integer 0 .. 2^63 - 1 (numpy's seeds are non-negative)."""
+    seed = sim.get("seed", default)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        raise SettingError(f"sim.seed = {seed!r}: expected an integer 0 .. 2^63-1")
+    return seed
 
 
 def _check_keys(sim: Mapping[str, object]) -> None:

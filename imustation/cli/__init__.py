@@ -79,6 +79,7 @@ from imustation.cli import (  # noqa: E402,F401
     importcmd,
     inspect,
     monitor,
+    recover,
     report,
     study,
 )

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
+import threading
 
 import click
 
@@ -19,6 +21,17 @@ def _bytes(n: int) -> str:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1024
     return str(n)
+
+
+def _record_stop_signals() -> list[int]:
+    """SIGINT/SIGTERM received from now until the command ends, in order (handlers restored then)."""
+    early: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        return early
+    sigs = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, lambda signum, _frame: early.append(signum)) for sig in sigs}
+    click.get_current_context().call_on_close(lambda: [signal.signal(s, h) for s, h in previous.items()])
+    return early
 
 
 def format_status(status: dict) -> str:
@@ -158,6 +171,9 @@ def capture(
     SIGTERM stops the capture cleanly and finishes the file; after a crash the
     file holds every sample up to the last flush (see docs/capture.md).
     """
+    # a stop asked for while the imports, the config and the devices take their time must
+    # still give a finished file (capture() reads it), not a process killed with nothing left
+    early = _record_stop_signals()
     from imustation.acquisition import capture as run_capture
     from imustation.acquisition import load_config
     from imustation.acquisition.modes import check_options, workers_possible
@@ -204,6 +220,7 @@ def capture(
             replay=replay_file,
             workers=n_workers,
             sim_level=sim_level,
+            early_stop=early,
         )
     finally:
         launcher.stop()

@@ -19,7 +19,8 @@ def inspect(run: str) -> None:
 
     with open_run(run) as rf:
         a = rf.attrs
-        state = "complete" if rf.complete else "INCOMPLETE (still recording, or cut off by a crash)"
+        crashed = f"still recording, or cut off by a crash: then `imustation recover {run}` completes it"
+        state = "complete" if rf.complete else f"INCOMPLETE ({crashed})"
         click.echo(f"{run}: {a.get('format')} v{a.get('format_version')}, station {a.get('station')!r}, {state}")
         click.echo(
             f"  started {a.get('started_utc')}  ended {a.get('ended_utc', '-')}"
@@ -32,6 +33,8 @@ def inspect(run: str) -> None:
             )
         if a.get("stopped"):
             click.echo(f"  stopped early: {a['stopped']}")
+        if a.get("recovered"):
+            click.echo(f"  recovered {a.get('recovered_utc')}: {a['recovered']}")
         events = rf.events()
         tally = EventTally()
         tally.add(events)

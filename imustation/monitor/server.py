@@ -21,6 +21,7 @@ import hmac
 import ipaddress
 import json
 import math
+import re
 import secrets
 import signal
 import socket
@@ -32,6 +33,7 @@ import numpy as np
 import tornado.httpserver
 import tornado.netutil
 import tornado.web
+from tornado.log import access_log, app_log
 
 from imustation.errors import ImustationError
 from imustation.monitor.watcher import Monitor
@@ -116,6 +118,13 @@ class _Base(tornado.web.RequestHandler):
             if not given or not hmac.compare_digest(given.encode(), self.token.encode()):
                 raise tornado.web.HTTPError(403, reason="Token required")
 
+    def log_exception(self, typ, value, tb) -> None:
+        """Tornado's default prints the whole request (URI with the token, the token cookie)."""
+        if isinstance(value, tornado.web.HTTPError):
+            return  # the access log has the line
+        app_log.error("uncaught exception in %s %s", self.request.method, redact(self.request.uri or ""),
+                      exc_info=(typ, value, tb))  # fmt: skip
+
     def write_error(self, status_code: int, **kwargs: Any) -> None:
         self.set_header("Content-Type", "text/plain; charset=utf-8")
         self.finish(f"{status_code} {self._reason}\n")
@@ -174,6 +183,26 @@ class NotFound(_Base):
         raise tornado.web.HTTPError(404)
 
 
+_TOKEN_IN_QUERY = re.compile(r"(?<=[?&]token=)[^&#]*")
+
+
+def redact(uri: str) -> str:
+    """``uri`` with the value of its ``token`` query parameter replaced, for logs."""
+    return _TOKEN_IN_QUERY.sub("REDACTED", uri)
+
+
+def log_request(handler: tornado.web.RequestHandler) -> None:
+    """Tornado's access log line, without the token a request may carry in its URL.
+
+    (Tornado logs every 4xx/5xx request at warning/error level with its full URI,
+    and the default logging setup prints those on stderr.)
+    """
+    status = handler.get_status()
+    log = access_log.info if status < 400 else access_log.warning if status < 500 else access_log.error
+    req = handler.request
+    log("%d %s %s (%s) %.2fms", status, req.method, redact(req.uri or ""), req.remote_ip, 1000 * req.request_time())
+
+
 def make_app(monitor: Monitor, *, token: str | None, loopback: bool) -> tornado.web.Application:
     """The tornado application: routes, whitelisted static files read once from the package."""
     args = {"monitor": monitor, "token": token, "loopback": loopback}
@@ -190,6 +219,7 @@ def make_app(monitor: Monitor, *, token: str | None, loopback: bool) -> tornado.
         index_html=_static_bytes(INDEX),
         static_cache={name: _static_bytes(name) for name in STATIC_FILES},
         compress_response=True,
+        log_function=log_request,
         xsrf_cookies=False,  # nothing accepts a write
     )
 

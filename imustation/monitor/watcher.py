@@ -25,8 +25,10 @@ import collections
 import datetime as _dt
 import math
 import os
+import sys
 import threading
 import time
+import traceback
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,6 +40,7 @@ from imustation.analysis.reports.temperature import TEMP_READ_HZ, detect_warmup
 from imustation.errors import ImustationError
 from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
 from imustation.runfile import Event, RunFile, open_run
+from imustation.runfile.checks import parse_events
 from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, elapsed_from_run, thermometer_status
 
 #: a device whose row count has not grown for this many wall seconds is reported stalled
@@ -214,10 +217,18 @@ class Monitor:
             try:
                 self.poll()
                 self.error = None
-            except (OSError, KeyError, ImustationError, ValueError) as exc:  # keep serving the last snapshot
-                self.error = f"{exc.__class__.__name__}: {exc}"
-                self._status = {**self._status, "monitor_error": self.error}
+            except Exception as exc:  # noqa: BLE001 - whatever it is, the page says it and the poller lives on
+                self._report(exc)
             self._stop.wait(max(0.05, self.poll_s - (time.monotonic() - t0)))
+
+    def _report(self, exc: Exception) -> None:
+        """Keep serving the last snapshot, with the error on the page (and a bug's traceback on stderr once)."""
+        error = str(exc) if isinstance(exc, ImustationError) else f"{exc.__class__.__name__}: {exc}"
+        if not isinstance(exc, (ImustationError, OSError)) and error != self.error:
+            traceback.print_exception(exc, file=sys.stderr)
+        self.error = error
+        state = "error" if self._status.get("state") in ("starting", "error") else self._status.get("state")
+        self._status = {**self._status, "state": state, "monitor_error": error}
 
     def _analysis_loop(self) -> None:
         last_allan = last_fit = -math.inf
@@ -225,7 +236,12 @@ class Monitor:
             now = time.monotonic()
             if now - last_allan >= self.allan_every_s:
                 fit_due = now - last_fit >= self.fit_every_s
-                did, fitted = self.analyse(fit=fit_due)
+                try:
+                    did, fitted = self.analyse(fit=fit_due)
+                except Exception as exc:  # noqa: BLE001 - the curves stay as they were, the page says why
+                    self._report(exc)
+                    did = fitted = False
+                    last_allan = now
                 if did:
                     last_allan = now
                     # the refit clock starts at a fit, not at a due time with too little data
@@ -289,10 +305,7 @@ class Monitor:
             return
         rows = ds[self._events_pos :]
         self._events_pos += len(rows)
-        events = [  # events are rare (one per gap or fault), not per sample
-            Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
-            for r in rows
-        ]
+        events = parse_events(run.path, rows)  # events are rare (one per gap or fault), not per sample
         self._tally.add(events)
         for ev in events:
             self._events.append(

@@ -9,6 +9,10 @@ lost and files stay small.
   recorder (``imustation.acquisition``) writes;
 - :mod:`~imustation.runfile.reader`: :func:`open_run`, through which the
   analysis, ``imustation inspect`` and the monitor read;
+- :mod:`~imustation.runfile.checks`: validation on read (attributes against the schema and
+  each other, damaged chunks, event rows) - a damaged file is one clear error;
+- :mod:`~imustation.runfile.swmr`: the SWMR open with a bounded retry on damaged blocks;
+- :mod:`~imustation.runfile.recover`: ``imustation recover`` (a crashed file made plain);
 - :mod:`~imustation.runfile.disk`: durable renames and the full-disk ballast.
 
 Nothing else touches the HDF5 layout. Every name is importable from
@@ -17,7 +21,7 @@ Nothing else touches the HDF5 layout. Every name is importable from
 """
 
 from imustation.channels import ChannelSpec
-from imustation.runfile.reader import ChannelInfo, DeviceInfo, Event, RunFile, open_run
+from imustation.runfile.reader import ChannelInfo, DeviceInfo, RunFile, open_run
 from imustation.runfile.schema import (
     CELSIUS,
     COUNTER,
@@ -30,13 +34,12 @@ from imustation.runfile.schema import (
     THERMOMETERS,
     TIME,
     DeviceSpec,
+    Event,
     utc_now_iso,
 )
 from imustation.runfile.writer import (
     BALLAST_SUFFIX,
     CHUNK_ROWS,
-    CLOSE_RETRIES,
-    CLOSE_RETRY_S,
     CREATING_SUFFIX,
     DEFAULT_BALLAST_BYTES,
     DEFAULT_MIN_FREE_BYTES,
@@ -48,8 +51,6 @@ __all__ = [
     "BALLAST_SUFFIX",
     "CELSIUS",
     "CHUNK_ROWS",
-    "CLOSE_RETRIES",
-    "CLOSE_RETRY_S",
     "COUNTER",
     "CREATING_SUFFIX",
     "DEFAULT_BALLAST_BYTES",

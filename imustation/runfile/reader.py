@@ -17,7 +17,9 @@ import h5py
 import numpy as np
 
 from imustation.errors import RunFileError
-from imustation.runfile.schema import CELSIUS, COUNTER, DEVICES, EVENTS, FORMAT, FORMAT_VERSION, THERMOMETERS, TIME
+from imustation.runfile.checks import CheckedDataset, check_run, damaged_file, read_events
+from imustation.runfile.schema import CELSIUS, COUNTER, DEVICES, EVENTS, THERMOMETERS, TIME, Event
+from imustation.runfile.swmr import open_swmr_reader
 
 
 @dataclass(frozen=True)
@@ -51,15 +53,6 @@ class DeviceInfo:
     @property
     def torn(self) -> bool:
         return any(r != self.n for r in self.rows.values())
-
-
-@dataclass(frozen=True)
-class Event:
-    t_ns: int
-    source: str
-    kind: str
-    lost: int
-    detail: str
 
 
 _DEVICE_CORE_ATTRS = {"driver", "model", "bus", "identity"}
@@ -126,17 +119,11 @@ class RunFile:
         return list(self.h5.get(THERMOMETERS, {}).keys())
 
     def events(self) -> list[Event]:
-        if EVENTS not in self.h5:
-            return []
-        rows = self.h5[EVENTS][()]
-        return [
-            Event(int(r["t"]), r["source"].decode(), r["kind"].decode(), int(r["lost"]), r["detail"].decode())
-            for r in rows
-        ]
+        return read_events(self.path, self.h5)
 
     def dataset(self, device: str, name: str) -> h5py.Dataset:
         try:
-            return self.h5[f"{DEVICES}/{device}/{name}"]
+            return CheckedDataset(self.h5[f"{DEVICES}/{device}/{name}"], self.path, f"{device}/{name}")
         except KeyError:
             raise RunFileError(f"{self.path}: no dataset {device}/{name}") from None
 
@@ -163,7 +150,8 @@ class RunFile:
         """Thermometer ``name``: times (ns) and readings (degC), equal lengths."""
         g = self.h5[f"{THERMOMETERS}/{name}"]
         n = min(g[TIME].shape[0], g[CELSIUS].shape[0])
-        return g[TIME][:n], g[CELSIUS][:n]
+        with damaged_file(self.path, f"thermometer {name}"):
+            return g[TIME][:n], g[CELSIUS][:n]
 
     def refresh(self) -> None:
         """SWMR reader: see what the writer flushed since the file was opened (or last refreshed).
@@ -206,7 +194,7 @@ def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
     try:
         # a live reader takes no file lock at all: even the short one HDF5 holds while
         # opening could make the capture's final reopen (to set ended_utc) fail
-        h5 = h5py.File(p, "r", libver="latest", swmr=True, **({"locking": False} if live else {}))
+        h5 = open_swmr_reader(p, locking=False if live else None)
     except OSError as first:
         if live:
             raise RunFileError(f"{p}: not a readable SWMR run file ({first.__class__.__name__})") from None
@@ -214,13 +202,9 @@ def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
             h5 = h5py.File(p, "r")
         except OSError as exc:
             raise RunFileError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__})") from None
-    attrs = {k: _plain(v) for k, v in h5.attrs.items()}
-    fmt = attrs.get("format")
-    if fmt != FORMAT:
+    try:
+        attrs = check_run(h5, p)
+    except RunFileError:
         h5.close()
-        raise RunFileError(f"{p}: not an imustation run file (format attribute is {fmt!r})")
-    version = attrs.get("format_version")
-    if version != FORMAT_VERSION:
-        h5.close()
-        raise RunFileError(f"{p}: run-file format version {version} is not supported (this is v1)")
+        raise
     return RunFile(path=p, h5=h5, attrs=attrs)

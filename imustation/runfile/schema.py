@@ -57,3 +57,14 @@ class DeviceSpec:
 def utc_now_iso() -> str:
     """The current UTC time as the run file's ``*_utc`` attributes hold it (ISO 8601, ms)."""
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+@dataclass(frozen=True)
+class Event:
+    """One row of the event table (``lost``: samples lost, 0 where not applicable)."""
+
+    t_ns: int
+    source: str
+    kind: str
+    lost: int
+    detail: str

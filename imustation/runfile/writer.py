@@ -49,9 +49,6 @@ CREATING_SUFFIX = ".creating"
 #: room kept beside a run file to finish it when the disk fills up anyway
 BALLAST_SUFFIX = ".ballast"
 DEFAULT_BALLAST_BYTES = 4 * 2**20
-#: a file locked by a reader while the writer reopens it to mark it complete: tries and pause (s)
-CLOSE_RETRIES = 50
-CLOSE_RETRY_S = 0.1
 
 
 def _attr_value(value: Any) -> Any:
@@ -410,17 +407,10 @@ class RunWriter:
             self.closed = True
             self._drop_ballast()
         # SWMR writers may not add attributes; reopen once to mark the run complete.
-        # A reader opening the file at that moment holds HDF5's lock for a
-        # moment: retry for a few seconds rather than lose the mark.
-        for attempt in range(CLOSE_RETRIES + 1):
-            try:
-                f = h5py.File(self.path, "r+", libver="latest")
-                break
-            except BlockingIOError:
-                if attempt == CLOSE_RETRIES:
-                    raise
-                time.sleep(CLOSE_RETRY_S)
-        with f:
+        # Without HDF5's file lock: a SWMR reader (open_run, h5py with swmr=True) holds
+        # a shared lock for as long as it has the file open, and the capture must finish
+        # its file whatever readers do (the OutputLock keeps other writers out).
+        with h5py.File(self.path, "r+", libver="latest", locking=False) as f:
             for key, value in (attrs or {}).items():
                 f.attrs[key] = _attr_value(value)
             f.attrs["ended_utc"] = ended_utc or utc_now_iso()
