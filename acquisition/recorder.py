@@ -26,7 +26,7 @@ import numpy as np
 
 from imustation.acquisition.station import OpenedDevice
 from imustation.errors import RunFileError
-from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
+from imustation.runfile import DeviceSpec, RunWriter, part_path, utc_now_iso
 
 
 class OutputLock:
@@ -81,12 +81,6 @@ def run_file_device(dev: OpenedDevice) -> DeviceSpec:
         channels=info.channels,
         has_counter=info.has_counter,
     )
-
-
-def part_path(output: str, part: int) -> str:
-    """``run.h5``, part 3 -> ``run.003.h5``."""
-    stem, ext = os.path.splitext(output)
-    return f"{stem}.{part:03d}{ext or '.h5'}"
 
 
 class Recorder:

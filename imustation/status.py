@@ -28,12 +28,11 @@ from typing import Any
 import numpy as np
 
 from imustation.runfile import DeviceInfo, Event, RunFile
+from imustation.runfile.schema import LOSS_KINDS
 
 #: the station's status document (docs/capture.md, "The status line")
 STATUS_FORMAT = "imustation-status"
 STATUS_VERSION = 1
-#: event kinds that count as gaps, their ``lost`` as lost samples (of a device)
-LOSS_KINDS = ("gap", "overrun")
 #: station seconds over which a run file's recent rate is measured
 RATE_WINDOW_S = 10.0
 

@@ -29,7 +29,7 @@ from imustation.analysis.reports.temperature import (
     thermometer_temperature,
 )
 from imustation.errors import InputError
-from imustation.runfile import open_run
+from imustation.runfile import open_series
 from imustation.units import format_duration, parse_duration
 
 #: bias block length of the temperature figure and regression, s
@@ -111,7 +111,7 @@ def report_run(
         raise InputError(f"{path}: report needs run files (.h5)")
     os.makedirs(out_dir, exist_ok=True)
     channels = load_run(path, globs)
-    with open_run(path) as run:
+    with open_series(path) as run:
         run_attrs = dict(run.attrs)
         temp_devices = [d for d, info in run.devices.items() if "temp" in info.channels and info.n > 0]
         thermometer_names = list(run.thermometers)

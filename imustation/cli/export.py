@@ -24,7 +24,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 
 
 @cli.command()
-@click.argument("run", type=click.Path(dir_okay=False))
+@click.argument("runs", metavar="RUN", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--format", "fmt", type=click.Choice(choices.EXPORT_FORMATS), required=True, help="Target tool.")
 @click.option("-o", "--output", default=None, help="Write the YAML here (default: print it).")
 @click.option("--device", default=None, help="Device whose gyroscope is exported (default: the only one).")
@@ -49,7 +49,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 @click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
 @click.option("--topic", default="/imu0", show_default=True, help="IMU topic written for ROS-based tools.")
 def export(
-    run: str,
+    runs: tuple[str, ...],
     fmt: str,
     output: str | None,
     device: str | None,
@@ -65,8 +65,14 @@ def export(
     Values are continuous-time densities (SI) — the white-noise density is
     sigma_w = N, not N*sqrt(rate); the bias random walk is K (see docs/reports.md
     for the conversion from a Gauss-Markov bias). One value per sensor: the
-    largest axis.
+    largest axis. A rotated capture is one RUN: its base name (week.h5) or all its parts.
     """
+    from imustation.runfile import join_parts
+
+    joined = join_parts(runs)
+    if len(joined) != 1:
+        raise InputError(f"{', '.join(joined)}: export takes one run (or the parts of one rotated capture)")
+    [run] = joined
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
     from imustation.analysis.pipeline.channel import analyze_channel

@@ -42,7 +42,9 @@ def fleet(
     """
     from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks
     from imustation.analysis.reports.fleetreport import write_fleet_report
+    from imustation.runfile import join_parts
 
+    runs = tuple(join_parts(runs))  # a rotated capture's parts: one run
     tasks, failures = plan_tasks(runs, globs)
     report_failures(failures)
     results, failed = run_with_progress(

@@ -26,11 +26,13 @@ def report(runs: tuple[str, ...], out_dir: str, globs: tuple[str, ...], model: s
 
     Writes OUTPUT/<run name>/index.html with relative links to its tables and
     figures (self-contained folder, no network), plus OUTPUT/noise.* over all runs.
+    A rotated capture is one run: its base name (week.h5) or all its parts.
     """
     from imustation.analysis.reports.runreport import report_runs
+    from imustation.runfile import join_parts
 
     report_runs(
-        runs,
+        join_parts(runs),  # a rotated capture's parts: one run
         out_dir,
         globs=globs,
         model=model,

@@ -9,6 +9,9 @@ lost and files stay small.
   recorder (``imustation.acquisition``) writes;
 - :mod:`~imustation.runfile.reader`: :func:`open_run`, through which the
   analysis, ``imustation inspect`` and the monitor read;
+- :mod:`~imustation.runfile.series`: :func:`open_series`, the parts of a rotated capture
+  read as one run (:class:`RunSeries`), and :func:`join_parts` for a command's inputs;
+- :mod:`~imustation.runfile.breaks`: where logged gaps break a device's record;
 - :mod:`~imustation.runfile.disk`: durable renames and the full-disk ballast.
 
 Nothing else touches the HDF5 layout. Every name is importable from
@@ -27,11 +30,13 @@ from imustation.runfile.schema import (
     EVENTS,
     FORMAT,
     FORMAT_VERSION,
+    LOSS_KINDS,
     THERMOMETERS,
     TIME,
     DeviceSpec,
     utc_now_iso,
 )
+from imustation.runfile.series import RunSeries, join_parts, latest_part, open_series, part_path, parts_of
 from imustation.runfile.writer import (
     BALLAST_SUFFIX,
     CHUNK_ROWS,
@@ -61,6 +66,7 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "H5_OPTS",
+    "LOSS_KINDS",
     "THERMOMETERS",
     "TIME",
     "ChannelInfo",
@@ -69,7 +75,13 @@ __all__ = [
     "DeviceSpec",
     "Event",
     "RunFile",
+    "RunSeries",
     "RunWriter",
+    "join_parts",
+    "latest_part",
     "open_run",
+    "open_series",
+    "part_path",
+    "parts_of",
     "utc_now_iso",
 ]
