@@ -10,6 +10,7 @@ import click
 
 from imustation.cli import cli
 from imustation.errors import InputError
+from imustation.outputs import check_file
 from imustation.units import format_duration, parse_duration
 
 
@@ -74,7 +75,7 @@ def _workers(value: str, cfg, can: bool) -> int:
 @click.option("-o", "--output", default="run.h5", show_default=True, help="Run file to create (HDF5).")
 @click.option("--duration", default="12h", show_default=True, help="How long to record: 12h, 90m, 1h30m, 45s.")
 @click.option("--simulate", is_flag=True, help="Replace every bus and chip by its simulator (virtual clock).")
-@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file (and --trace file).")
 @click.option(
     "--rotate",
     default=None,
@@ -164,6 +165,12 @@ def capture(
     from imustation.monitor.launcher import MonitorProcess
 
     cfg = load_config(config)
+    # outputs before any device is touched (existing parts of a rotated capture: the recorder's check)
+    check_file(output, overwrite=overwrite or bool(rotate))
+    if trace_file is not None:
+        check_file(trace_file, overwrite=overwrite, option="--trace")
+    if status_file is not None:
+        check_file(status_file, overwrite=True, option="--status-file")  # replaced every interval by design
     seconds = parse_duration(duration)
     rotate_s = parse_duration(rotate) if rotate else None
     if not status_interval > 0:

@@ -7,6 +7,7 @@ import click
 from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.errors import InputError
+from imustation.outputs import check_file
 
 
 def _device_channels(channels, device: str | None, kind: str, path: str):
@@ -27,6 +28,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 @click.argument("runs", metavar="RUN", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--format", "fmt", type=click.Choice(choices.EXPORT_FORMATS), required=True, help="Target tool.")
 @click.option("-o", "--output", default=None, help="Write the YAML here (default: print it).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing -o file.")
 @click.option("--device", default=None, help="Device whose gyroscope is exported (default: the only one).")
 @click.option("--accel-device", default=None, help="Device whose accelerometer is exported (default: --device).")
 @click.option("--gyro-only", is_flag=True, help="Leave the accelerometer keys out (e.g. a gyro-only device).")
@@ -52,6 +54,7 @@ def export(
     runs: tuple[str, ...],
     fmt: str,
     output: str | None,
+    overwrite: bool,
     device: str | None,
     accel_device: str | None,
     gyro_only: bool,
@@ -69,6 +72,8 @@ def export(
     """
     from imustation.runfile import join_parts
 
+    if output is not None:
+        check_file(output, overwrite=overwrite)
     joined = join_parts(runs)
     if len(joined) != 1:
         raise InputError(f"{', '.join(joined)}: export takes one run (or the parts of one rotated capture)")
