@@ -18,6 +18,7 @@ import errno
 import fcntl
 import math
 import os
+import shutil
 import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -175,6 +176,7 @@ class Recorder:
         self._closed_bytes += self.writer.file_bytes()
         for name, n in self.writer.samples_flushed.items():
             self._closed_flushed[name] = self._closed_flushed.get(name, 0) + n
+        self.writer = None  # its bytes and samples are counted above
 
     def tick(self, t_ns: int) -> None:
         """Between polls: flush when due, start the next part when its time has come."""
@@ -214,9 +216,16 @@ class Recorder:
         self.writer.event(t_ns, source, kind, detail, lost)  # type: ignore[union-attr]
 
     def status(self) -> dict[str, Any]:
+        """The file part of the status document (docs/capture.md): current file and part, bytes of
+        all parts, samples per device on disk, free space on the output's filesystem (bytes)."""
         w = self.writer
+        path = w.path if w else (self.paths[-1] if self.paths else self.output)
+        try:
+            free = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free
+        except OSError:
+            free = None
         return {
-            "file": w.path if w else self.output,
+            "file": path,
             "part": self.part if self.rotate_s else None,
             "file_bytes": self._closed_bytes + (w.file_bytes() if w else 0),
             # samples per device known to be on disk (after the last completed flush)
@@ -224,4 +233,5 @@ class Recorder:
                 name: self._closed_flushed.get(name, 0) + (w.samples_flushed.get(name, 0) if w else 0)
                 for name in (w.samples_flushed if w else self._closed_flushed)
             },
+            "disk_free_bytes": free,
         }

@@ -9,41 +9,10 @@ import sys
 import click
 
 from imustation.cli import cli
+from imustation.cli.statusview import StatusView
 from imustation.errors import InputError
 from imustation.outputs import check_file
 from imustation.units import format_duration, parse_duration
-
-
-def _bytes(n: int) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB"):
-        if n < 1024 or unit == "GiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return str(n)
-
-
-def format_status(status: dict) -> str:
-    """One status line: elapsed/planned, file, then per device and thermometer."""
-    head = f"{format_duration(status['elapsed_s'])}/{format_duration(status['duration_s'])}"
-    head += f" (-{format_duration(status['remaining_s'])})" if status["remaining_s"] > 0 else ""
-    if status.get("file_bytes") is not None:
-        part = f" part {status['part']}" if status.get("part") else ""
-        head += f" {_bytes(status['file_bytes'])}{part}"
-    parts = [head]
-    for name, d in status["devices"].items():
-        rate = d["rate_recent_hz"] if d.get("rate_recent_hz") is not None else d["rate_hz"]
-        temp = f" {d['temp_c']:.1f}C" if d.get("temp_c") is not None else ""
-        state = f" {d['state'].upper()}" if d["state"] != "ok" else ""
-        parts.append(
-            f"{name}: {d['samples']} @ {rate:.1f}/{d['rate_cfg_hz']:g} Hz gaps {d['gaps']}"
-            + (f" (-{d['lost']})" if d["lost"] else "")
-            + temp
-            + state
-        )
-    for name, t in status.get("thermometers", {}).items():
-        c = f"{t['celsius']:.2f}C" if t.get("celsius") is not None else "-"
-        parts.append(f"{name}: {c}" + (" FAILED" if t["state"] != "ok" else ""))
-    return " | ".join(parts)
 
 
 def _write_status_file(path: str, status: dict) -> None:
@@ -82,7 +51,7 @@ def _workers(value: str, cfg, can: bool) -> int:
     metavar="DURATION",
     help="Start a new part file every DURATION (e.g. 6h): run.001.h5, run.002.h5, ...",
 )
-@click.option("--quiet", is_flag=True, help="No live status line (errors and the final summary only).")
+@click.option("--quiet", is_flag=True, help="No live status (errors and the final summary only).")
 @click.option("--json-status", is_flag=True, help="Print the status as one JSON line per interval on stdout.")
 @click.option("--status-file", default=None, metavar="PATH", help="Keep the latest JSON status in PATH.")
 @click.option(
@@ -180,9 +149,12 @@ def capture(
     given = {"trace": trace_file is not None, "replay": replay_file is not None, "rotate": rotate_s is not None}
     n_workers = _workers(workers, cfg, workers_possible(simulate=simulate, **given))
     check_options(simulate=simulate, sim_level=sim_level, workers=n_workers, cli=True, **given)
-    tty = sys.stderr.isatty()
     live = not quiet and not json_status
-    launcher = MonitorProcess(monitor_host, monitor_port, note=lambda msg: click.echo(msg, err=True))
+    view = StatusView(sys.stderr) if live else None
+    # the monitor's notes go through the view, so they never land inside the status block
+    launcher = MonitorProcess(
+        monitor_host, monitor_port, note=view.note if view is not None else lambda msg: click.echo(msg, err=True)
+    )
 
     def on_status(status: dict) -> None:
         if with_monitor:
@@ -191,9 +163,8 @@ def capture(
             click.echo(json.dumps(status))
         if status_file:
             _write_status_file(status_file, status)
-        if live:
-            line = format_status(status)
-            click.echo(("\r\033[K" if tty else "") + line, err=True, nl=not tty)
+        if view is not None:
+            view.show(status)
 
     try:
         summary = run_capture(
@@ -214,8 +185,8 @@ def capture(
         )
     finally:
         launcher.stop()
-    if tty and live:
-        click.echo("", err=True)
+        if view is not None:
+            view.close()
     total = sum(summary.samples.values())
     lost = sum(summary.lost.values())
     speed = summary.duration_s / summary.wall_s if summary.wall_s > 0 else float("inf")
