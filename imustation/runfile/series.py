@@ -121,7 +121,10 @@ def join_parts(paths: Sequence[str]) -> list[str]:
             continue
         members.sort()
         listed = ", ".join(os.path.basename(p) for _, p in members)
-        named = [base_of_part(p) for _, p in members]
+        twice = [k for (k, _), (k2, _) in zip(members, members[1:], strict=False) if k == k2]
+        if twice:
+            raise RunFileError(f"{listed}: part {twice[0]} of one rotated capture (run_id {rid}) is named twice")
+        named = [base_of_part(os.path.normpath(p)) for _, p in members]
         base = named[0][0] if named[0] is not None else ""
         if any(b is None or b != (base, k) for b, (k, _) in zip(named, members, strict=True)):
             raise RunFileError(
@@ -165,7 +168,8 @@ class _SeriesDataset:
         self._series, self._device, self._name = series, device, name
         first = series.parts[0].dataset(device, name)
         self.dtype = first.dtype
-        self.shape = (series.rows(device), *first.shape[1:])
+        self._counts = series._counts(device)  # rows per part, read once (binary searches index row by row)
+        self.shape = (sum(self._counts), *first.shape[1:])
 
     def __len__(self) -> int:
         return self.shape[0]
@@ -176,13 +180,13 @@ class _SeriesDataset:
             key, rest = key[0], key[1:]
         if isinstance(key, slice):
             start, stop, step = key.indices(len(self))
-            out = self._series.read(self._device, self._name, start, max(start, stop))[::step]
+            out = self._series._read(self._device, self._name, start, max(start, stop), self._counts)[::step]
             return out[(slice(None), *rest)] if rest else out
         i = int(key)
         i = i + len(self) if i < 0 else i
         if not 0 <= i < len(self):
             raise IndexError(f"row {key} of {len(self)}")
-        row = self._series.read(self._device, self._name, i, i + 1)[0]
+        row = self._series._read(self._device, self._name, i, i + 1, self._counts)[0]
         return row[rest] if rest else row
 
 
@@ -298,7 +302,9 @@ class RunSeries:
 
     def read(self, device: str, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Raw rows ``start:stop`` of ``devices/<device>/<name>`` over all parts."""
-        counts = self._counts(device)
+        return self._read(device, name, start, stop, self._counts(device))
+
+    def _read(self, device: str, name: str, start: int, stop: int | None, counts: Sequence[int]) -> np.ndarray:
         start, stop, _ = slice(start, stop).indices(sum(counts))
         pieces = []
         offset = 0
