@@ -124,6 +124,16 @@ def capture(
     )
     stop = _StopFlag()
     previous = {}
+    # the station's last document ("done"/"stopped") is handed on once the file is finished,
+    # with the file's figures then: the last flush and the closing write are on disk only now
+    final: list[dict[str, Any]] = []
+
+    def relay(status: dict[str, Any]) -> None:
+        if status.get("state") == "recording":
+            on_status(status)  # type: ignore[misc]
+        else:
+            final.append(status)
+
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, stop.handler)
@@ -138,7 +148,7 @@ def capture(
             summary = station.run(
                 recorder,
                 duration_s,
-                on_status=on_status,
+                on_status=relay if on_status is not None else None,
                 should_stop=stop,
                 status_interval_s=status_interval_s,
                 pace=pace,
@@ -164,6 +174,8 @@ def capture(
             tracer.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        if final and on_status is not None:
+            on_status({**final[-1], **recorder.status()})
 
 
 def _finish_after_disk_full(recorder: Recorder, station: Station) -> None:

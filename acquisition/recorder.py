@@ -19,6 +19,7 @@ import fcntl
 import math
 import os
 import re
+import shutil
 import uuid
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -27,7 +28,14 @@ import numpy as np
 
 from imustation.acquisition.station import OpenedDevice
 from imustation.errors import DiskFullError, InputError, RunFileError
-from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES, DeviceSpec, RunWriter, utc_now_iso
+from imustation.runfile import (
+    DEFAULT_BALLAST_BYTES,
+    DEFAULT_MIN_FREE_BYTES,
+    DeviceSpec,
+    RunWriter,
+    part_path,
+    utc_now_iso,
+)
 
 #: shortest part of a rotated capture, s: every part is a new HDF5 file (created, fsynced,
 #: renamed, reopened to be marked complete), so parts of milliseconds only make files
@@ -123,12 +131,6 @@ def run_file_device(dev: OpenedDevice) -> DeviceSpec:
         channels=info.channels,
         has_counter=info.has_counter,
     )
-
-
-def part_path(output: str, part: int) -> str:
-    """``run.h5``, part 3 -> ``run.003.h5``."""
-    stem, ext = os.path.splitext(output)
-    return f"{stem}.{part:03d}{ext or '.h5'}"
 
 
 def rotation_parts(duration_s: float, rotate_s: float | None) -> int:
@@ -262,6 +264,7 @@ class Recorder:
         self._closed_bytes += self.writer.file_bytes()
         for name, n in self.writer.samples_flushed.items():
             self._closed_flushed[name] = self._closed_flushed.get(name, 0) + n
+        self.writer = None  # its bytes and samples are counted above
 
     def tick(self, t_ns: int) -> None:
         """Between polls: flush when due, start the next part when its time has come."""
@@ -301,9 +304,16 @@ class Recorder:
         self.writer.event(t_ns, source, kind, detail, lost)  # type: ignore[union-attr]
 
     def status(self) -> dict[str, Any]:
+        """The file part of the status document (docs/capture.md): current file and part, bytes of
+        all parts, samples per device on disk, free space on the output's filesystem (bytes)."""
         w = self.writer
+        path = w.path if w else (self.paths[-1] if self.paths else self.output)
+        try:
+            free = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free
+        except OSError:
+            free = None
         return {
-            "file": w.path if w else self.output,
+            "file": path,
             "part": self.part if self.rotate_s else None,
             "file_bytes": self._closed_bytes + (w.file_bytes() if w else 0),
             # samples per device known to be on disk (after the last completed flush)
@@ -311,4 +321,5 @@ class Recorder:
                 name: self._closed_flushed.get(name, 0) + (w.samples_flushed.get(name, 0) if w else 0)
                 for name in (w.samples_flushed if w else self._closed_flushed)
             },
+            "disk_free_bytes": free,
         }

@@ -94,6 +94,10 @@ REPLY_TIMEOUT_S = 1.0
 REPLY_POLL_S = 0.01
 COMMAND_TRIES = 3  # GoToConfig may be lost in a full line of MTData2 [XS-DEV] retries
 BITS_PER_BYTE = 10  # 8N1
+#: the MTi's factory baud rate, which the driver assumes when the bus URL names none ([XS-DEV] driver default)
+FACTORY_BAUD = 115200
+#: output rates the device divides its 2000 Hz base rate into, Hz
+RATES_HZ = (10, 20, 25, 40, 50, 80, 100, 200, 250, 400, 500, 1000, 2000)
 
 
 def checksum(body: bytes) -> int:
@@ -180,6 +184,22 @@ def output_configuration(rate_hz: int) -> bytes:
     return b"".join(struct.pack(">HH", i, FREQ_EVERY_PACKET if i in every else rate_hz) for i in LAYOUT)
 
 
+def frame_length(layout: tuple[int, ...] = LAYOUT) -> int:
+    """Bytes of one MTData2 message of ``layout``: header, items (ID, size, content), checksum (§5.1)."""
+    return 4 + sum(3 + ITEMS[i].size for i in layout) + 1
+
+
+def fastest_rate(baud: int, layout: tuple[int, ...] = LAYOUT) -> int | None:
+    """The fastest output rate (Hz) whose MTData2 messages fit ``baud`` (8N1); None when none does."""
+    fits = [r for r in RATES_HZ if frame_length(layout) * BITS_PER_BYTE * r <= baud]
+    return max(fits) if fits else None
+
+
+#: default output rate: the fastest the factory baud rate carries (200 Hz: 54 bytes x 10 bits x 200 =
+#: 108 kbit/s of 115.2), so a config that names only the bus works on a device as delivered
+DEFAULT_RATE_HZ = fastest_rate(FACTORY_BAUD)
+
+
 class MTData2Reader(FramedStreamReader):
     """Vectorised reader of MTData2 messages of one fixed layout.
 
@@ -193,7 +213,7 @@ class MTData2Reader(FramedStreamReader):
         super().__init__(max_pending=4096)
         self.layout = layout
         payload = sum(3 + ITEMS[i].size for i in layout)
-        self.frame_len = 4 + payload + 1
+        self.frame_len = frame_length(layout)
         template = np.zeros(self.frame_len, dtype=np.int64)
         fixed = [0, 1, 2, 3]
         template[:4] = (PREAMBLE, BID, MID_MTDATA2, payload)
@@ -269,16 +289,15 @@ class XsensMTi:
     Parameters
     ----------
     port : the serial port (``serial:/dev/ttyUSB0?baud=921600``).
-    settings : ``rate_hz`` (output rate, a divisor of 2000 Hz).
+    settings : ``rate_hz`` (output rate, a divisor of 2000 Hz; default :data:`DEFAULT_RATE_HZ`, the
+        fastest the factory baud rate carries).
     sleep : delay function (the station's clock).
     """
 
     name: ClassVar[str] = "mti"
     bus_kind: ClassVar[str] = "serial"
-    default_baud: ClassVar[int] = 115200  # [XS-DEV] driver default
-    SETTINGS: ClassVar[tuple[Setting, ...]] = (
-        Setting("rate_hz", 400, (10, 20, 25, 40, 50, 80, 100, 200, 250, 400, 500, 1000, 2000), "output rate, Hz"),
-    )
+    default_baud: ClassVar[int] = FACTORY_BAUD
+    SETTINGS: ClassVar[tuple[Setting, ...]] = (Setting("rate_hz", DEFAULT_RATE_HZ, RATES_HZ, "output rate, Hz"),)
 
     def __init__(self, port: SerialPort, settings: Mapping[str, Any], *, sleep: Sleep = time.sleep):
         self.port = port
@@ -318,9 +337,12 @@ class XsensMTi:
         rate = int(self.settings["rate_hz"])
         need = self.reader.frame_len * BITS_PER_BYTE * rate
         if need > self.port.baud:
+            fits = fastest_rate(self.port.baud, self.reader.layout)
             raise SettingError(
                 f"rate_hz = {rate}: {self.reader.frame_len}-byte MTData2 messages need {need} bit/s, "
-                f"more than {self.port.baud} baud; configure the MTi and the bus URL for a faster baud rate"
+                f"more than {self.port.baud} baud; "
+                + (f"rate_hz = {fits} or less fits it, or " if fits else "")
+                + "configure the MTi and the bus URL for a faster baud rate"
             )
         self.port.ensure_open()
         self.reader.reset()

@@ -1,7 +1,7 @@
 """The capture status: one model of what a capture has recorded, from a live station or from its run file.
 
 Three readers report a capture's progress: the station itself (``capture``'s
-status line, ``--json-status`` and ``--status-file``, docs/capture.md), the
+live status, ``--json-status`` and ``--status-file``, docs/capture.md), the
 monitor beside a running capture (``/api/status``, docs/monitor.md) and
 ``imustation inspect`` on a file. They describe the same things - per device the
 samples, the rate achieved against the rate configured, gaps, samples lost,
@@ -28,12 +28,11 @@ from typing import Any
 import numpy as np
 
 from imustation.runfile import DeviceInfo, Event, RunFile
+from imustation.runfile.schema import LOSS_KINDS
 
-#: the station's status document (docs/capture.md, "The status line")
+#: the station's status document (docs/capture.md, "The live status")
 STATUS_FORMAT = "imustation-status"
 STATUS_VERSION = 1
-#: event kinds that count as gaps, their ``lost`` as lost samples (of a device)
-LOSS_KINDS = ("gap", "overrun")
 #: station seconds over which a run file's recent rate is measured
 RATE_WINDOW_S = 10.0
 
@@ -113,7 +112,7 @@ def capture_status(
     ``state``: "recording", "done" or "stopped" (with ``reason``); ``elapsed_s``,
     ``duration_s``: station time recorded and planned (s); ``wall_s``: host s since
     the start; ``file``: the recorder's details (``file``, ``part``, ``file_bytes``,
-    ``on_disk``), merged in.
+    ``on_disk``, ``disk_free_bytes``), merged in.
     """
     status: dict[str, Any] = {
         "format": STATUS_FORMAT,

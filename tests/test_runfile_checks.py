@@ -93,7 +93,7 @@ def test_unexpected_member(base, tmp_path):
 
 def test_float_channel_with_impossible_values_is_not_analysed(base, tmp_path):
     """What a corrupt bag used to import (4.3e19 rad/s) is refused by the loader, not analysed."""
-    from imustation.analysis.loaders import load_run
+    from imustation.analysis.pipeline.loaders import load_run
 
     def edit(f):
         g = f["devices/gyro"]

@@ -113,13 +113,13 @@ def test_analyze_options_carry_the_library_values():
 
 
 def test_one_option_vocabulary_across_commands():
-    """-o/--output wherever a command writes a file; one default model and method, named in choices."""
+    """-o/--output and --overwrite wherever a command writes a file; one default model and method, named in choices."""
     from imustation.analysis.pipeline import choices
 
     writers = ("capture", "demo", "export", "fleet", "import", "report", "study")
     for name in writers:
         opts = {o for p in cli.commands[name].params for o in p.opts}
-        assert {"-o", "--output"} <= opts, name
+        assert {"-o", "--output", "--overwrite"} <= opts, name  # and never replace an output without it
     assert "--out" in {o for p in cli.commands["study"].params for o in p.opts}  # the former spelling still works
     models = {name: p.default for name, c in cli.commands.items() for p in c.params if p.name == "model"}
     assert set(models) == {"analyze", "export", "fleet", "report"}

@@ -118,7 +118,7 @@ def rig(baud=921600, faults=(), settings=None, name="mti-test"):
 
 def test_driver_configures_and_counts_lost_packets_exactly():
     drv, sim, clock = rig(faults=[FaultSpec("checksum", at_s=2.0), FaultSpec("short_read", at_s=3.0),
-                                  FaultSpec("corrupt", at_s=4.0)])  # fmt: skip
+                                  FaultSpec("corrupt", at_s=4.0)], settings={"rate_hz": 400})  # fmt: skip
     try:
         info = drv.open()
         assert info.model == "Xsens MTi-100-2A8G4" and info.rate_hz == 400 and info.has_counter
@@ -139,13 +139,35 @@ def test_driver_configures_and_counts_lost_packets_exactly():
         unregister("mti-test")
 
 
-def test_baud_too_slow_for_rate_is_a_setting_error():
-    drv, _, _ = rig(baud=115200, name="mti-slow")
+def test_baud_too_slow_for_rate_is_a_setting_error_naming_the_rate_that_fits():
+    drv, _, _ = rig(baud=115200, name="mti-slow", settings={"rate_hz": 400})
     with pytest.raises(
-        SettingError, match="rate_hz = 400: 54-byte MTData2 messages need 216000 bit/s, more than 115200"
+        SettingError,
+        match="rate_hz = 400: 54-byte MTData2 messages need 216000 bit/s, more than 115200 baud; "
+        "rate_hz = 200 or less fits it, or configure",
     ):
         drv.open()
     unregister("mti-slow")
+
+
+def test_a_config_naming_only_the_bus_opens_at_the_factory_baud_rate():
+    """No rate_hz, no baud in the URL: the default rate is the fastest the factory 115200 baud carries (issue 23)."""
+    assert xb.DEFAULT_RATE_HZ == 200 and xb.fastest_rate(921600) == 1000 and xb.fastest_rate(9600) == 10
+    clock = VirtualClock()
+    sim = MTiSim(clock, lambda fs: NoiseSource.for_device("mti", "xyz", fs, {}, 3), None)
+    url = register("mti-factory", sim)
+    port = SerialPort("serial:/dev/ttyUSB9", baud_default=xb.XsensMTi.default_baud, sim_url=url)
+    try:
+        drv = xb.XsensMTi(port, {}, sleep=clock.sleep)
+        info = drv.open()
+        assert port.baud == 115200 and info.rate_hz == 200
+        n = 0
+        for _ in range(10):  # polled as the station polls: the 4 KiB tty buffer holds ~75 messages
+            clock.sleep(0.1)
+            n += drv.read_block().n
+        assert n > 190  # it streams at 200 Hz
+    finally:
+        unregister("mti-factory")
 
 
 def test_reset_and_unplug_are_reported():

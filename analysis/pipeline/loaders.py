@@ -11,11 +11,11 @@ import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
-import h5py
 import numpy as np
 
 from imustation.errors import InputError
-from imustation.runfile import open_run
+from imustation.runfile import join_parts, open_series, parts_of
+from imustation.runfile.breaks import locate_breaks
 from imustation.sample_checks import refuse_impossible
 
 
@@ -92,7 +92,7 @@ class Channel:
                 yield self._data[i : i + rows]
             return
         path, device, name, column, n = self.ref
-        with open_run(path) as run:
+        with open_series(path) as run:
             ds = run.dataset(device, name)
             for i in range(0, n, rows):
                 block = ds[i : min(i + rows, n), column]
@@ -103,42 +103,6 @@ class Channel:
     def rate(self) -> np.ndarray:
         """Samples in SI units (float64)."""
         return self.data.astype(np.float64) * self.scale
-
-
-def locate_breaks(t_ns: h5py.Dataset | np.ndarray, events, rate_hz: float, window: int = 4096) -> list[int]:
-    """Sample indices where logged gaps/overruns break the record.
-
-    A gap or overrun event is written at the host time ``t`` of the read that
-    found samples missing, before that read's samples are appended; the newest
-    of those samples carries time ``t`` (docs/runfile.md). So the break lies
-    just before the first sample of that block: among the samples up to the
-    first one after ``t`` (``window`` samples back), it is the largest jump of
-    the timestamps. An event whose block shows no jump above 1.5 sample
-    periods leaves the record contiguous (the timestamps show nothing missing,
-    e.g. ``lost`` estimated as 0). Returns sorted unique indices ``j``: samples ``j-1`` and ``j``
-    are not neighbours.
-    """
-    n = len(t_ns)
-    period_ns = 1e9 / rate_hz
-    breaks = set()
-    for ev in events:
-        lo, hi = 0, n  # binary search on the (possibly on-disk) sorted timestamps
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if int(t_ns[mid]) <= ev.t_ns:
-                lo = mid + 1
-            else:
-                hi = mid
-        i = lo  # samples 0..i-1 are at or before the event
-        a, b = max(0, i - max(window, 4 * max(ev.lost, 0))), min(n, i + 1)
-        if b - a < 2:
-            continue
-        t = np.asarray(t_ns[a:b], dtype=np.int64)
-        jumps = np.diff(t)
-        k = int(np.argmax(jumps))
-        if jumps[k] > 1.5 * period_ns:
-            breaks.add(a + k + 1)
-    return sorted(j for j in breaks if 0 < j < n)
 
 
 def segments_from_breaks(breaks: Sequence[int], n: int) -> list[tuple[int, int]]:
@@ -159,9 +123,10 @@ def _check_values(path: str, label: str, data: np.ndarray) -> None:
 
 
 def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
-    """Lazy channels of every selected rate axis of a run file, with segments from its gap events."""
+    """Lazy channels of every selected rate axis of a run file or a rotated series
+    (:func:`~imustation.runfile.open_series`), with segments from its gap events."""
     out = []
-    with open_run(path) as run:
+    with open_series(path) as run:
         events = [ev for ev in run.events() if ev.kind in ("gap", "overrun")]
         for dev in run.devices.values():
             dev_events = [ev for ev in events if ev.source == dev.name]
@@ -254,10 +219,10 @@ def load_csv(path: str, fs_hz: float | None) -> list[Channel]:
 
 
 def load_inputs(paths: Sequence[str], globs: Sequence[str] = (), fs_hz: float | None = None) -> list[Channel]:
-    """Every selected channel of every input, in order."""
+    """Every selected channel of every input, in order (the parts of a rotated capture as one input)."""
     channels: list[Channel] = []
-    for path in paths:
-        if not os.path.exists(path):
+    for path in join_parts(paths):
+        if not os.path.exists(path) and parts_of(path) is None:
             raise InputError(f"{path}: no such file")
         ext = os.path.splitext(path)[1].lower()
         if ext in (".h5", ".hdf5"):

@@ -30,6 +30,7 @@ from imustation.analysis.pipeline.channel import ChannelAnalysis, analyze_channe
 from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import Channel, NoChannelsError, load_inputs
 from imustation.errors import ImustationError, InputError
+from imustation.runfile import join_parts
 
 #: environment of local worker processes: one compute thread each (numba, OpenMP, BLAS)
 SINGLE_THREAD_ENV = {
@@ -98,7 +99,7 @@ def plan_tasks(
     """
     tasks: list[ChannelTask] = []
     failures: list[TaskFailure] = []
-    for path in paths:
+    for path in join_parts(paths):  # a rotated capture's parts: one input
         try:
             channels = load_inputs([path], globs, rate_hz)
         except NoChannelsError:

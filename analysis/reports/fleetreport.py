@@ -30,6 +30,9 @@ from imustation.analysis.reports import plots
 from imustation.analysis.reports.pages import CSS, html_table
 from imustation.errors import InputError
 
+#: what :func:`write_fleet_report` writes in its folder
+FLEET_FILES = ("fleet.csv", "fleet.md", "fleet.html", "fleet_allan.png")
+
 
 @dataclass(frozen=True)
 class FleetReport:

@@ -29,7 +29,8 @@ from imustation.analysis.reports.temperature import (
     thermometer_temperature,
 )
 from imustation.errors import InputError
-from imustation.runfile import open_run
+from imustation.outputs import check_folder, fresh_folder
+from imustation.runfile import open_series
 from imustation.units import format_duration, parse_duration
 
 #: bias block length of the temperature figure and regression, s
@@ -111,7 +112,7 @@ def report_run(
         raise InputError(f"{path}: report needs run files (.h5)")
     os.makedirs(out_dir, exist_ok=True)
     channels = load_run(path, globs)
-    with open_run(path) as run:
+    with open_series(path) as run:
         run_attrs = dict(run.attrs)
         temp_devices = [d for d, info in run.devices.items() if "temp" in info.channels and info.n > 0]
         thermometer_names = list(run.thermometers)
@@ -271,20 +272,31 @@ def report_runs(
     warmup: str = "auto",
     progress: Progress | None = None,
     on_report: Callable[[RunReport], None] | None = None,
+    overwrite: bool = False,
 ) -> list[RunReport]:
     """:func:`report_run` for every run, each in ``out_dir/<run name>``; with several runs also
     noise.csv/.md/.tex over all of them in ``out_dir`` (devices named ``run:device``).
 
-    ``on_report`` gets each run's :class:`RunReport` as soon as it is written.
+    ``on_report`` gets each run's :class:`RunReport` as soon as it is written. Before any
+    analysis ``out_dir`` is checked (:func:`~imustation.outputs.check_folder`: a run's folder
+    or the tables over all runs that exist are refused unless ``overwrite``); a run that
+    fails leaves no folder of its own behind, and ``out_dir`` only if something is in it.
     """
     check_warmup(warmup)  # a bad value fails before the first run is analysed
+    folders = [slug(os.path.splitext(os.path.basename(path))[0]) for path in paths]
+    twice = sorted({f for f in folders if folders.count(f) > 1})
+    if twice:
+        raise InputError(f"{', '.join(paths)}: two runs would share the report folder {twice[0]}; rename one")
+    tables = [name for name, _ in TABLES] if len(paths) > 1 else []
+    check_folder(out_dir, overwrite=overwrite, writes=[*folders, *tables])
     reports = []
-    for path in paths:
-        stem = slug(os.path.splitext(os.path.basename(path))[0])
-        rep = report_run(path, os.path.join(out_dir, stem), globs=globs, model=model, warmup=warmup, progress=progress)
-        reports.append(rep)
-        if on_report is not None:
-            on_report(rep)
+    with fresh_folder(out_dir, discard=False):
+        for path, stem in zip(paths, folders, strict=True):
+            with fresh_folder(os.path.join(out_dir, stem)) as folder:
+                rep = report_run(path, folder, globs=globs, model=model, warmup=warmup, progress=progress)
+            reports.append(rep)
+            if on_report is not None:
+                on_report(rep)
     if len(reports) > 1:
         stems = [os.path.basename(r.folder) for r in reports]
         write_tables(

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imustation.errors import InputError
-from imustation.runfile import open_run
+from imustation.runfile import open_series
 
 #: smallest temperature span (K) a coefficient is fitted over: about twice the finest MCP9804
 #: resolution (0.0625 degC); below it the slope is quantisation noise
@@ -44,7 +44,7 @@ def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
 
     Raises :class:`InputError` if the device has no temperature channel.
     """
-    with open_run(path) as run:
+    with open_series(path) as run:
         info = run.devices.get(device)
         if info is None or "temp" not in info.channels:
             raise InputError(f"{path}: device {device} has no temperature channel")
@@ -63,7 +63,7 @@ def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
 
 def thermometer_temperature(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
     """Thermometer ``name`` (e.g. MCP9804): times (s from the run's first sample) and °C."""
-    with open_run(path) as run:
+    with open_series(path) as run:
         if name not in run.thermometers:
             raise InputError(f"{path}: no thermometer {name} (have: {', '.join(run.thermometers) or 'none'})")
         t, c = run.temperatures(name)

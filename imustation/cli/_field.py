@@ -119,7 +119,9 @@ def plan_inputs(
     """
     from imustation.analysis.pipeline.loaders import NoChannelsError
     from imustation.analysis.pipeline.parallel import plan_tasks, tasks_of_channels
+    from imustation.runfile import join_parts
 
+    inputs = join_parts(inputs)  # the parts of a rotated capture are one input
     field = {k: streamed_channels(p, globs, quiet=quiet, topic=topic, time_unit=time_unit, text=text)
              for k, p in enumerate(inputs) if is_field(p, rate_hz)}  # fmt: skip
     tasks: list[ChannelTask] = []

@@ -20,7 +20,18 @@ def _g(x: float, fmt: str = ".3e") -> str:
 
 
 def results_table(results) -> str:
-    head = (
+    """The text table of ``analyze``; with channels of several inputs every row starts with its input's name."""
+    import os
+
+    names = {r.channel.source: os.path.basename(r.channel.source) for r in results}
+    if len(set(names.values())) < len(names):  # same file name in two folders
+        names = {src: src for src in names}
+    width = max(map(len, names.values()), default=0) if len(names) > 1 else 0
+
+    def where(r) -> str:
+        return f"{names[r.channel.source]:<{width}} " if width else ""
+
+    head = (f"{'input':<{width}} " if width else "") + (
         f"{'channel':<22} {'n':>9} {'fs Hz':>7} {'sigma_w':>10} {'deg/h/rtHz':>10} {'sigma_b':>10} "
         f"{'tau_b s':>9} {'b_on':>10} {'ADEV(1s)':>10}  fit"
     )
@@ -33,15 +44,16 @@ def results_table(results) -> str:
             flag = "ok" if m.converged else f"! {m.message}"
             name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
             lines.append(
-                f"{name:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
+                where(r) + f"{name:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
                 f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
                 f"{_g(m.b_on):>10} {_g(adev1):>10}  {m.estimator} {flag}"
             )
         for alt in r.models:
-            lines.append(f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
+            lines.append(where(r) + f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
     for r in results:
         if r.verdict is not None:
-            lines.append(f"enough data? {r.channel.id}: {r.verdict.verdict} - {'; '.join(r.verdict.reasons)}")
+            label = f"{names[r.channel.source]}: {r.channel.id}" if width else r.channel.id
+            lines.append(f"enough data? {label}: {r.verdict.verdict} - {'; '.join(r.verdict.reasons)}")
     lines.append(
         "units: sigma_w (unit)/s*sqrt(s) = (unit)/sqrt(Hz); sigma_b (unit)/s/sqrt(Hz); "
         "b_on, ADEV in the channel unit (rad/s or m/s^2)"

@@ -11,16 +11,10 @@ import threading
 import click
 
 from imustation.cli import cli
+from imustation.cli.statusview import StatusView
 from imustation.errors import InputError
+from imustation.outputs import check_file
 from imustation.units import format_duration, parse_duration
-
-
-def _bytes(n: int) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB"):
-        if n < 1024 or unit == "GiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024
-    return str(n)
 
 
 def _record_stop_signals() -> list[int]:
@@ -32,30 +26,6 @@ def _record_stop_signals() -> list[int]:
     previous = {sig: signal.signal(sig, lambda signum, _frame: early.append(signum)) for sig in sigs}
     click.get_current_context().call_on_close(lambda: [signal.signal(s, h) for s, h in previous.items()])
     return early
-
-
-def format_status(status: dict) -> str:
-    """One status line: elapsed/planned, file, then per device and thermometer."""
-    head = f"{format_duration(status['elapsed_s'])}/{format_duration(status['duration_s'])}"
-    head += f" (-{format_duration(status['remaining_s'])})" if status["remaining_s"] > 0 else ""
-    if status.get("file_bytes") is not None:
-        part = f" part {status['part']}" if status.get("part") else ""
-        head += f" {_bytes(status['file_bytes'])}{part}"
-    parts = [head]
-    for name, d in status["devices"].items():
-        rate = d["rate_recent_hz"] if d.get("rate_recent_hz") is not None else d["rate_hz"]
-        temp = f" {d['temp_c']:.1f}C" if d.get("temp_c") is not None else ""
-        state = f" {d['state'].upper()}" if d["state"] != "ok" else ""
-        parts.append(
-            f"{name}: {d['samples']} @ {rate:.1f}/{d['rate_cfg_hz']:g} Hz gaps {d['gaps']}"
-            + (f" (-{d['lost']})" if d["lost"] else "")
-            + temp
-            + state
-        )
-    for name, t in status.get("thermometers", {}).items():
-        c = f"{t['celsius']:.2f}C" if t.get("celsius") is not None else "-"
-        parts.append(f"{name}: {c}" + (" FAILED" if t["state"] != "ok" else ""))
-    return " | ".join(parts)
 
 
 def _write_status_file(path: str, status: dict) -> None:
@@ -87,14 +57,14 @@ def _workers(value: str, cfg, can: bool) -> int:
 @click.option("-o", "--output", default="run.h5", show_default=True, help="Run file to create (HDF5).")
 @click.option("--duration", default="12h", show_default=True, help="How long to record: 12h, 90m, 1h30m, 45s.")
 @click.option("--simulate", is_flag=True, help="Replace every bus and chip by its simulator (virtual clock).")
-@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file (and --trace file).")
 @click.option(
     "--rotate",
     default=None,
     metavar="DURATION",
     help="Start a new part file every DURATION (e.g. 6h): run.001.h5, run.002.h5, ...",
 )
-@click.option("--quiet", is_flag=True, help="No live status line (errors and the final summary only).")
+@click.option("--quiet", is_flag=True, help="No live status (errors and the final summary only).")
 @click.option("--json-status", is_flag=True, help="Print the status as one JSON line per interval on stdout.")
 @click.option("--status-file", default=None, metavar="PATH", help="Keep the latest JSON status in PATH.")
 @click.option(
@@ -180,6 +150,12 @@ def capture(
     from imustation.monitor.launcher import MonitorProcess
 
     cfg = load_config(config)
+    # outputs before any device is touched (existing parts of a rotated capture: the recorder's check)
+    check_file(output, overwrite=overwrite or bool(rotate))
+    if trace_file is not None:
+        check_file(trace_file, overwrite=overwrite, option="--trace")
+    if status_file is not None:
+        check_file(status_file, overwrite=True, option="--status-file")  # replaced every interval by design
     seconds = parse_duration(duration)
     rotate_s = parse_duration(rotate) if rotate else None
     if not status_interval > 0:
@@ -189,9 +165,12 @@ def capture(
     given = {"trace": trace_file is not None, "replay": replay_file is not None, "rotate": rotate_s is not None}
     n_workers = _workers(workers, cfg, workers_possible(simulate=simulate, **given))
     check_options(simulate=simulate, sim_level=sim_level, workers=n_workers, cli=True, **given)
-    tty = sys.stderr.isatty()
     live = not quiet and not json_status
-    launcher = MonitorProcess(monitor_host, monitor_port, note=lambda msg: click.echo(msg, err=True))
+    view = StatusView(sys.stderr) if live else None
+    # the monitor's notes go through the view, so they never land inside the status block
+    launcher = MonitorProcess(
+        monitor_host, monitor_port, note=view.note if view is not None else lambda msg: click.echo(msg, err=True)
+    )
 
     def on_status(status: dict) -> None:
         if with_monitor:
@@ -200,9 +179,8 @@ def capture(
             click.echo(json.dumps(status))
         if status_file:
             _write_status_file(status_file, status)
-        if live:
-            line = format_status(status)
-            click.echo(("\r\033[K" if tty else "") + line, err=True, nl=not tty)
+        if view is not None:
+            view.show(status)
 
     try:
         summary = run_capture(
@@ -224,8 +202,8 @@ def capture(
         )
     finally:
         launcher.stop()
-    if tty and live:
-        click.echo("", err=True)
+        if view is not None:
+            view.close()
     total = sum(summary.samples.values())
     lost = sum(summary.lost.values())
     speed = summary.duration_s / summary.wall_s if summary.wall_s > 0 else float("inf")

@@ -13,6 +13,7 @@ import click
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.errors import InputError
+from imustation.outputs import check_file
 from imustation.units import format_duration, parse_duration
 
 #: virtual durations: the quick demo (byte-level capture), and the full lab (synthesised at the
@@ -35,6 +36,7 @@ TABLE_FIELDS = ("channel", "param", "simulated", "identified", "ci90_lo", "ci90_
     help=f"Virtual duration of the simulated capture [default: {QUICK_DURATION}; {LAB_DURATION} with --lab].",
 )
 @click.option("-o", "--output", default=None, help="Keep the run file here (default: a temporary file).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing -o run file or --table file.")
 @click.option("--config", "config_file", default=None, help="Config to simulate (default: the shipped demo.toml).")
 @click.option(
     "--lab",
@@ -63,6 +65,7 @@ TABLE_FIELDS = ("channel", "param", "simulated", "identified", "ci90_lo", "ci90_
 def demo(
     duration: str | None,
     output: str | None,
+    overwrite: bool,
     config_file: str | None,
     lab: bool,
     profile: str | None,
@@ -86,6 +89,13 @@ def demo(
     if output is not None and os.path.splitext(output)[1].lower() not in (".h5", ".hdf5"):
         # the analysis that follows opens the file by its extension: refuse before hours of simulation
         raise InputError(f"-o {output}: the run file needs an .h5 name (e.g. {output}.h5)")
+    if lab and table_path is None:
+        table_path = "imustation-lab-demo.csv"
+    # every output before hours of simulation: a capture is never replaced silently
+    if output is not None:
+        check_file(output, overwrite=overwrite)
+    if table_path is not None:
+        check_file(table_path, overwrite=overwrite, option="--table")
     from imustation.acquisition import capture as run_capture
     from imustation.acquisition import load_config
     from imustation.acquisition.synthesize import synthesize
@@ -97,8 +107,6 @@ def demo(
     default_cfg = LAB_CONFIGS[profile or "paper"] if lab else "demo.toml"
     cfg = load_config(config_file or config_path(default_cfg))
     seconds = parse_duration(duration or (LAB_DURATION if lab else QUICK_DURATION))
-    if lab and table_path is None:
-        table_path = "imustation-lab-demo.csv"
     globs = ["*/gyro/*", "*/accel/*"] if lab else ["*/gyro/*"]
     with tempfile.TemporaryDirectory() as tmp:
         path = output or os.path.join(tmp, "demo.h5")
@@ -113,13 +121,13 @@ def demo(
                     bar.update(k - done[0])
                     done[0] = k
 
-                syn = synthesize(cfg, path, seconds, overwrite=output is not None, progress=step)
+                syn = synthesize(cfg, path, seconds, overwrite=overwrite, progress=step)
             wall = time.perf_counter() - t_syn
             click.echo(f"  {sum(syn.samples.values())} samples in {wall:.1f} s wall (synthesised, no bus transport)")
         else:
             # two processes (docs/capture.md): the same table on any machine, half the time on two cores
             workers = min(2, len(bus_groups(cfg)))
-            summary = run_capture(cfg, path, seconds, simulate=True, overwrite=output is not None, workers=workers)
+            summary = run_capture(cfg, path, seconds, simulate=True, overwrite=overwrite, workers=workers)
             click.echo(f"  {sum(summary.samples.values())} samples in {summary.wall_s:.1f} s wall")
         channels = load_inputs([path], globs)
         head = f"{'channel':<22} {'param':<8} {'simulated':>11} {'identified':>11} {'90% interval':>25} {'error':>8}"

@@ -7,6 +7,7 @@ import click
 from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.errors import InputError
+from imustation.outputs import check_file
 
 
 def _device_channels(channels, device: str | None, kind: str, path: str):
@@ -24,9 +25,10 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 
 
 @cli.command()
-@click.argument("run", type=click.Path(dir_okay=False))
+@click.argument("runs", metavar="RUN", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--format", "fmt", type=click.Choice(choices.EXPORT_FORMATS), required=True, help="Target tool.")
 @click.option("-o", "--output", default=None, help="Write the YAML here (default: print it).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing -o file.")
 @click.option("--device", default=None, help="Device whose gyroscope is exported (default: the only one).")
 @click.option("--accel-device", default=None, help="Device whose accelerometer is exported (default: --device).")
 @click.option("--gyro-only", is_flag=True, help="Leave the accelerometer keys out (e.g. a gyro-only device).")
@@ -49,9 +51,10 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
 @click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
 @click.option("--topic", default="/imu0", show_default=True, help="IMU topic written for ROS-based tools.")
 def export(
-    run: str,
+    runs: tuple[str, ...],
     fmt: str,
     output: str | None,
+    overwrite: bool,
     device: str | None,
     accel_device: str | None,
     gyro_only: bool,
@@ -65,8 +68,16 @@ def export(
     Values are continuous-time densities (SI) — the white-noise density is
     sigma_w = N, not N*sqrt(rate); the bias random walk is K (see docs/reports.md
     for the conversion from a Gauss-Markov bias). One value per sensor: the
-    largest axis.
+    largest axis. A rotated capture is one RUN: its base name (week.h5) or all its parts.
     """
+    from imustation.runfile import join_parts
+
+    if output is not None:
+        check_file(output, overwrite=overwrite)
+    joined = join_parts(runs)
+    if len(joined) != 1:
+        raise InputError(f"{', '.join(joined)}: export takes one run (or the parts of one rotated capture)")
+    [run] = joined
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
     from imustation.analysis.pipeline.channel import analyze_channel

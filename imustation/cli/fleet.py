@@ -12,6 +12,7 @@ from imustation.cli._parallel import cluster_options, report_failures, run_with_
 @cli.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path())
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
+@click.option("--overwrite", is_flag=True, help="Replace a fleet report already in the directory.")
 @click.option(
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to include (default: every gyro/accel axis)."
 )
@@ -22,6 +23,7 @@ from imustation.cli._parallel import cluster_options, report_failures, run_with_
 def fleet(
     runs: tuple[str, ...],
     out_dir: str,
+    overwrite: bool,
     globs: tuple[str, ...],
     model: str,
     workers: int | None,
@@ -41,8 +43,12 @@ def fleet(
     run failed.
     """
     from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks
-    from imustation.analysis.reports.fleetreport import write_fleet_report
+    from imustation.analysis.reports.fleetreport import FLEET_FILES, write_fleet_report
+    from imustation.outputs import check_folder
+    from imustation.runfile import join_parts
 
+    check_folder(out_dir, overwrite=overwrite, writes=FLEET_FILES)
+    runs = tuple(join_parts(runs))  # a rotated capture's parts: one run
     tasks, failures = plan_tasks(runs, globs)
     report_failures(failures)
     results, failed = run_with_progress(

@@ -6,6 +6,7 @@ import click
 
 from imustation.cli import cli
 from imustation.cli._field import field_options, run_import, text_options
+from imustation.outputs import check_file
 
 
 @cli.command("import")
@@ -22,6 +23,7 @@ def import_(source, out, overwrite, quiet, topic, time_column, gyro_columns, acc
     checked (order, duplicates, gaps, jitter, true rate), kept in file order, and
     their problems logged as events. See docs/import.md.
     """
+    check_file(out, overwrite=overwrite)
     res = run_import(
         source, out, quiet=quiet, overwrite=overwrite, topic=topic, time_unit=time_unit,
         text=text_options(time_column, gyro_columns, accel_columns, gyro_unit),

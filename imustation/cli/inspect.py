@@ -9,15 +9,32 @@ from imustation.units import format_duration
 
 
 @cli.command()
-@click.argument("run", type=click.Path(dir_okay=False))
-def inspect(run: str) -> None:
-    """Print the devices, settings, sample counts, duration and gaps of a RUN file."""
+@click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+def inspect(runs: tuple[str, ...]) -> None:
+    """Print the devices, settings, sample counts, duration and gaps of each RUN file.
+
+    The parts of a rotated capture (week.001.h5, week.002.h5, ...) are one run: name
+    them all, or the base name (week.h5); the parts are listed, then the devices
+    over all of them.
+    """
+    from imustation.runfile import join_parts
+
+    for k, run in enumerate(join_parts(runs)):
+        if k:
+            click.echo("")
+        _inspect(run)
+
+
+def _inspect(run: str) -> None:
+    import os
+
     import numpy as np
 
-    from imustation.runfile import open_run
+    from imustation.runfile import RunSeries, open_series
+    from imustation.runfile.series import base_of_part, series_parts
     from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, thermometer_status
 
-    with open_run(run) as rf:
+    with open_series(run) as rf:
         a = rf.attrs
         crashed = f"still recording, or cut off by a crash: then `imustation recover {run}` completes it"
         state = "complete" if rf.complete else f"INCOMPLETE ({crashed})"
@@ -26,11 +43,26 @@ def inspect(run: str) -> None:
             f"  started {a.get('started_utc')}  ended {a.get('ended_utc', '-')}"
             f"  simulated {bool(a.get('simulated'))}  software {a.get('software_version')}"
         )
-        if "part" in a:
+        if isinstance(rf, RunSeries):
+            click.echo(
+                f"  rotated capture (run_id {a.get('run_id')}), parts {rf.numbers[0]}..{rf.numbers[-1]} read as one:"
+            )
+            for part in rf.parts:
+                pa = part.attrs
+                n = sum(d.n for d in part.devices.values())
+                click.echo(
+                    f"    part {pa.get('part')}: {os.path.basename(part.path)}, started {pa.get('part_started_utc')}, "
+                    f"{n} samples, {os.path.getsize(part.path) / 2**20:.1f} MiB, "
+                    + ("complete" if part.complete else "INCOMPLETE")
+                )
+        elif "part" in a:
             click.echo(
                 f"  part {a['part']} of a rotated run (run_id {a.get('run_id')}), started {a.get('part_started_utc')};"
                 f" previous {a.get('previous_part') or '-'}, next {a.get('next_part') or '-'}"
             )
+            base = base_of_part(run)
+            if base is not None and series_parts(base[0]):
+                click.echo(f"  all parts as one run: imustation inspect {base[0]}")
         if a.get("stopped"):
             click.echo(f"  stopped early: {a['stopped']}")
         if a.get("recovered"):

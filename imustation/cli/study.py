@@ -11,6 +11,7 @@ import click
 from imustation.analysis.pipeline.choices import DEFAULT_STUDY_ESTIMATORS, STUDY_ESTIMATORS
 from imustation.cli import cli
 from imustation.errors import InputError
+from imustation.outputs import check_file
 from imustation.units import parse_duration
 
 
@@ -56,7 +57,9 @@ def _floats(text: str, what: str) -> tuple[float, ...]:
     default=None,
     help="Write the Markdown table to this file (--out: the former spelling).",
 )
+@click.option("--overwrite", is_flag=True, help="Replace an existing -o file.")
 def study(
+    overwrite: bool,
     records: int,
     duration: str,
     fs_hz: float,
@@ -68,6 +71,8 @@ def study(
     out: str | None,
 ) -> None:
     """Simulate BMX055-like records (Table III) and report bias, spread, RMSE and CI coverage."""
+    if out is not None:
+        check_file(out, overwrite=overwrite)
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
     lv = _floats(levels, "--levels")
     seconds = parse_duration(duration)

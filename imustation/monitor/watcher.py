@@ -39,7 +39,7 @@ from imustation.analysis.pipeline.loaders import locate_breaks
 from imustation.analysis.reports.temperature import TEMP_READ_HZ, detect_warmup
 from imustation.errors import ImustationError
 from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
-from imustation.runfile import Event, RunFile, open_run
+from imustation.runfile import Event, RunFile, latest_part, open_run
 from imustation.runfile.checks import parse_events
 from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, elapsed_from_run, thermometer_status
 
@@ -141,7 +141,8 @@ def decimate(t_s: np.ndarray, c: np.ndarray, max_points: int) -> tuple[np.ndarra
 class Monitor:
     """Watches one run file; see the module docstring.
 
-    path : the run file (must exist and be an imustation run file).
+    path : the run file (must exist and be an imustation run file), or the base name of a
+        rotated capture (its newest part is watched, then each next part).
     poll_s : wall seconds between polls of the file.
     allan_every_s, fit_every_s : wall seconds between Allan / model recomputations.
     model_after_s : station seconds of data a device needs before the model is fitted.
@@ -159,7 +160,7 @@ class Monitor:
         max_rows: int = MAX_ROWS,
         max_read_rows: int = MAX_READ_ROWS,
     ):
-        self.path = os.fspath(path)
+        self.path = latest_part(os.fspath(path))  # a rotated capture's base name: the part being written
         self.poll_s = float(poll_s)
         self.allan_every_s = float(allan_every_s)
         self.fit_every_s = float(fit_every_s)

@@ -13,6 +13,9 @@ lost and files stay small.
   each other, damaged chunks, event rows) - a damaged file is one clear error;
 - :mod:`~imustation.runfile.swmr`: the SWMR open with a bounded retry on damaged blocks;
 - :mod:`~imustation.runfile.recover`: ``imustation recover`` (a crashed file made plain);
+- :mod:`~imustation.runfile.series`: :func:`open_series`, the parts of a rotated capture
+  read as one run (:class:`RunSeries`), and :func:`join_parts` for a command's inputs;
+- :mod:`~imustation.runfile.breaks`: where logged gaps break a device's record;
 - :mod:`~imustation.runfile.disk`: durable renames and the full-disk ballast.
 
 Nothing else touches the HDF5 layout. Every name is importable from
@@ -31,12 +34,14 @@ from imustation.runfile.schema import (
     EVENTS,
     FORMAT,
     FORMAT_VERSION,
+    LOSS_KINDS,
     THERMOMETERS,
     TIME,
     DeviceSpec,
     Event,
     utc_now_iso,
 )
+from imustation.runfile.series import RunSeries, join_parts, latest_part, open_series, part_path, parts_of
 from imustation.runfile.writer import (
     BALLAST_SUFFIX,
     CHUNK_ROWS,
@@ -62,6 +67,7 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "H5_OPTS",
+    "LOSS_KINDS",
     "THERMOMETERS",
     "TIME",
     "ChannelInfo",
@@ -70,7 +76,13 @@ __all__ = [
     "DeviceSpec",
     "Event",
     "RunFile",
+    "RunSeries",
     "RunWriter",
+    "join_parts",
+    "latest_part",
     "open_run",
+    "open_series",
+    "part_path",
+    "parts_of",
     "utc_now_iso",
 ]

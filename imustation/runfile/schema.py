@@ -28,6 +28,8 @@ CELSIUS = "celsius"
 
 #: kinds of event a run file may hold (docs/runfile.md)
 EVENT_KINDS = ("gap", "resync", "reconnect", "overrun", "checksum", "config", "note", "fault")
+#: event kinds that count as gaps of a device's record, their ``lost`` as samples lost
+LOSS_KINDS = ("gap", "overrun")
 EVENT_DTYPE = np.dtype(
     [
         ("t", "<i8"),  # ns since started_utc
