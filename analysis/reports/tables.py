@@ -411,10 +411,13 @@ def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
     """``35.0 [34.8, 35.2]`` (times ``factor``); flags as :func:`fmt_flagged`."""
     if e.flag or not math.isfinite(e.value):
         return fmt_flagged(e.value * factor, e.flag, digits)
-    text = fmt_number(e.value * factor, digits)
-    if math.isfinite(e.lo) and math.isfinite(e.hi):
-        text += f" [{fmt_number(e.lo * factor, digits)}, {fmt_number(e.hi * factor, digits)}]"
-    return text
+    v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return fmt_number(v, digits)
+    # enough digits that a narrow interval does not print as [x, x]
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+        digits += 1
+    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
 
 
 def summary_markdown(rows: list[SummaryRow]) -> str:
@@ -468,6 +471,8 @@ class TempcoRow:
     source: str
     result: object | None
     reason: str = ""
+    #: passes the report's family-wise test (Holm over all its coefficients; temperature.holm)
+    listed: bool = False
 
 
 def tempco_csv(rows: list[TempcoRow]) -> str:
@@ -476,26 +481,26 @@ def tempco_csv(rows: list[TempcoRow]) -> str:
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(
         ["channel", "temperature", "slope", "slope_unit", "slope_display", "slope_display_unit", "stderr_ols",
-         "stderr_eff", "n_blocks", "n_eff", "rho_temp", "rho_resid", "p_value", "significant", "span_k", "r2",
-         "note"]
+         "stderr_eff", "n_blocks", "n_eff", "rho_temp", "rho_resid", "p_value", "significant", "listed", "span_k",
+         "r2", "note"]
     )  # fmt: skip
     for r in rows:
         si, disp, k = display_units(r.sensor, "rate")
         tc = r.result
         if tc is None:
-            w.writerow([r.channel, r.source, "", f"{si}/K", "", f"{disp}/K", *[""] * 10, r.reason])
+            w.writerow([r.channel, r.source, "", f"{si}/K", "", f"{disp}/K", *[""] * 11, r.reason])
             continue
         w.writerow(
             [r.channel, r.source, repr(tc.slope), f"{si}/K", repr(tc.slope * k), f"{disp}/K", repr(tc.slope_stderr),
              repr(tc.slope_stderr_eff), tc.n, f"{tc.n_eff:.4g}", f"{tc.rho_temp:.4f}", f"{tc.rho_resid:.4f}",
-             f"{tc.p_value:.3g}", tc.significant, f"{tc.span_c:.4g}", f"{tc.r2:.4f}", r.reason]
+             f"{tc.p_value:.3g}", tc.significant, r.listed, f"{tc.span_c:.4g}", f"{tc.r2:.4f}", r.reason]
         )  # fmt: skip
     return buf.getvalue()
 
 
 def tempco_markdown(rows: list[TempcoRow]) -> str:
-    """The significant coefficients only (display units, inflated standard error); an empty string when none."""
-    sig = [r for r in rows if r.result is not None and r.result.significant]
+    """The listed coefficients only (display units, inflated standard error); an empty string when none."""
+    sig = [r for r in rows if r.result is not None and r.listed]
     if not sig:
         return ""
     head = ["channel", "temperature", "slope", "± (autocorrelation-corrected)", "p", "n_eff / blocks", "span [K]", "R²"]
