@@ -108,3 +108,18 @@ def test_not_identified_when_the_interval_spans_two_decades(analysed):
     row = noise_rows([replace(analysed[1], noise_model=wide)])[0]
     assert row.flag("sigma_b") == NOT_IDENTIFIED
     assert "not identified" in table_markdown([row])
+
+
+def test_model_names_are_spelled_out_in_every_help():
+    from click.testing import CliRunner
+
+    from imustation.analysis.estimators.noise_models import _TERM_ORDER
+    from imustation.analysis.pipeline.choices import MODEL_TERMS
+    from imustation.cli import cli
+
+    assert set(MODEL_TERMS) == set(_TERM_ORDER)  # a new term code needs its words in the help
+    for cmd in ("analyze", "report", "export", "fleet"):
+        out = " ".join(CliRunner().invoke(cli, [cmd, "--help"]).output.split())
+        for words in ("wn white rate noise", "gm first-order Gauss-Markov bias", "rw rate random walk",
+                      "wa white angle noise"):  # fmt: skip
+            assert words in out, (cmd, words)

@@ -124,13 +124,14 @@ def _interp_adev(allan, tau: float) -> float:
     "--model",
     default=choices.DEFAULT_MODEL,
     show_default=True,
-    help="Noise model fitted, e.g. wn+gm, wn+2gm, wa+wn+gm.",
+    help=choices.MODEL_HELP,
 )
 @click.option(
     "--compare-models",
     "compare",
     is_flag=True,
-    help="Also fit wn+gm, wn+gm+rw and wn+2gm and report AIC/BIC (JSON key 'models').",
+    help="Also fit wn+gm (white noise + Gauss-Markov bias), wn+gm+rw (+ rate random walk) and wn+2gm (two "
+    "Gauss-Markov biases) and report AIC/BIC (JSON key 'models').",
 )
 @click.option(
     "--estimator",
