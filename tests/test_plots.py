@@ -89,3 +89,13 @@ def test_attitude_figure(analysed, tmp_path):
     np.testing.assert_allclose(s, angle_error_std(res.noise_model.noise_model, t, record_s=1200.0))
     assert t[-1] == pytest.approx(1200.0 / 10, rel=1e-6)
     _files_ok(plots.save_figure(fig, tmp_path / "att"))
+
+
+def test_a_term_at_its_search_bound_says_so_in_the_legend():
+    from imustation.analysis.pipeline.loaders import Channel
+
+    res = analyze_channel(Channel("fog/gyro/z", 100.0, "rad/s", np.random.default_rng(1).normal(0, 1e-3, 2000)))
+    assert "tau_b" in res.noise_model.at_bound
+    labels = [ln.get_label() for ln in plots.allan_figure(res).axes[0].get_lines()]
+    gm = next(lb for lb in labels if lb.startswith("GaussMarkov"))
+    assert "tau_b at bound (" in gm and "sigma_b at bound" not in gm

@@ -75,12 +75,17 @@ def _new(title: str, settings: str) -> tuple[Figure, object]:
     return fig, ax
 
 
-def _term_label(t, sensor: str | None) -> str:
-    """``GaussMarkov (sigma_b 188 °/h/√h, tau_b 381 s)``: every value in its display unit."""
+def _term_label(t, sensor: str | None, bound: dict[str, float] | None = None) -> str:
+    """``GaussMarkov (sigma_b 188 °/h/√h, tau_b 381 s)``: every value in its display unit; a value
+    equal to one of the fit's parameters at their search bound (``bound``: name -> value) says so."""
     parts = []
     for k, v in t.params().items():
         _, unit, factor = display_units(sensor, _PARAM_DIM.get(k, "rate"))
-        parts.append(f"{k} {v * factor:.3g} {unit}")
+        text = f"{v * factor:.3g} {unit}"
+        at = any(
+            name.rstrip("0123456789") == k and math.isclose(v, b, rel_tol=1e-9) for name, b in (bound or {}).items()
+        )
+        parts.append(f"{k} at bound ({text})" if at else f"{k} {text}")
     return f"{type(t).__name__} ({', '.join(parts)})"
 
 
@@ -96,7 +101,8 @@ def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = Tr
         tau = np.logspace(np.log10(al.tau[0]), np.log10(al.tau[-1]), 200)
         ax.loglog(tau, model.adev(tau, ch.fs_hz), "C3-", lw=1.5, label=f"identified {fit.model} ({fit.estimator})")
         for i, t in enumerate(model.terms):  # continuous forms: the sampled GM form cancels badly for tau_b >> tau
-            ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t, _sensor(ch)))
+            bound = {k: fit.params[k] for k in fit.at_bound if k in fit.params}
+            ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t, _sensor(ch), bound))
     sensor = _sensor(ch)
     if earth_rate and sensor == "gyro":
         ax.axhline(EARTH_RATE, color="C2", ls=":", lw=1, label=f"earth rate {EARTH_RATE:.3g} rad/s")
