@@ -35,3 +35,8 @@ def test_demo_lab_short(tmp_path):
     for row in rows:
         if row["param"] == "sigma_w":
             assert abs(float(row["error_pct"])) < 15, row
+    # every value with its channel's unit (issue 23): accelerometers in m/s^2, gyros in rad/s
+    units = {(row["channel"].split("/")[1], row["param"]): row["unit"] for row in rows}
+    assert units[("accel", "sigma_w")] == "m/s²/√Hz" and units[("gyro", "sigma_w")] == "rad/s/√Hz"
+    assert units[("gyro", "sigma_b")] == "rad/s²/√Hz" and units[("accel", "tau_b")] == "s"
+    assert "m/s³/√Hz" in r.output

@@ -81,6 +81,25 @@ def test_other_formats_keys():
         assert export_text(gyro, accel, fmt).startswith("%YAML:1.0\n")  # cv::FileStorage files
 
 
+def test_inflation_is_explicit_and_both_values_are_written():
+    from imustation.analysis.reports.export import inflate_sensors, parse_inflation
+    from imustation.errors import InputError
+
+    gyro, accel = _sensors()
+    assert parse_inflation("10") == (10.0, 10.0) and parse_inflation("10, 4") == (10.0, 4.0)
+    for bad in ("0.5", "ten", "1,2,3", "nan"):
+        with pytest.raises(InputError, match="--inflate"):
+            parse_inflation(bad)
+    g10, a10 = inflate_sensors(gyro, accel, 10.0, 20.0)
+    text = export_text(g10, a10, "orbslam3")
+    d = _load(text)
+    assert d["IMU.NoiseGyro"] == pytest.approx(1.6968e-3, rel=1e-6) and d["IMU.GyroWalk"] == pytest.approx(3.8786e-4)
+    assert d["IMU.NoiseAcc"] == pytest.approx(2.0e-2, rel=1e-6) and d["IMU.AccWalk"] == pytest.approx(6.0e-2)
+    assert "# INFLATED gyro: noise density x10, random walk x20 (--inflate); measured 1.6968e-04, 1.9393e-05" in text
+    assert "#   d/gyro/x: 1.6968e-04, 1.9393e-05" in text  # the per-axis lines are the measured values
+    assert "INFLATED" not in export_text(gyro, accel, "orbslam3")
+
+
 def test_gyro_only_leaves_accel_keys_out():
     gyro, _ = _sensors()
     d = export_dict(gyro, None, "kalibr")
@@ -146,6 +165,20 @@ def test_cli_export_sim_run(sim_run, demo_config, tmp_path):
     # without an accelerometer the export refuses rather than writing a file Kalibr would reject
     r = runner.invoke(cli, ["export", str(path), "--format", "kalibr"])
     assert r.exit_code == 2 and "no accelerometer channels" in r.output
+    # inflated on request only: the values written are x10 / x5, the measured ones stay in the comments
+    big = tmp_path / "inflated.yaml"
+    r = runner.invoke(
+        cli, ["export", str(path), "--format", "kalibr", "--gyro-only", "-o", str(big), "--inflate", "10,5"]
+    )
+    assert r.exit_code == 0, r.output
+    assert "inflated gyro: noise density" in r.stderr
+    text = big.read_text()
+    di = yaml.safe_load(text)
+    assert di["gyroscope_noise_density"] == pytest.approx(10 * d["gyroscope_noise_density"], rel=1e-5)
+    assert di["gyroscope_random_walk"] == pytest.approx(5 * d["gyroscope_random_walk"], rel=1e-5)
+    assert "# INFLATED gyro: noise density x10, random walk x5" in text
+    assert f"measured {d['gyroscope_noise_density']:.4e}" in text
+    assert "INFLATED" not in out.read_text()  # never silently
 
 
 def test_short_record_random_walk_is_flagged(tmp_path, demo_config):

@@ -217,6 +217,19 @@ def test_robust_z_and_device_key():
     assert device_key("bmx055", "chip_id=0x0F", "lab", "gyro", {"serial": "SN7"}) == "bmx055:serial=SN7"
 
 
+def test_robust_z_spread_has_a_floor_from_the_standard_errors():
+    """sigma_w equal to three digits: the MAD is ~0 and the plain robust z explodes (issue 23 saw -4392);
+    with the values' stated standard errors (0.2 %) as the floor they agree, and a real outlier stays one."""
+    sw = np.array([1.2340000e-4, 1.2340001e-4, 1.2340002e-4, 1.2340003e-4, 1.2346e-4])
+    logv = np.log10(sw)
+    se_log = np.full(len(sw), 0.002 / math.log(10.0))  # 0.2 % relative standard error, in log10
+    assert abs(robust_z(logv)[-1]) > 1000  # the old behaviour
+    assert np.all(np.abs(robust_z(logv, se_log)) < 1.0)
+    out = np.log10(np.append(sw, 3 * 1.234e-4))
+    z = robust_z(out, np.append(se_log, 0.5))  # one degenerate standard error does not move the median floor
+    assert z[-1] > 3.5 and np.all(np.abs(z[:-1]) < 1.0)
+
+
 def test_help():
     for cmd in ("fleet", "analyze"):
         r = CliRunner().invoke(cli, [cmd, "--help"])

@@ -5,47 +5,19 @@ Skipped where no Chromium is installed; ``.ci/run`` installs Debian's ``chromium
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
+import re
 
 import numpy as np
 import pytest
+from browser_helpers import CHROMIUM, pixels_near, screenshot_rgb
+from browser_helpers import chromium as _chromium
 from matplotlib import image as mpimg
 from monitor_helpers import CONFIG, start_capture, start_monitor, stop, wait_for_file, wait_json
-
-CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if os.path.exists("/usr/bin/chromium") else None)
 
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(CHROMIUM is None, reason="no chromium installed (apt-get install chromium)"),
 ]
-
-FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--disable-dev-shm-usage",
-    "--hide-scrollbars",
-    "--window-size=1200,1400",
-    "--virtual-time-budget=10000",
-]
-
-
-def _chromium(tmp_path, url: str, *args: str) -> subprocess.CompletedProcess:
-    """Run headless Chromium once; one retry (a first start in a fresh profile sometimes aborts the load)."""
-    for attempt in range(2):
-        profile = tmp_path / f"profile{attempt}-{len(args)}"
-        cmd = [CHROMIUM, *FLAGS, f"--user-data-dir={profile}", *args, url]
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-        if res.returncode == 0 and "Page load failed" not in res.stderr:
-            return res
-    return res
 
 
 def test_page_renders_the_plots(tmp_path):
@@ -75,14 +47,19 @@ def test_page_renders_the_plots(tmp_path):
     assert "connecting" not in dom  # the status arrived and was rendered
     assert ">gyro<" in dom and "400" in dom
 
+    # issue 23: the fitted values carry their units, the measured points their 68 % error bars
+    assert "rad/s/√Hz (" in dom and "°/h/√Hz)" in dom and "rad/s²/√Hz" in dom and "°/h/√h)" in dom
+    bars = [int(v) for v in re.findall(r'data-error-bars="(\d+)"', dom)]
+    assert bars and bars[0] >= 3 * 10, bars  # three axes, an error bar at each of their taus
+
     # the screenshot is not blank: many colours, and the plot lines' colours are present
     img = mpimg.imread(shot)[:, :, :3]
     assert img.shape[0] >= 900 and img.shape[1] >= 1000
-    rgb = (img * 255).round().astype(np.uint8).reshape(-1, 3)
+    rgb = screenshot_rgb(shot)
     colours = np.unique(rgb, axis=0)
     assert len(colours) > 200, len(colours)
     non_white = np.count_nonzero(np.any(rgb < 240, axis=1))
     assert non_white > 0.02 * len(rgb)
-    for r, g, b in ((0xD6, 0x27, 0x28), (0x2C, 0xA0, 0x2C), (0x1F, 0x77, 0xB4)):  # axis colours x, y, z
-        near = np.all(np.abs(rgb.astype(int) - (r, g, b)) < 30, axis=1)
-        assert np.count_nonzero(near) > 200, (r, g, b, np.count_nonzero(near))
+    # every curve its own colour: the axes x, y, z and, distinct from them, their model overlays
+    for colour in ("#d62728", "#2ca02c", "#1f77b4", "#9467bd", "#ff7f0e", "#17becf"):
+        assert pixels_near(rgb, colour, 25) > 100, (colour, pixels_near(rgb, colour, 25))

@@ -39,7 +39,25 @@ def test_allan_figure(analysed, tmp_path):
     labels = [ln.get_label() for ln in ax.get_lines()]
     assert any(lb.startswith("earth rate") for lb in labels)
     assert sum(lb.startswith(("WhiteRate", "GaussMarkov")) for lb in labels) == 2
+    # every fitted value in the legend carries its unit (issue 23): display units of a gyro
+    gm = next(lb for lb in labels if lb.startswith("GaussMarkov"))
+    assert "°/h/√h" in gm and gm.rstrip(")").endswith(" s")
+    assert "°/h/√Hz" in next(lb for lb in labels if lb.startswith("WhiteRate"))
+    assert ax.get_ylabel() == "Allan deviation [rad/s]"
     _files_ok(plots.save_figure(fig, tmp_path / "allan"))
+
+
+def test_accelerometer_figures_carry_accelerometer_units():
+    from imustation.analysis.pipeline.loaders import Channel
+
+    rng = np.random.default_rng(3)
+    res = analyze_channel(Channel("imu/accel/x", 100.0, "m/s^2", 9.8 + rng.normal(0, 7e-3, 20_000)))
+    ax = plots.allan_figure(res).axes[0]
+    labels = [ln.get_label() for ln in ax.get_lines()]
+    assert ax.get_ylabel() == "Allan deviation [m/s²]" and not any("earth rate" in lb for lb in labels)
+    assert "µg/√Hz" in next(lb for lb in labels if lb.startswith("WhiteRate"))
+    assert all("°" not in lb for lb in labels)
+    assert plots.attitude_figure(res).axes[0].get_ylabel() == "angle error std [m/s]"
 
 
 def test_multi_psd_temperature(analysed, tmp_path):
@@ -71,3 +89,13 @@ def test_attitude_figure(analysed, tmp_path):
     np.testing.assert_allclose(s, angle_error_std(res.noise_model.noise_model, t, record_s=1200.0))
     assert t[-1] == pytest.approx(1200.0 / 10, rel=1e-6)
     _files_ok(plots.save_figure(fig, tmp_path / "att"))
+
+
+def test_a_term_at_its_search_bound_says_so_in_the_legend():
+    from imustation.analysis.pipeline.loaders import Channel
+
+    res = analyze_channel(Channel("fog/gyro/z", 100.0, "rad/s", np.random.default_rng(1).normal(0, 1e-3, 2000)))
+    assert "tau_b" in res.noise_model.at_bound
+    labels = [ln.get_label() for ln in plots.allan_figure(res).axes[0].get_lines()]
+    gm = next(lb for lb in labels if lb.startswith("GaussMarkov"))
+    assert "tau_b at bound (" in gm and "sigma_b at bound" not in gm

@@ -31,6 +31,35 @@ def test_tempco_recovered_from_simulation():
     assert res.slope_stderr == pytest.approx(expected_se, rel=0.1)
     assert abs(res.slope - alpha) < 4 * res.slope_stderr
     assert res.n == 240 and res.span_c > 2.5
+    # white noise: block means independent, the autocorrelation test leaves (almost) all of n
+    assert res.n_eff > 0.8 * res.n and res.slope_stderr_eff == pytest.approx(res.slope_stderr, rel=0.15)
+    # ten times the coefficient (about 13 standard errors) passes the test
+    bt, b = bias_track(rate + 9 * alpha * (temp - 25.0), fs, 60.0)
+    strong = fit_tempco(bt, b, tt, _warm_temperature(tt))
+    assert strong.significant and strong.p_value < 1e-6
+
+
+def test_tempco_significance_accounts_for_autocorrelated_bias():
+    """A Gauss-Markov bias (tau_b 1 h) and a slow temperature drift, no temperature coefficient at all:
+    the OLS t-test "finds" one in most 12 h records (spurious regression, issue 23 saw R^2 0.51 on a
+    simulator without a coefficient); the effective-sample-size test in about its nominal 1 %."""
+    from scipy.signal import lfilter
+    from scipy.stats import t as student_t
+
+    fs, tau_b, sigma_b = 2.0, 3600.0, 2e-6
+    t = np.arange(int(12 * 3600 * fs)) / fs
+    temp = 25 + 0.8 * np.sin(2 * np.pi * t / (9 * 3600)) + 0.3 * t / 43200
+    phi = math.exp(-1 / fs / tau_b)
+    ols = corrected = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        bias = lfilter([1], [1, -phi], rng.normal(0, sigma_b * math.sqrt(tau_b / 2 * (1 - phi**2)), len(t)))
+        bt, b = bias_track(bias + rng.normal(0, 1e-4 * math.sqrt(fs), len(t)), fs, 60.0)
+        res = fit_tempco(bt, b, t[::2], temp[::2])
+        ols += 2 * student_t.sf(abs(res.slope) / res.slope_stderr, res.n - 2) < 0.01
+        corrected += res.significant
+        assert res.n_eff < 0.3 * res.n and res.slope_stderr_eff > res.slope_stderr
+    assert ols >= 15 and corrected <= 2, (ols, corrected)
 
 
 def test_tempco_refuses_constant_temperature():
@@ -60,3 +89,22 @@ def test_device_temperature_from_run(sim_run):
     assert 10.0 < np.median(c) < 50.0
     with pytest.raises(InputError, match="no temperature channel"):
         device_temperature(str(path), "nope")
+
+
+def test_holm_and_the_listed_coefficients():
+    from imustation.analysis.reports.tables import TempcoRow, tempco_csv, tempco_markdown
+    from imustation.analysis.reports.temperature import TempcoResult, holm
+
+    # step-down: 0.005 <= 0.05/4, 0.01 <= 0.05/3, then 0.03 > 0.05/2 stops
+    assert holm(np.array([0.01, 0.04, 0.03, 0.005]), 0.05).tolist() == [True, False, False, True]
+    assert holm(np.array([1e-4, 0.5, np.nan]), 0.05).tolist() == [True, False, False]
+    tc = TempcoResult(2e-6, 1e-7, 0.0, 25.0, 3.0, 0.9, 100, 0.99, 0.5, 40.0, 2e-7, 1e-9, True)
+    rows = [
+        TempcoRow("imu/gyro/x", "gyro", "internal", tc, listed=True),
+        TempcoRow("imu/gyro/y", "gyro", "internal", tc, listed=False),
+        TempcoRow("imu/gyro/z", "gyro", "internal", None, "temperature spans 0 K"),
+    ]
+    md = tempco_markdown(rows)
+    assert "imu/gyro/x" in md and "imu/gyro/y" not in md and "°/h/K" in md
+    assert md.count("\n") == 3  # header, rule, one row
+    assert len(tempco_csv(rows).splitlines()) == 4  # every coefficient in the CSV

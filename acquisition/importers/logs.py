@@ -22,28 +22,58 @@ from imustation.errors import InputError
 TEXT_EXTS = (".csv", ".tsv", ".txt", ".dat", ".log")
 
 
+#: axis column names (normalised: lower case, units in brackets dropped, separators as ``_``):
+#: a prefix naming the sensor, an optional separator, the axis. gx, wx, gyro_x, gyr_x, omega_x,
+#: angular_velocity_x, rate_x; ax, acc_x, accel_x, linear_acceleration_x
+_GYRO_NAME = re.compile(r"(?:g|w|gyr|gyro|gyroscope|omega|angular_velocity|angular_rate|ang_vel|rate)_?([xyz])")
+_ACCEL_NAME = re.compile(r"(?:a|acc|accel|accelerometer|acceleration|linear_acceleration|lin_acc)_?([xyz])")
+#: temperature column names (normalised as above)
+_TEMP_NAMES = ("temp", "temperature", "temp_c", "temperature_c", "tempc", "t_c", "t_degc", "die_temp", "imu_temp")
+#: substrings of a gyro / accel header when no column follows the axis naming (the columns then
+#: take the axes x, y, z in order)
+_GYRO_HINTS = ("gyr", "angular", "omega", "rate")
+_ACCEL_HINTS = ("acc", "linear")
+AXES = ("x", "y", "z")
+
+
 @dataclass
 class TextMapping:
-    """Where the quantities are in a text log: 0-based columns, time unit, gyro unit factor."""
+    """Where the quantities are in a text log: 0-based columns, their axes, time unit, gyro unit factor.
+
+    ``gyro_cols`` (1 to 3 columns) with ``gyro_axes`` (their axis names, e.g. ``("z",)`` for a
+    single-axis fibre-optic gyro log); ``accel_cols``/``accel_axes`` likewise or None;
+    ``temp_col`` a temperature column (°C) or None; ``auto`` says what was detected.
+    """
 
     delimiter: str | None
     header: list[str] | None
     time_col: int
-    gyro_cols: tuple[int, int, int]
-    accel_cols: tuple[int, int, int] | None
+    gyro_cols: tuple[int, ...]
+    accel_cols: tuple[int, ...] | None
     time_unit: str
     gyro_scale: float = 1.0
     auto: list[str] = field(default_factory=list)
+    gyro_axes: tuple[str, ...] = AXES
+    accel_axes: tuple[str, ...] = AXES
+    temp_col: int | None = None
+    ignored: tuple[int, ...] = ()
 
     def summary(self) -> str:
+        """Which columns were taken: ``time 't' [s], gyro z <- 'gz', accel none, temperature none``."""
+
         def name(i: int) -> str:
             return f"{self.header[i]!r}" if self.header else f"#{i}"
 
-        acc = ", ".join(name(i) for i in self.accel_cols) if self.accel_cols else "none"
+        def axes(cols, names) -> str:
+            return ", ".join(f"{a} <- {name(i)}" for a, i in zip(names, cols, strict=True))
+
+        acc = axes(self.accel_cols, self.accel_axes) if self.accel_cols else "none"
+        temp = f"temperature {name(self.temp_col)} [°C]" if self.temp_col is not None else "temperature none"
+        ign = f", ignored {', '.join(name(i) for i in self.ignored)}" if self.ignored else ""
         how = f" (auto-detected: {', '.join(self.auto)})" if self.auto else ""
         return (
-            f"time {name(self.time_col)} [{self.time_unit}], gyro {', '.join(name(i) for i in self.gyro_cols)}, "
-            f"accel {acc}{how}"
+            f"time {name(self.time_col)} [{self.time_unit}], gyro {axes(self.gyro_cols, self.gyro_axes)}, "
+            f"accel {acc}, {temp}{ign}{how}"
         )
 
 
@@ -58,6 +88,22 @@ def _resolve(path: str, spec: str, header: list[str] | None, ncols: int) -> int:
     if not 0 <= i < ncols:
         raise InputError(f"{path}: column {spec} out of range (the log has {ncols} columns)")
     return i
+
+
+def _normalise(name: str) -> str:
+    """``"Gyro X [rad/s]"`` -> ``"gyro_x"``: lower case, bracketed units dropped, separators as ``_``."""
+    name = re.sub(r"[\[(\{].*?[\])\}]", "", name.lower())
+    return re.sub(r"[^a-z0-9]+", "_", name).strip("_")
+
+
+def _named_axes(low: list[str], pattern: re.Pattern, skip: set[int]) -> dict[str, int]:
+    """Axis -> first column whose normalised name matches ``pattern`` (``gx``, ``gyro_x``...)."""
+    found: dict[str, int] = {}
+    for i, h in enumerate(low):
+        m = pattern.fullmatch(h)
+        if m and i not in skip:
+            found.setdefault(m.group(1), i)
+    return found
 
 
 def _guess_unit(path: str, col_name: str | None, dt: float) -> str:
@@ -86,7 +132,15 @@ def text_mapping(
     time_unit: str | None = None,
     gyro_unit: str = "rad/s",
 ) -> TextMapping:
-    """Column mapping of a text log from the options, the rest auto-detected from its first lines."""
+    """Column mapping of a text log from the options, the rest auto-detected from its first lines.
+
+    Gyro and accel columns: the options (1 to 3 names or indices), else the headers named
+    like an axis (``gx``, ``wx``, ``gyro_x``, ``omega_x``...; ``ax``, ``acc_x``, ``accel_x``...; units
+    in brackets ignored), else the headers containing ``gyr``/``angular``/``omega``/``rate`` and
+    ``acc``/``linear`` (axes x, y, z in order), else (no header) the columns after the time column:
+    gyro x, y, z, accel x, y, z — one- and two-axis logs (``t,gz``) included. A column named
+    ``temperature``/``temp`` is the temperature (°C). Rules in docs/import.md.
+    """
     try:
         with open(path, encoding="utf-8") as fh:
             lines = [ln for ln in islice(fh, 200) if ln.strip() and not ln.lstrip().startswith("#")]
@@ -105,42 +159,61 @@ def text_mapping(
         header = cells
         body = lines[1:]
     ncols = len(cells)
-    low = [h.lower() for h in header] if header else []
+    low = [_normalise(h) for h in header] if header else []
     auto: list[str] = []
 
     if time_col is not None:
         tc = _resolve(path, time_col, header, ncols)
     else:
-        cand = [i for i, h in enumerate(low) if h in ("t", "time") or "stamp" in h or "time" in h]
+        raw = [h.lower() for h in header] if header else []
+        cand = [i for i, h in enumerate(raw) if h in ("t", "time") or "stamp" in h or "time" in h]
         tc = cand[0] if cand else 0
         auto.append("time column")
 
-    def triple(spec: str | None, keys: tuple[str, ...], label: str) -> tuple[int, int, int] | None:
+    def columns(spec: str | None, pattern: re.Pattern, hints: tuple[str, ...], label: str, skip: set[int]):
+        """(columns, axes) of ``label`` or None."""
         if spec is not None:
             cols = tuple(_resolve(path, s, header, ncols) for s in spec.split(","))
-            if len(cols) != 3:
-                raise InputError(f"{path}: --{label}-columns needs three columns, got {spec!r}")
-            return cols  # type: ignore[return-value]
+            if not 1 <= len(cols) <= 3 or len(set(cols)) != len(cols):
+                raise InputError(f"{path}: --{label}-columns needs one to three different columns, got {spec!r}")
+            named = [pattern.fullmatch(low[i]) for i in cols] if header else []
+            if named and all(named) and len({m.group(1) for m in named}) == len(cols):
+                return cols, tuple(m.group(1) for m in named)
+            return cols, AXES[: len(cols)]
         if header:
-            cand = [i for i, h in enumerate(low) if i != tc and any(k in h for k in keys)]
-            if len(cand) >= 3:
-                auto.append(f"{label} columns")
-                return tuple(cand[:3])  # type: ignore[return-value]
+            found = _named_axes(low, pattern, skip | {tc})
+            if found:
+                auto.append(f"{label} columns by name")
+                axes = tuple(a for a in AXES if a in found)
+                return tuple(found[a] for a in axes), axes
+            cand = [i for i, h in enumerate(low) if i != tc and i not in skip and any(k in h for k in hints)][:3]
+            if cand:
+                auto.append(f"{label} columns by name (axes in order)")
+                return tuple(cand), AXES[: len(cand)]
             return None
         rest = [i for i in range(ncols) if i != tc]
         off = 0 if label == "gyro" else 3
-        if len(rest) >= off + 3:
+        cols = tuple(rest[off : off + 3])
+        if cols:
             auto.append(f"{label} columns by position")
-            return tuple(rest[off : off + 3])  # type: ignore[return-value]
+            return cols, AXES[: len(cols)]
         return None
 
-    gc = triple(gyro_cols, ("gyr", "angular", "omega", "rate"), "gyro")
-    if gc is None:
+    gyro = columns(gyro_cols, _GYRO_NAME, _GYRO_HINTS, "gyro", set())
+    if gyro is None:
         raise InputError(
-            f"{path}: no gyro columns found (columns: {', '.join(cells)}); give --gyro-columns"
-            " (plain rate columns without time: analyze --rate HZ)"
+            f"{path}: no gyro columns found (columns: {', '.join(cells)}); name them gx/gy/gz, wx.., gyro_x.. "
+            "or give --gyro-columns (plain rate columns without time: analyze --rate HZ)"
         )
-    ac = triple(accel_cols, ("acc", "linear"), "accel")
+    gc, g_axes = gyro
+    accel = columns(accel_cols, _ACCEL_NAME, _ACCEL_HINTS, "accel", set(gc))
+    ac, a_axes = accel if accel is not None else (None, AXES)
+    used = {tc, *gc, *(ac or ())}
+    temp = next((i for i, h in enumerate(low) if h in _TEMP_NAMES and i not in used), None) if header else None
+    if temp is not None:
+        auto.append("temperature column")
+        used.add(temp)
+    ignored = tuple(i for i in range(ncols) if i not in used)
     try:
         rows = [_split(ln, delim) for ln in body[:100]]
         tt = np.array([float(r[tc]) for r in rows])
@@ -154,17 +227,19 @@ def text_mapping(
     if time_unit not in TIME_UNITS:
         raise InputError(f"{path}: time unit {time_unit!r}: use one of {', '.join(TIME_UNITS)}")
     scale = {"rad/s": 1.0, "deg/s": math.pi / 180.0}[gyro_unit]
-    return TextMapping(delim, header, tc, gc, ac, time_unit, scale, auto)
+    return TextMapping(delim, header, tc, gc, ac, time_unit, scale, auto, g_axes, a_axes, temp, ignored)
 
 
 def _split(line: str, delim: str | None) -> list[str]:
     return [c.strip() for c in (line.split(delim) if delim else line.split())]
 
 
-def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[tuple[int, Rows]]:
-    """``(bytes read, block)`` of a text log, in file order."""
+def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[tuple[int, Rows, np.ndarray | None]]:
+    """``(bytes read, block, temperature °C or None)`` of a text log, in file order."""
     factor = TIME_UNITS[mp.time_unit]
-    cols = [mp.time_col, *mp.gyro_cols, *(mp.accel_cols or ())]
+    temp = [] if mp.temp_col is None else [mp.temp_col]
+    cols = [mp.time_col, *mp.gyro_cols, *(mp.accel_cols or ()), *temp]
+    ng, na = len(mp.gyro_cols), len(mp.accel_cols or ())
     with open(path, encoding="utf-8") as fh:
         if mp.header is not None:
             for ln in fh:
@@ -193,8 +268,9 @@ def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[t
             if not np.isfinite(arr).all():
                 raise InputError(f"{path}: NaN/infinite values near line {lineno}")
             t_ns = np.rint(arr[:, 0] * factor).astype(np.int64)
-            accel = arr[:, 4:7] if mp.accel_cols else None
-            yield pos, (t_ns, arr[:, 1:4] * mp.gyro_scale, accel)
+            accel = arr[:, 1 + ng : 1 + ng + na] if mp.accel_cols else None
+            celsius = arr[:, 1 + ng + na] if temp else None
+            yield pos, (t_ns, arr[:, 1 : 1 + ng] * mp.gyro_scale, accel), celsius
 
 
 def load_npy_log(path: str, time_unit: str | None = None) -> Rows:

@@ -20,7 +20,7 @@ import numpy as np
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.acquisition.importers.sources import Recording, open_recording
 from imustation.acquisition.importers.timestamps import StampChecker, StampReport
-from imustation.runfile import RunWriter
+from imustation.runfile import RunWriter, utc_now_iso
 from imustation.sample_checks import refuse_impossible
 
 #: rows queued (all devices) before the run writer flushes: 2^16 rows = 3.7 MB (its default, 2^20, is 59 MB)
@@ -171,15 +171,19 @@ def import_recording(
         writer.abort()
         raise
     attrs = {"source": os.path.abspath(source), "source_format": rec.fmt, "import_report": _rep(res.reports)}
-    writer.close(attrs=attrs)
+    # ended_utc is the end of the data, as for a capture; when the conversion ran is imported_utc
+    attrs["imported_utc"] = utc_now_iso()
+    last = max((r.last_ns for r in res.reports.values() if r.n), default=rec.t0)
+    writer.close(ended_utc=_iso(rec.t0, last - rec.t0), attrs=attrs)
     res.path = out
     return res
 
 
-def _iso(ns: int) -> str:
-    if ns > 10**17:  # looks like a Unix epoch in ns
-        return _dt.datetime.fromtimestamp(ns / 1e9, _dt.UTC).isoformat(timespec="milliseconds")
-    return "1970-01-01T00:00:00.000+00:00"
+def _iso(ns: int, after_ns: int = 0) -> str:
+    """UTC time of the stamp ``ns`` plus ``after_ns`` (ns); stamps that do not look like Unix time
+    start at 1970-01-01 (``started_utc`` of such an import), so the end is that plus the span."""
+    base = ns if ns > 10**17 else 0  # a Unix epoch in ns, or a clock of its own
+    return _dt.datetime.fromtimestamp((base + after_ns) / 1e9, _dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _rep(reports: dict[str, StampReport]) -> str:

@@ -26,7 +26,7 @@ from imustation.acquisition.importers.bags import (
     iter_bag,
     temperature_topics,
 )
-from imustation.acquisition.importers.logs import TEXT_EXTS, iter_text, load_npy_log, text_mapping
+from imustation.acquisition.importers.logs import AXES, TEXT_EXTS, iter_text, load_npy_log, text_mapping
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec
@@ -94,16 +94,17 @@ def open_recording(
         return _open_bag(source, topic, block, bag_reader)
     if kind == "text":
         mp = text_mapping(source, time_unit=time_unit, **(text or {}))
-        blocks: Iterator[tuple[int, Rows]] = iter_text(source, mp, block)
-        rec = _open_log(source, "text", mp.summary(), mp.accel_cols is not None, blocks, os.path.getsize(source))
+        blocks: Iterator[tuple[int, Rows, np.ndarray | None]] = iter_text(source, mp, block)
+        axes = (mp.gyro_axes, mp.accel_axes if mp.accel_cols is not None else None)
+        rec = _open_log(source, "text", mp.summary(), axes, blocks, os.path.getsize(source), mp.temp_col is not None)
         rec.mapping = mp.summary()
         return rec
     t_all, g_all, a_all = load_npy_log(source, time_unit)
     total = len(t_all)
     blocks = ((min(i + block, total), (t_all[i : i + block], g_all[i : i + block],
-               None if a_all is None else a_all[i : i + block])) for i in range(0, total, block))  # fmt: skip
+               None if a_all is None else a_all[i : i + block]), None) for i in range(0, total, block))  # fmt: skip
     ident = "columns t, gyro x,y,z" + (", accel x,y,z" if a_all is not None else "")
-    return _open_log(source, "npy", ident, a_all is not None, blocks, total)
+    return _open_log(source, "npy", ident, (AXES, AXES if a_all is not None else None), blocks, total)
 
 
 def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Recording:
@@ -137,17 +138,36 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
     return Recording(source, fmt, t0, devices, blocks(), total, thermometers, notes=notes)
 
 
+#: reader key of a log's temperature column (its device's key is "")
+LOG_TEMPERATURE = "temperature"
+
+
 def _open_log(
-    source: str, fmt: str, ident: str, with_accel: bool, blocks: Iterator[tuple[int, Rows]], total: int
+    source: str,
+    fmt: str,
+    ident: str,
+    axes: tuple[tuple[str, ...], tuple[str, ...] | None],
+    blocks: Iterator[tuple[int, Rows, np.ndarray | None]],
+    total: int,
+    with_temperature: bool = False,
 ) -> Recording:
-    """A log or an array: one device ``imu``; its first block gives the rate and the time origin."""
+    """A log or an array: one device ``imu`` with the gyro (and accel) ``axes`` (accel None: none);
+    its first block gives the rate and the time origin. A temperature column becomes the
+    thermometer ``imu_temperature`` (as a bag's Temperature topic does)."""
     first = next(blocks, None)
     if first is None:
         raise InputError(f"{source}: no samples")
     t = first[1][0]
-    spec = _device_spec("imu", _probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, with_accel)
-    keyed = (("", pos, blk) for pos, blk in chain([first], blocks))
-    return Recording(source, fmt, int(t.min()), {"": spec}, keyed, total)
+    spec = _device_spec("imu", _probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, axes[1] is not None, axes)
+
+    def keyed() -> Iterator[tuple[str, int | None, Rows]]:
+        for pos, blk, celsius in chain([first], blocks):
+            yield "", pos, blk
+            if celsius is not None:
+                yield LOG_TEMPERATURE, None, (blk[0], celsius, None)
+
+    thermometers = {LOG_TEMPERATURE: "imu_temperature"} if with_temperature else {}
+    return Recording(source, fmt, int(t.min()), {"": spec}, keyed(), total, thermometers)
 
 
 def _refuse_shared_names(path: str, names: dict[str, str]) -> None:
@@ -166,11 +186,20 @@ def _device_name(topic: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", topic.strip("/")) or "imu"
 
 
-def _device_spec(name: str, rate_hz: float, source: str, ident: str, fmt: str, with_accel: bool) -> DeviceSpec:
-    """An imported device: ``gyro`` (and ``accel``) as float64 in SI units, ``driver = "import"``."""
-    chans = [ChannelSpec("gyro", "<f8", "rad/s", 1.0, axes=("x", "y", "z"))]
+def _device_spec(
+    name: str,
+    rate_hz: float,
+    source: str,
+    ident: str,
+    fmt: str,
+    with_accel: bool,
+    axes: tuple[tuple[str, ...], tuple[str, ...] | None] = (AXES, AXES),
+) -> DeviceSpec:
+    """An imported device: ``gyro`` (and ``accel``) as float64 in SI units, ``driver = "import"``;
+    ``axes``: the gyro's and accel's axis names (a single-axis log: ``("z",)``)."""
+    chans = [ChannelSpec("gyro", "<f8", "rad/s", 1.0, axes=axes[0])]
     if with_accel:
-        chans.append(ChannelSpec("accel", "<f8", "m/s^2", 1.0, axes=("x", "y", "z")))
+        chans.append(ChannelSpec("accel", "<f8", "m/s^2", 1.0, axes=axes[1] or AXES))
     return DeviceSpec(
         name=name,
         driver="import",

@@ -316,6 +316,8 @@ def fit_composite_data(
 
 #: profile points, in observed-information standard errors of the fixed coordinate
 _PROFILE_AT = np.array([-3.0, -2.0, -1.2, 1.2, 2.0, 3.0])
+#: nll rise (nats) standing in for an undefined likelihood at a profile point (a 90 % end is at 1.35)
+_DROP_CAP = 1e6
 
 
 def _profile_intervals(problem: _CompositeProblem, theta: np.ndarray, f_hat: float) -> list[tuple[float, float]]:
@@ -344,7 +346,10 @@ def _profile_intervals(problem: _CompositeProblem, theta: np.ndarray, f_hat: flo
         o = 1 - j
         se = math.sqrt(cov[j, j]) if usable[j] else 1.0
         fixed[j] = np.clip(theta[j] + _PROFILE_AT * se, lo[j], hi[j])
-        free[j] = np.clip(theta[o] - H[o, j] / H[o, o] * (fixed[j] - theta[j]), lo[o], hi[o])
+        # the conditional optimum of the free coordinate along the quadratic model; where the
+        # likelihood is flat or curved down along it (a fit at a bound) the model has none: start at theta
+        tilt = H[o, j] / H[o, o] if H[o, o] > 0 else 0.0
+        free[j] = np.clip(theta[o] - tilt * (fixed[j] - theta[j]), lo[o], hi[o])
 
     def points(offset: float) -> np.ndarray:
         pts = np.empty((2, P, 2))
@@ -354,9 +359,12 @@ def _profile_intervals(problem: _CompositeProblem, theta: np.ndarray, f_hat: flo
 
     for _ in range(4):
         v = problem.nll(np.vstack([points(0.0), points(h), points(-h)])).reshape(3, 2, P)
+        # a stencil touching the likelihood's undefined region (nll = inf) gives no Newton step: the point stays
+        fin = np.isfinite(v).all(axis=0)
+        v = np.where(fin, v, 0.0)
         g = (v[1] - v[2]) / (2 * h)
         c = (v[1] - 2 * v[0] + v[2]) / h**2
-        step = np.where(c > 0, -g / np.where(c > 0, c, 1.0), -np.sign(g) * 0.5)
+        step = np.where(c > 0, -g / np.where(c > 0, c, 1.0), -np.sign(g) * 0.5) * fin
         for j in range(2):
             o = 1 - j
             free[j] = np.clip(free[j] + np.clip(step[j], -1.0, 1.0), lo[o], hi[o])
@@ -366,14 +374,23 @@ def _profile_intervals(problem: _CompositeProblem, theta: np.ndarray, f_hat: flo
         if not usable[j]:
             out.append((math.nan, math.nan))
             continue
-        x = np.concatenate([fixed[j], [theta[j]]])
-        drop = np.maximum(np.concatenate([prof[j], [f_hat]]) - min(f_hat, float(prof[j].min())), 0.0)
+        # points clipped onto the optimum (a coordinate at its bound) carry no side: left out
+        off = fixed[j] != theta[j]
+        x = np.concatenate([fixed[j][off], [theta[j]]])
+        pj = prof[j][off]
+        # an undefined likelihood (inf) is far outside any interval: capped, so the interpolation stays finite
+        drop = np.minimum(
+            np.maximum(np.concatenate([pj, [f_hat]]) - min(f_hat, float(pj.min(initial=f_hat))), 0), _DROP_CAP
+        )
         r = np.sign(x - theta[j]) * np.sqrt(2.0 * drop)
         ends = []
         for side, target in ((x <= theta[j], -Z90), (x >= theta[j], Z90)):
             xs, rs = x[side], r[side]
             order = np.argsort(rs)
             xs, rs = xs[order], rs[order]
+            if len(xs) < 2:  # no profile point on this side: the optimum is at the box edge
+                ends.append(float(lo[j] if target < 0 else hi[j]))
+                continue
             if rs[0] <= target <= rs[-1]:
                 ends.append(float(np.interp(target, rs, xs)))
                 continue

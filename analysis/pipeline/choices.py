@@ -9,6 +9,19 @@ from __future__ import annotations
 #: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet):
 #: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22)
 DEFAULT_MODEL = "wn+gm"
+#: the term codes of a model name (analysis/estimators/noise_models.py parse_model), spelled out
+MODEL_TERMS = {
+    "wn": "white rate noise (angle random walk, N = sigma_w)",
+    "gm": "first-order Gauss-Markov bias (sigma_b, tau_b); 2gm, 3gm: two or three of them",
+    "rw": "rate random walk (K = sigma_k)",
+    "wa": "white angle noise (sigma_a, e.g. ring-laser gyros)",
+}
+#: the ``--model`` help of every command that fits a model (analyze, report, export, fleet)
+MODEL_HELP = (
+    "Noise model fitted: terms joined by '+', exactly one wn - "
+    + "; ".join(f"{code} {text}" for code, text in MODEL_TERMS.items())
+    + ". E.g. wn+gm (the paper's standard model), wn+2gm, wn+gm+rw, wa+wn+gm (docs/mli.md)."
+)
 #: noise-model methods of ``analyze --method`` (analysis/pipeline/channel.py) and the default
 METHODS = ("mli", "gmwm", "both")
 DEFAULT_METHOD = "mli"

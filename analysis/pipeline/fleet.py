@@ -12,7 +12,10 @@
 * :func:`flag_outliers` — robust z-score of ``log10`` of each of ``sigma_w``,
   ``sigma_b``, ``tau_b`` against the fleet of the same driver, sensor and axis:
   ``z = 0.6745 (x - median) / MAD`` (Iglewicz & Hoaglin); ``|z| > 3.5`` is an outlier.
-  Groups of fewer than :data:`MIN_GROUP` values are not judged (``z`` NaN).
+  The spread has a floor, the median stated standard error of the group's
+  values (in log10: ``se / (x ln 10)``), so values that agree to within their
+  uncertainty (e.g. sigma_w equal to three digits, MAD ~ 0) are not called outliers. Groups of fewer than
+  :data:`MIN_GROUP` values are not judged (``z`` NaN).
 
 Builders return text (CSV, Markdown); writing files is the caller's business.
 """
@@ -30,7 +33,7 @@ import numpy as np
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.parallel import TaskFailure
-from imustation.analysis.reports.tables import TITLES, noise_rows, units_of
+from imustation.analysis.reports.tables import TITLES, fmt_flagged, noise_rows, units_of
 
 #: quantities of the fleet table (SI): ML_i standard model, then IEEE-952
 FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")
@@ -85,6 +88,8 @@ class FleetRow:
     hi: dict[str, float]
     z: dict[str, float] = field(default_factory=dict)
     outliers: tuple[str, ...] = ()
+    #: quantities that are not plain estimates (tables.NOT_FITTED, AT_BOUND, NOT_IDENTIFIED)
+    flags: dict[str, str] = field(default_factory=dict)
 
     @property
     def group(self) -> tuple[str, str, str]:
@@ -133,17 +138,21 @@ def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
                 stderr=stderr,
                 lo=lo,
                 hi=hi,
+                flags=dict(nr.flags),
             )
         )
     return rows
 
 
-def robust_z(x: np.ndarray) -> np.ndarray:
-    """Modified z-scores ``0.6745 (x - median) / MAD`` of finite ``x`` (NaN stays NaN).
+def robust_z(x: np.ndarray, se: np.ndarray | None = None) -> np.ndarray:
+    """Modified z-scores ``(x - median) / s`` of finite ``x`` (NaN stays NaN), ``s = MAD / 0.6745``.
 
     With MAD = 0 (over half the values equal) the mean absolute deviation
-    scaled by 1.2533 (its normal consistency factor, 0.7979) stands in; with
-    that 0 too, equal values get 0 and others infinity.
+    scaled by 1.2533 (its normal consistency factor, 0.7979) stands in.
+    ``se``: standard errors of ``x`` (same units); the spread is then at least
+    their median (a floor: values that agree within their stated uncertainty get
+    small z however tight the group; the median, as the MAD, is not moved by a
+    few fits with a degenerate standard error). Equal values without a floor get 0.
     """
     x = np.asarray(x, dtype=np.float64)
     z = np.full(x.shape, np.nan)
@@ -153,19 +162,31 @@ def robust_z(x: np.ndarray) -> np.ndarray:
     med = np.median(x[ok])
     dev = np.abs(x[ok] - med)
     mad = np.median(dev)
-    if mad > 0:
-        z[ok] = _MAD_K * (x[ok] - med) / mad
-        return z
-    mean_ad = dev.mean()
-    if mean_ad > 0:
-        z[ok] = (x[ok] - med) / (1.253314 * mean_ad)
-        return z
-    z[ok] = 0.0  # every value equal
+    spread = mad / _MAD_K if mad > 0 else 1.253314 * dev.mean()
+    if se is not None:
+        floor = np.asarray(se, dtype=np.float64)[ok]
+        floor = floor[np.isfinite(floor) & (floor > 0)]
+        if len(floor):
+            spread = max(spread, float(np.median(floor)))
+    z[ok] = (x[ok] - med) / spread if spread > 0 else 0.0  # spread 0: every value equal
     return z
 
 
+def _log10_se(row: FleetRow, q: str) -> float:
+    """Standard error of log10 of quantity ``q`` of ``row``: from its standard error (delta method),
+    else from its 90 % interval; NaN when neither is usable."""
+    v, se = row.values[q], row.stderr.get(q, math.nan)
+    if v > 0 and math.isfinite(se) and se > 0:
+        return se / (v * math.log(10.0))
+    lo, hi = row.lo.get(q, math.nan), row.hi.get(q, math.nan)
+    if lo > 0 and hi > lo and math.isfinite(hi):
+        return (math.log10(hi) - math.log10(lo)) / (2.0 * _Z90)
+    return math.nan
+
+
 def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group: int = MIN_GROUP) -> list[FleetRow]:
-    """Rows with ``z`` and ``outliers`` set: robust z of log10 of each model quantity within its group."""
+    """Rows with ``z`` and ``outliers`` set: robust z of log10 of each model quantity within its group,
+    its spread floored by the group's median standard error (module docstring)."""
     groups: dict[tuple[str, str, str], list[int]] = {}
     for i, r in enumerate(rows):
         groups.setdefault(r.group, []).append(i)
@@ -178,7 +199,9 @@ def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group:
             with np.errstate(divide="ignore", invalid="ignore"):
                 logv = np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), np.nan)
             logv[~np.isfinite(v)] = np.nan
-            for i, z in zip(idx, robust_z(logv), strict=True):
+            logv[[bool(rows[i].flags.get(q)) for i in idx]] = np.nan  # at a bound / not identified: no estimate
+            se = np.array([_log10_se(rows[i], q) for i in idx])
+            for i, z in zip(idx, robust_z(logv, se), strict=True):
                 zs[i][q] = float(z)
     out = []
     for r, z in zip(rows, zs, strict=True):
@@ -233,14 +256,15 @@ def fleet_csv(rows: Sequence[FleetRow], failures: Sequence[TaskFailure] = ()) ->
     head += ["n", "fs_hz", "model", "converged"]
     for q in FLEET_QUANTITIES:
         head += [q, f"{q}_stderr", f"{q}_lo90", f"{q}_hi90", f"{q}_unit"]
-    head += [f"z_{q}" for q in MODEL_QUANTITIES] + ["outliers", "error"]
+    head += [f"z_{q}" for q in MODEL_QUANTITIES] + ["outliers", "value_flags", "error"]
     w.writerow(head)
     for r in rows:
         line = ["outlier" if r.outliers else "ok", r.run, r.station, r.device, r.driver, r.identity, r.key]
         line += [r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model, r.converged]
         for q in FLEET_QUANTITIES:
             line += [repr(r.values[q]), repr(r.stderr[q]), repr(r.lo[q]), repr(r.hi[q]), units_of(r.sensor, q)[0]]
-        line += [repr(r.z.get(q, math.nan)) for q in MODEL_QUANTITIES] + [" ".join(r.outliers), ""]
+        line += [repr(r.z.get(q, math.nan)) for q in MODEL_QUANTITIES] + [" ".join(r.outliers)]
+        line += ["; ".join(f"{q} {f}" for q, f in r.flags.items()), ""]
         w.writerow(line)
     for f in failures:
         cells = dict.fromkeys(head, "")
@@ -273,7 +297,9 @@ def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failur
             cells = [r.run, r.key, r.identity or "–", f"{r.axis}-{sensor}"]
             for q in FLEET_QUANTITIES:
                 _, k = _sensor_units(sensor, q)
-                cells.append(f"{_fmt(r.values[q] * k)} ± {_fmt(r.stderr[q] * k, 2)}")
+                f = r.flags.get(q, "")
+                se = f" ± {_fmt(r.stderr[q] * k, 2)}" if not f and math.isfinite(r.stderr[q]) else ""
+                cells.append(fmt_flagged(r.values[q] * k, f) + se)
             flags = [f"outlier {q} (z {r.z[q]:+.1f})" for q in r.outliers]
             cells.append("; ".join(flags + ([] if r.converged else ["not converged"])) or "ok")
             lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")

@@ -31,6 +31,15 @@ curve instead: ``sigma_g = N``, ``sigma_bg = K``.
 Each tool takes one value per sensor, not per axis: the largest axis value is
 written (conservative); every axis's value goes into the header comments.
 
+**Inflation for the filter** (:func:`inflate`, ``export --inflate``): the measured
+densities describe a static sensor on a bench; a moving platform adds vibration,
+temperature change, scale-factor and misalignment errors and time-stamp jitter that
+the filter sees as extra noise, so VIO users routinely multiply the measured values
+by about 10 (up to 20) before use (Kalibr wiki "IMU-Noise-Model"; asked in
+ethz-asl/kalibr#663 and ori-drs/allan_variance_ros#44). It is never applied unless
+asked for: the factors, the measured and the written values are all in the header
+comments.
+
 Key names and file conventions followed (public code, checked):
 
 * Kalibr: ``kalibr_common/ConfigReader.py`` ``ImuParameters`` (ethz-asl/kalibr;
@@ -53,7 +62,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from imustation.analysis.estimators.noise_models import GaussMarkov
 from imustation.analysis.pipeline.channel import ChannelAnalysis
@@ -108,21 +117,62 @@ class AxisNoise:
 
 @dataclass(frozen=True)
 class SensorNoise:
-    """One sensor (gyroscope or accelerometer) of a device; the exported value is the largest axis."""
+    """One sensor (gyroscope or accelerometer) of a device; the exported value is the largest axis,
+    times the inflation factors ``inflate_noise`` and ``inflate_walk`` (1: the measured value)."""
 
     kind: str
     rate_hz: float
     axes: tuple[AxisNoise, ...]
     source: str
     rw: str
+    inflate_noise: float = 1.0
+    inflate_walk: float = 1.0
 
     @property
-    def noise_density(self) -> float:
+    def measured_noise_density(self) -> float:
         return max(a.noise_density for a in self.axes)
 
     @property
-    def random_walk(self) -> float:
+    def measured_random_walk(self) -> float:
         return max(a.random_walk for a in self.axes)
+
+    @property
+    def noise_density(self) -> float:
+        """The value written: the measured largest axis times ``inflate_noise``."""
+        return self.measured_noise_density * self.inflate_noise
+
+    @property
+    def random_walk(self) -> float:
+        """The value written: the measured largest axis times ``inflate_walk``."""
+        return self.measured_random_walk * self.inflate_walk
+
+    @property
+    def inflated(self) -> bool:
+        return self.inflate_noise != 1.0 or self.inflate_walk != 1.0
+
+
+def parse_inflation(text: str) -> tuple[float, float]:
+    """``"10"`` -> (10, 10); ``"10,5"`` -> noise density x10, random walk x5. Factors must be >= 1."""
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        factors = [float(p) for p in parts]
+    except ValueError:
+        factors = []
+    if len(factors) not in (1, 2) or not all(math.isfinite(f) and f >= 1.0 for f in factors):
+        raise InputError(f"--inflate {text!r}: give one factor >= 1 (e.g. 10) or two, noise and random walk (10,5)")
+    return (factors[0], factors[-1])
+
+
+def inflate(sensor: SensorNoise, noise: float, walk: float) -> SensorNoise:
+    """``sensor`` with its written values inflated by ``noise`` (density) and ``walk`` (random walk)."""
+    return replace(sensor, inflate_noise=float(noise), inflate_walk=float(walk))
+
+
+def inflate_sensors(
+    gyro: SensorNoise, accel: SensorNoise | None, noise: float, walk: float
+) -> tuple[SensorNoise, SensorNoise | None]:
+    """:func:`inflate` of the gyroscope and the accelerometer (if any) by the same factors."""
+    return inflate(gyro, noise, walk), None if accel is None else inflate(accel, noise, walk)
 
 
 def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion") -> AxisNoise:
@@ -253,7 +303,14 @@ def export_text(
         "docs/reports.md)"
     )
     comments = [f"imustation export --format {fmt}" + (f" of {origin}" if origin else ""), *_units(), how]
-    comments.append("largest axis value written; per axis (noise density, random walk):")
+    for s in (gyro, accel):
+        if s is not None and s.inflated:
+            comments.append(
+                f"INFLATED {s.kind}: noise density x{s.inflate_noise:g}, random walk x{s.inflate_walk:g} (--inflate); "
+                f"measured {s.measured_noise_density:.4e}, {s.measured_random_walk:.4e} -> written "
+                f"{s.noise_density:.4e}, {s.random_walk:.4e}"
+            )
+    comments.append("largest axis value written; per axis, measured (noise density, random walk):")
     for s in (gyro, accel):
         if s is None:
             continue

@@ -29,7 +29,7 @@ from imustation.analysis.estimators.noise_models import NoiseModel
 from imustation.analysis.estimators.psd import log_average, welch_psd
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.reports.tables import units_of
-from imustation.units import EARTH_RATE, format_duration
+from imustation.units import EARTH_RATE, display_units, format_duration, sensor_kind
 
 #: device settings shown on figures besides rate and bandwidth (substrings of run-file attribute names)
 _SETTING_HINTS = ("decim", "filter", "dlpf", "range", "bw_code")
@@ -38,11 +38,14 @@ _SIZE = (7.0, 4.6)
 _PSD_WINDOW_S = 8.0
 
 
-def _sensor(ch) -> str:
-    parts = ch.id.split("/")
-    if len(parts) >= 3 and parts[-2] in ("gyro", "accel"):
-        return parts[-2]
-    return "accel" if ch.units == "m/s^2" else "gyro"
+def _sensor(ch) -> str | None:
+    """``gyro``, ``accel`` or None (a plain array): the channel's kind, which chooses its units."""
+    return sensor_kind(ch.units, ch.id)
+
+
+#: noise-term parameter -> dimension of :func:`imustation.units.display_units`
+_PARAM_DIM = {"sigma_w": "density", "sigma_b": "drift", "sigma_k": "drift", "tau_b": "time", "sigma_a": "angle"}
+_PARAM_DIM["R"] = "ramp"
 
 
 def settings_line(ch, temp_span_c: tuple[float, float] | None = None) -> str:
@@ -72,9 +75,18 @@ def _new(title: str, settings: str) -> tuple[Figure, object]:
     return fig, ax
 
 
-def _term_label(t) -> str:
-    p = ", ".join(f"{k} {v:.3g}" for k, v in t.params().items())
-    return f"{type(t).__name__} ({p})"
+def _term_label(t, sensor: str | None, bound: dict[str, float] | None = None) -> str:
+    """``GaussMarkov (sigma_b 188 °/h/√h, tau_b 381 s)``: every value in its display unit; a value
+    equal to one of the fit's parameters at their search bound (``bound``: name -> value) says so."""
+    parts = []
+    for k, v in t.params().items():
+        _, unit, factor = display_units(sensor, _PARAM_DIM.get(k, "rate"))
+        text = f"{v * factor:.3g} {unit}"
+        at = any(
+            name.rstrip("0123456789") == k and math.isclose(v, b, rel_tol=1e-9) for name, b in (bound or {}).items()
+        )
+        parts.append(f"{k} at bound ({text})" if at else f"{k} {text}")
+    return f"{type(t).__name__} ({', '.join(parts)})"
 
 
 def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = True) -> Figure:
@@ -89,7 +101,8 @@ def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = Tr
         tau = np.logspace(np.log10(al.tau[0]), np.log10(al.tau[-1]), 200)
         ax.loglog(tau, model.adev(tau, ch.fs_hz), "C3-", lw=1.5, label=f"identified {fit.model} ({fit.estimator})")
         for i, t in enumerate(model.terms):  # continuous forms: the sampled GM form cancels badly for tau_b >> tau
-            ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t))
+            bound = {k: fit.params[k] for k in fit.at_bound if k in fit.params}
+            ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t, _sensor(ch), bound))
     sensor = _sensor(ch)
     if earth_rate and sensor == "gyro":
         ax.axhline(EARTH_RATE, color="C2", ls=":", lw=1, label=f"earth rate {EARTH_RATE:.3g} rad/s")
@@ -115,7 +128,7 @@ def allan_multi_figure(
         sensors.add(_sensor(res.channel))
     if sensors == {"gyro"}:
         ax.axhline(EARTH_RATE, color="0.4", ls=":", lw=1, label="earth rate")
-    unit = units_of(sensors.pop(), "B")[0] if len(sensors) == 1 else "SI"
+    unit = units_of(sensors.pop(), "B")[0] if len(sensors) == 1 else "SI: rad/s, m/s²"
     ax.set_xlabel("averaging time τ [s]")
     ax.set_ylabel(f"Allan deviation [{unit}]")
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
@@ -207,7 +220,7 @@ def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, 
     t_max = (b - a) / ch.fs_hz / min_windows
     lags = np.logspace(np.log10(10.0 / ch.fs_hz), np.log10(t_max), n_lags)
     sp = angle_spread(ch.data, ch.fs_hz, lags, scale=ch.scale, segment=(a, b))
-    unit = "rad" if _sensor(ch) == "gyro" else "m/s"
+    unit = display_units(_sensor(ch), "angle")[0]
     fig, ax = _new(f"Attitude-error growth — {ch.id}", settings)
     yerr = np.vstack([sp.std - sp.std_lo, sp.std_hi - sp.std])
     ax.errorbar(sp.t_s, sp.std, yerr=yerr, fmt="k.", ms=4, lw=0.8, label=f"data: std over {sp.windows} windows")

@@ -2,9 +2,12 @@
 
 :func:`report_run` analyses every selected channel of a run file (after cutting each
 device's warm-up: from its own temperature with ``"auto"``, or a given duration), and
-writes the noise tables (CSV, Markdown, LaTeX), Allan/PSD/attitude/temperature figures
-(PNG, PDF), the bias temperature coefficients and ``index.html`` linking them with
-relative links (a self-contained folder, no network). :func:`report_runs` does so for
+writes the summary (one row per sensor axis: N, B, K, the bias model with intervals and
+the verdicts), the noise tables (CSV, Markdown, LaTeX), Allan/PSD/attitude/temperature
+figures (PNG, PDF), the bias temperature coefficients (``tempco.csv``: all of them) and
+``index.html``: the summary first, then the figures, then the details (the noise table
+and the temperature coefficients that pass the autocorrelation-aware significance test),
+with relative links (a self-contained folder, no network). :func:`report_runs` does so for
 several runs, one folder each, plus one table over all of them (docs/reports.md).
 """
 
@@ -16,16 +19,33 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.choices import DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import load_run
 from imustation.analysis.reports import plots
 from imustation.analysis.reports.pages import CSS, figure_html, html_table
-from imustation.analysis.reports.tables import NoiseRow, noise_rows, table_csv, table_latex, table_markdown, units_of
+from imustation.analysis.reports.tables import (
+    NoiseRow,
+    TempcoRow,
+    noise_rows,
+    summary_csv,
+    summary_markdown,
+    summary_rows,
+    table_csv,
+    table_latex,
+    table_markdown,
+    tempco_csv,
+    tempco_markdown,
+    units_of,
+)
 from imustation.analysis.reports.temperature import (
+    TEMPCO_FAMILY_ALPHA,
     detect_warmup,
     device_temperature,
     fit_tempco,
+    holm,
     thermometer_temperature,
 )
 from imustation.errors import InputError
@@ -39,6 +59,26 @@ BIAS_BLOCK_S = 60.0
 NO_WARMUP = ("0", "none")
 #: the noise tables written per run and over several runs
 TABLES = (("noise.csv", table_csv), ("noise.md", table_markdown), ("noise.tex", table_latex))
+
+#: under the summary table of the page
+SUMMARY_LEGEND = (
+    "<p>One row per sensor axis, in the display units of its sensor (gyroscopes °/h/√Hz, °/h, °/h/√h; "
+    "accelerometers µg/√Hz, µg, µg/√s; SI in summary.csv), each value with its 90 % interval in brackets. "
+    "N: white-noise density σ_w of the {estimator} fit of the {model} model; B, K: bias instability and rate "
+    "random walk of the IEEE-952 Allan fit; σ_b, τ_b: the bias model (Gauss-Markov: density of its driving noise "
+    "and correlation time). —: not fitted or not given by the analysis; at bound: the fit stopped at its search "
+    "bound; not identified: the 90 % interval is missing or spans more than two decades. fit: the model-adequacy "
+    "verdict; enough data?: the record-length verdict (docs/import.md).</p>"
+)
+#: under the temperature coefficients of the page
+TEMPCO_NOTE = (
+    "<p>{shown} of {total} coefficients are listed: those that pass a significance test accounting for "
+    "autocorrelated bias and temperature, at a family-wise level of {family:g} over the {tested} tested (Holm). "
+    "The test inflates the OLS standard error by the effective number of independent 60 s blocks, "
+    "n_eff = n / (1 + 2 Σ_k r_T(k) r_e(k)), from the autocorrelations of the temperature and of the residuals "
+    "(Bretherton et al. 1999); a slow bias wander otherwise \u201cexplains\u201d a slow temperature drift. Every "
+    'coefficient, with its test, is in <a href="tempco.csv">tempco.csv</a>.</p>'
+)
 
 #: receives one line of progress (a channel being analysed)
 Progress = Callable[[str], None]
@@ -71,6 +111,12 @@ def check_warmup(warmup: str) -> float | None:
 def slug(text: str) -> str:
     """``text`` as a file-name part: letters, digits, ``-`` and ``.`` kept, the rest ``_``."""
     return "".join(c if c.isalnum() or c in "-." else "_" for c in text)
+
+
+def _write(path: str, text: str) -> str:
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    return path
 
 
 def write_tables(rows: Sequence[NoiseRow], folder: str) -> list[str]:
@@ -142,12 +188,20 @@ def report_run(
         results.append(analyze_channel(ch, model=model))
     rows = noise_rows(results)
     written += write_tables(rows, out_dir)
-    sections.append("<h2>Noise table</h2>" + html_table(table_markdown(rows)))
-    sections.append(
+    summary = summary_rows(results)
+    for name, text in (("summary.csv", summary_csv(summary)), ("summary.md", summary_markdown(summary))):
+        written.append(_write(os.path.join(out_dir, name), text))
+    estimator = results[0].noise_model.estimator if results else ""
+    sections.append("<h2>Summary</h2>" + html_table(summary_markdown(summary)) + SUMMARY_LEGEND.format(
+        estimator=html.escape(estimator), model=html.escape(model)))  # fmt: skip
+    details = [
+        "<h2>Details</h2><h3>Noise table (Table IV layout)</h3>" + html_table(table_markdown(rows)),
         '<p>Files: <a href="noise.csv">noise.csv</a>, <a href="noise.md">noise.md</a>, '
-        '<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: ML_i fit of the '
-        f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured.</p>"
-    )
+        f'<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: {html.escape(estimator)} fit of the '
+        f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured. "
+        "—: not fitted (the Allan fit did not need the term); at bound: the fit stopped at its search bound; "
+        "not identified: the 90 % interval is missing or spans more than two decades.</p>",
+    ]
 
     def sources(dev):
         """Temperatures to show and regress on: the device's own, then the room thermometers."""
@@ -197,7 +251,6 @@ def report_run(
         if not srcs:
             continue
         _, disp_unit, factor = units_of(sensor, "B")
-        si_unit = units_of(sensor, "B")[0]
         biases = []
         for r in group:
             ch = r.channel
@@ -206,10 +259,9 @@ def report_run(
             biases.append((ch.id, bt, (b - b[keep].mean() if keep.any() else b) * factor))
             for src, t, c in srcs:
                 try:
-                    tc = fit_tempco(bt[keep], b[keep], t, c)
-                    tempco_rows.append((ch.id, src, tc, factor, disp_unit, si_unit))
+                    tempco_rows.append(TempcoRow(ch.id, sensor, src, fit_tempco(bt[keep], b[keep], t, c)))
                 except InputError as exc:
-                    tempco_rows.append((ch.id, src, None, factor, disp_unit, str(exc)))
+                    tempco_rows.append(TempcoRow(ch.id, sensor, src, None, str(exc)))
             ch.release()
         src, t, c = srcs[0]
         settings = plots.settings_line(group[0].channel, span(dev))
@@ -225,23 +277,19 @@ def report_run(
         name = f"temperature_{slug(dev)}_{sensor}"
         figs.append(save(fig, name, f"{src} temperature and {sensor} bias of {dev}: {settings}"))
     if tempco_rows:
-        lines = [
-            "<h2>Bias temperature coefficient</h2><table><tr><th>channel</th><th>temperature</th>"
-            "<th>slope [SI/K]</th><th>slope [display/K]</th><th>± (OLS, lower bound)</th><th>span [K]</th>"
-            "<th>R²</th></tr>"
-        ]
-        for cid, src, tc, factor, disp, si in tempco_rows:
-            cells = f"<tr><td>{html.escape(cid)}</td><td>{html.escape(src)}</td>"
-            if tc is None:
-                lines.append(cells + f"<td colspan=5>{html.escape(si)}</td></tr>")
-                continue
-            lines.append(
-                cells + f"<td>{tc.slope:.3g} {html.escape(si)}/K</td>"
-                f"<td>{tc.slope * factor:.3g} {html.escape(disp)}/K</td><td>{tc.slope_stderr * factor:.2g}</td>"
-                f"<td>{tc.span_c:.2f}</td><td>{tc.r2:.2f}</td></tr>"
-            )
-        sections.append("\n".join(lines) + "</table>")
+        tested = [r for r in tempco_rows if r.result is not None]
+        listed = holm(np.array([r.result.p_value for r in tested]), TEMPCO_FAMILY_ALPHA)
+        keep = {id(r) for r, ok in zip(tested, listed, strict=True) if ok}
+        tempco_rows = [dataclasses.replace(r, listed=id(r) in keep) for r in tempco_rows]
+        written.append(_write(os.path.join(out_dir, "tempco.csv"), tempco_csv(tempco_rows)))
+        shown = tempco_markdown(tempco_rows)
+        details.append(
+            "<h3>Bias temperature coefficients</h3>" + (html_table(shown) if shown else "")
+            + TEMPCO_NOTE.format(shown=len(keep), total=len(tempco_rows), tested=len(tested),
+                                 family=TEMPCO_FAMILY_ALPHA)
+        )  # fmt: skip
     sections.append("<h2>Figures</h2>" + "\n".join(figs))
+    sections += details
     warm = ", ".join(f"{d}: {format_duration(s) if s > 0 else 'none'}" for d, s in excluded.items())
     esc = html.escape
     name = esc(os.path.basename(path))

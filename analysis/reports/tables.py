@@ -1,9 +1,14 @@
-"""The per-device noise table (the paper's Table IV layout) in CSV, Markdown and LaTeX.
+"""The report's tables: one summary row per axis, and the per-device noise table (the paper's Table IV layout).
 
-One row per axis: the ML_i parameters ``sigma_w``, ``sigma_b``, ``tau_b`` of the
-standard model, the IEEE-952 Allan-fit coefficients ``N``, ``B``, ``K`` and the
-measured Allan deviation at tau = 1 s, each in SI and in the usual display unit
-side by side:
+* :func:`summary_rows` / :func:`summary_markdown` / :func:`summary_csv` — what a
+  report opens with: per sensor and axis N, B, K, the bias model (σ_b, τ_b), each
+  with its 90 % interval, the fit verdict and the "enough data?" verdict, in the
+  display units of the axis's own sensor.
+* :func:`noise_rows` / :func:`table_csv` / :func:`table_markdown` /
+  :func:`table_latex` — the details: the noise-model parameters ``sigma_w``,
+  ``sigma_b``, ``tau_b``, the IEEE-952 Allan-fit coefficients ``N``, ``B``,
+  ``K`` and the measured Allan deviation at tau = 1 s, each in SI and in the
+  display unit side by side:
 
 =========  ======================  ==============  ===================
 quantity   SI (gyro / accel)       gyro display    accel display
@@ -14,9 +19,18 @@ B, ADEV1s  rad/s, m/s²             °/h             µg
 tau_b      s                       s               s
 =========  ======================  ==============  ===================
 
-(°/h/√h: rad/s/√s x 3600·180/π x √3600; 1 g = 9.80665 m/s².) Builders take
-:class:`~imustation.analysis.pipeline.channel.ChannelAnalysis` results and return text;
-writing the files is the caller's business.
+(:func:`imustation.units.display_units` defines them; °/h/√h: rad/s/√s x
+3600·180/π x √3600; 1 g = 9.80665 m/s².)
+
+A number is never printed plainly when it is not an estimate: a coefficient the
+IEEE-952 fit set to zero (its term not needed by the curve) is "not fitted" and
+shows as "—"; a noise-model parameter at its search bound shows as "at bound";
+one whose 90 % interval is missing, infinite or spans more than
+:data:`UNIDENTIFIED_RATIO` (two decades) is "not identified". The CSV gives the
+number with a ``<q>_flag`` column (and an empty cell for "not fitted").
+
+Builders take :class:`~imustation.analysis.pipeline.channel.ChannelAnalysis` results
+and return text; writing the files is the caller's business.
 """
 
 from __future__ import annotations
@@ -24,21 +38,32 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.errors import InputError
-from imustation.units import DPH2RADPS, G0
+from imustation.units import MPS2_TO_UG, RADPS_TO_DPH, SQRT_S_PER_SQRT_H, display_units, sensor_kind
 
-#: rad/s -> deg/h
-RADPS_TO_DPH = 1.0 / DPH2RADPS
-#: m/s^2 -> micro-g
-MPS2_TO_UG = 1e6 / G0
-#: sqrt(s) per sqrt(h): a rad/s/sqrt(s) figure times this is per sqrt(h)
-SQRT_S_PER_SQRT_H = 60.0
+__all__ = [
+    "MPS2_TO_UG",
+    "RADPS_TO_DPH",
+    "SQRT_S_PER_SQRT_H",
+    "NoiseRow",
+    "SummaryRow",
+    "noise_rows",
+    "param_flag",
+    "summary_rows",
+    "table_csv",
+    "table_latex",
+    "table_markdown",
+    "summary_csv",
+    "summary_markdown",
+    "units_of",
+    "TempcoRow",
+    "tempco_csv",
+    "tempco_markdown",
+]
 
-#: sensor kind -> SI unit of its channel (run files)
-_SENSORS = {"gyro": "rad/s", "accel": "m/s^2"}
 QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K", "adev_1s")
 TITLES = {
     "sigma_w": ("σ_w", r"$\sigma_w$"),
@@ -49,32 +74,81 @@ TITLES = {
     "K": ("K", "$K$"),
     "adev_1s": ("σ(1 s)", r"$\sigma(1\,\mathrm{s})$"),
 }
-#: quantity -> dimension class: "density" (unit/sqrt(Hz)), "drift" (unit/s/sqrt(Hz)), "rate" (unit), "time"
+#: quantity -> dimension class of :func:`imustation.units.display_units`
 _DIM = {"sigma_w": "density", "N": "density", "sigma_b": "drift", "K": "drift", "B": "rate", "adev_1s": "rate"}
 _DIM["tau_b"] = "time"
-
-#: (sensor, dimension) -> (SI unit, display unit, factor SI -> display)
-UNITS: dict[tuple[str, str], tuple[str, str, float]] = {
-    ("gyro", "density"): ("rad/s/√Hz", "°/h/√Hz", RADPS_TO_DPH),
-    ("gyro", "drift"): ("rad/s²/√Hz", "°/h/√h", RADPS_TO_DPH * SQRT_S_PER_SQRT_H),
-    ("gyro", "rate"): ("rad/s", "°/h", RADPS_TO_DPH),
-    ("accel", "density"): ("m/s²/√Hz", "µg/√Hz", MPS2_TO_UG),
-    ("accel", "drift"): ("m/s³/√Hz", "µg/√s", MPS2_TO_UG),
-    ("accel", "rate"): ("m/s²", "µg", MPS2_TO_UG),
-}
-for _s in ("gyro", "accel"):
-    UNITS[(_s, "time")] = ("s", "s", 1.0)
 _LATEX_UNIT = {"√Hz": r"\sqrt{\mathrm{Hz}}", "√h": r"\sqrt{\mathrm{h}}", "√s": r"\sqrt{\mathrm{s}}"}
+#: a parameter whose 90 % interval spans more than this ratio (hi/lo) is "not identified"
+UNIDENTIFIED_RATIO = 100.0
+#: two-sided 90 % normal quantile, for intervals built from a standard error
+Z90 = 1.6448536269514722
+
+#: value flags (the CSV's ``<q>_flag``)
+NOT_FITTED = "not fitted"
+AT_BOUND = "at bound"
+NOT_IDENTIFIED = "not identified"
+#: what a table cell shows for a value that is absent or not fitted
+DASH = "—"
 
 
-def units_of(sensor: str, quantity: str) -> tuple[str, str, float]:
+def units_of(sensor: str | None, quantity: str) -> tuple[str, str, float]:
     """(SI unit, display unit, SI->display factor) of ``quantity`` for a ``gyro`` or ``accel`` axis."""
-    return UNITS[(sensor, _DIM[quantity])]
+    return display_units(sensor, _DIM[quantity])
+
+
+def _split_id(ch) -> tuple[str, str, str]:
+    """(device, sensor, axis) of a ``device/gyro|accel/axis`` id, else the sensor from the units."""
+    parts = ch.id.split("/")
+    kind = sensor_kind(ch.units, ch.id)
+    if kind is None:
+        raise InputError(
+            f"channel {ch.id}: units {ch.units!r} name neither a gyroscope (rad/s) nor an accelerometer (m/s^2)"
+        )
+    if len(parts) >= 3 and parts[-2] == kind:
+        return "/".join(parts[:-2]), kind, parts[-1]
+    return ch.id, kind, "-"
+
+
+def _param_key(fit, name: str) -> str:
+    """Key of ``fit``'s params/intervals behind the summary name ``name``: the slowest of several
+    Gauss-Markov terms (``sigma_b2``...) or a random walk's ``sigma_k`` for ``sigma_b``."""
+    if name in ("sigma_b", "tau_b"):
+        value = getattr(fit, name)
+        numbered = [k for k in fit.params if k.startswith(name) and k[len(name) :].isdigit()]
+        for k in numbered:
+            if fit.params[k] == value:
+                return k
+        if name == "sigma_b" and "sigma_b" not in fit.params and "sigma_k" in fit.params:
+            return "sigma_k"
+    return name
+
+
+def param_flag(fit, name: str) -> str:
+    """``AT_BOUND``, ``NOT_IDENTIFIED`` or "" for the noise-model parameter ``name`` (sigma_w, sigma_b, tau_b)."""
+    key = _param_key(fit, name)
+    if key in fit.at_bound or name in fit.at_bound:
+        return AT_BOUND
+    value = float(getattr(fit, name))
+    if not math.isfinite(value):
+        return ""  # an infinite tau_b (random walk) or no such term: shown as it is
+    ci = fit.ci90.get(name) or fit.ci90.get(key)
+    if ci is None:
+        return NOT_IDENTIFIED
+    lo, hi = float(ci[0]), float(ci[1])
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo > 0 and hi / lo <= UNIDENTIFIED_RATIO):
+        return NOT_IDENTIFIED
+    return ""
+
+
+def _ieee_flag(value: float) -> str:
+    """IEEE-952 terms the Allan fit did not need are 0: "not fitted", not a measurement of zero."""
+    return NOT_FITTED if value == 0.0 else ""
 
 
 @dataclass(frozen=True)
 class NoiseRow:
-    """One axis of the table; ``values`` in SI, keyed by :data:`QUANTITIES`."""
+    """One axis of the table; ``values`` in SI, keyed by :data:`QUANTITIES`; ``flags`` the
+    quantities that are not plain estimates (:data:`NOT_FITTED`, :data:`AT_BOUND`, :data:`NOT_IDENTIFIED`)."""
 
     device: str
     sensor: str
@@ -83,22 +157,13 @@ class NoiseRow:
     fs_hz: float
     model: str
     values: dict[str, float]
+    flags: dict[str, str] = field(default_factory=dict)
 
     def display(self, q: str) -> float:
         return self.values[q] * units_of(self.sensor, q)[2]
 
-
-def _split_id(ch) -> tuple[str, str, str]:
-    """(device, sensor, axis) of a ``device/gyro|accel/axis`` id, else the sensor from the units."""
-    parts = ch.id.split("/")
-    if len(parts) >= 3 and parts[-2] in _SENSORS:
-        return "/".join(parts[:-2]), parts[-2], parts[-1]
-    for sensor, units in _SENSORS.items():
-        if ch.units == units:
-            return ch.id, sensor, "-"
-    raise InputError(
-        f"channel {ch.id}: units {ch.units!r} name neither a gyroscope (rad/s) nor an accelerometer (m/s^2)"
-    )
+    def flag(self, q: str) -> str:
+        return self.flags.get(q, "")
 
 
 def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
@@ -106,46 +171,65 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
     rows = []
     for r in results:
         device, sensor, axis = _split_id(r.channel)
+        fit = r.noise_model
         vals = {
-            "sigma_w": r.noise_model.sigma_w,
-            "sigma_b": r.noise_model.sigma_b,
-            "tau_b": r.noise_model.tau_b,
+            "sigma_w": fit.sigma_w,
+            "sigma_b": fit.sigma_b,
+            "tau_b": fit.tau_b,
             "N": r.ieee.N,
             "B": r.ieee.B,
             "K": r.ieee.K,
             "adev_1s": r.ieee.adev_1s,
         }
-        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, r.noise_model.model, vals))
+        flags = {q: param_flag(fit, q) for q in ("sigma_b", "tau_b")}
+        flags |= {q: _ieee_flag(vals[q]) for q in ("N", "B", "K")}
+        flags = {q: f for q, f in flags.items() if f}
+        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, vals, flags))
     return rows
 
 
-def _fmt(x: float, digits: int = 3) -> str:
+def fmt_number(x: float | None, digits: int = 3) -> str:
+    """``x`` to ``digits`` significant digits; "—" for None/NaN, "∞" for infinity."""
     if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "–"
+        return DASH
     if math.isinf(x):
-        return "∞"
+        return "∞" if x > 0 else "−∞"
     return f"{x:.{digits}g}"
 
 
+def fmt_flagged(x: float | None, flag: str, digits: int = 3) -> str:
+    """A table cell: the number, "—" when not fitted, "at bound (…)" / "not identified" otherwise."""
+    if flag == NOT_FITTED:
+        return DASH
+    if flag == AT_BOUND:
+        return f"at bound ({fmt_number(x, digits)})"
+    if flag == NOT_IDENTIFIED:
+        return NOT_IDENTIFIED
+    return fmt_number(x, digits)
+
+
 def table_csv(rows: list[NoiseRow]) -> str:
-    """CSV: identification columns, then per quantity its SI value, SI unit, display value, display unit."""
+    """CSV: identification columns, then per quantity its SI value, SI unit, display value, display unit, flag."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     head = ["device", "sensor", "axis", "n", "fs_hz", "model"]
     for q in QUANTITIES:
-        head += [q, f"{q}_unit", f"{q}_display", f"{q}_display_unit"]
+        head += [q, f"{q}_unit", f"{q}_display", f"{q}_display_unit", f"{q}_flag"]
     w.writerow(head)
     for r in rows:
         line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model]
         for q in QUANTITIES:
             si, disp, _ = units_of(r.sensor, q)
-            line += [repr(float(r.values[q])), si, repr(float(r.display(q))), disp]
+            if r.flag(q) == NOT_FITTED:
+                line += ["", si, "", disp, r.flag(q)]
+            else:
+                line += [repr(float(r.values[q])), si, repr(float(r.display(q))), disp, r.flag(q)]
         w.writerow(line)
     return buf.getvalue()
 
 
-def _by_sensor(rows: list[NoiseRow]) -> dict[str, list[NoiseRow]]:
-    out: dict[str, list[NoiseRow]] = {}
+def _by_sensor(rows):
+    out: dict[str, list] = {}
     for r in rows:
         out.setdefault(r.sensor, []).append(r)
     return out
@@ -165,7 +249,10 @@ def table_markdown(rows: list[NoiseRow]) -> str:
             cells = [r.device, f"{r.axis}-{sensor}"]
             for q in QUANTITIES:
                 si, disp, _ = units_of(sensor, q)
-                cells += [_fmt(r.values[q])] if si == disp else [_fmt(r.values[q]), _fmt(r.display(q))]
+                f = r.flag(q)
+                cells.append(fmt_flagged(r.values[q], f))
+                if si != disp:
+                    cells.append(fmt_flagged(r.display(q), f))
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
@@ -178,14 +265,17 @@ def _latex_unit(u: str) -> str:
     return rf"$[\mathrm{{{u}}}]$".replace(r"\mathrm{^\circ", r"\mathrm{{}^\circ")
 
 
-def _latex_num(x: float) -> str:
-    if math.isnan(x):
+def _latex_num(x: float, flag: str = "") -> str:
+    if flag == NOT_FITTED or math.isnan(x):
         return "--"
+    if flag == NOT_IDENTIFIED:
+        return r"\textit{n.i.}"
     if math.isinf(x):
         return r"$\infty$"
     m, e = f"{x:.2e}".split("e")
     e = int(e)
-    return f"${m}$" if e == 0 else rf"${m}\times10^{{{e}}}$"
+    num = f"${m}$" if e == 0 else rf"${m}\times10^{{{e}}}$"
+    return num + r"\textsuperscript{b}" if flag == AT_BOUND else num
 
 
 def _latex_text(s: str) -> str:
@@ -204,7 +294,8 @@ def table_latex(rows: list[NoiseRow]) -> str:
                 units.append(_latex_unit(u))
                 cols.append("r")
         lines = [
-            rf"% {sensor}: ML_i sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s",
+            rf"% {sensor}: noise model sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s",
+            r"% --: not fitted (IEEE-952 term not needed); b: at the search bound; n.i.: not identified",
             r"\begin{tabular}{ll" + "".join(cols) + "}",
             r"\toprule",
             " & ".join(head) + r" \\",
@@ -215,8 +306,209 @@ def table_latex(rows: list[NoiseRow]) -> str:
             cells = [_latex_text(r.device), _latex_text(f"{r.axis}-{sensor}")]
             for q in QUANTITIES:
                 si, disp, _ = units_of(sensor, q)
-                cells += [_latex_num(r.values[q])] + ([] if si == disp else [_latex_num(r.display(q))])
+                f = r.flag(q)
+                cells += [_latex_num(r.values[q], f)] + ([] if si == disp else [_latex_num(r.display(q), f)])
             lines.append(" & ".join(cells) + r" \\")
         lines += [r"\bottomrule", r"\end{tabular}"]
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
+
+
+# -- the summary: one row per sensor and axis ------------------------------------------------------
+
+#: summary quantities: (key, title, dimension)
+SUMMARY_QUANTITIES = (
+    ("N", "N", "density"),
+    ("B", "B", "rate"),
+    ("K", "K", "drift"),
+    ("sigma_b", "σ_b", "drift"),
+    ("tau_b", "τ_b", "time"),
+)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A value with its 90 % interval (SI; NaN where there is none) and its flag."""
+
+    value: float
+    lo: float = math.nan
+    hi: float = math.nan
+    flag: str = ""
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """One sensor axis: N (the noise model's sigma_w), B and K (IEEE-952 Allan fit), the bias model's
+    ``sigma_b`` and ``tau_b`` (:class:`Estimate` each, SI), the model's name, the fit verdict and
+    the "enough data?" verdict (with its reasons); ``"—"`` for a verdict the analysis did not give."""
+
+    device: str
+    sensor: str
+    axis: str
+    n: int
+    fs_hz: float
+    model: str
+    estimator: str
+    values: dict[str, Estimate]
+    fit: str
+    enough: str
+    enough_reasons: tuple[str, ...] = ()
+
+
+def fit_verdict(res: ChannelAnalysis) -> str:
+    """The model-adequacy verdict of the default fit ("fits", "does not fit ..."), or "—".
+
+    Issue 22 adds it to the fit (``adequacy`` with a ``verdict``); before that, and for
+    results that lack it, the summary shows "—" rather than guessing. A fit that did not
+    converge says so.
+    """
+    fit = res.noise_model
+    ad = getattr(fit, "adequacy", None) or getattr(res, "adequacy", None)
+    verdict = ad.get("verdict") if isinstance(ad, dict) else getattr(ad, "verdict", None)
+    text = str(verdict) if verdict else DASH
+    if not fit.converged and not fit.at_bound:
+        text += " (not converged)"
+    return text
+
+
+def _ieee_estimate(value: float, stderr: float) -> Estimate:
+    flag = _ieee_flag(value)
+    if flag or not math.isfinite(stderr):
+        return Estimate(value, flag=flag)
+    return Estimate(value, max(0.0, value - Z90 * stderr), value + Z90 * stderr)
+
+
+def _model_estimate(fit, name: str) -> Estimate:
+    value = float(getattr(fit, name))
+    ci = fit.ci90.get(name) or fit.ci90.get(_param_key(fit, name)) or (math.nan, math.nan)
+    return Estimate(value, float(ci[0]), float(ci[1]), param_flag(fit, name))
+
+
+def summary_rows(results: list[ChannelAnalysis]) -> list[SummaryRow]:
+    """One :class:`SummaryRow` per analysed channel, in the order given."""
+    rows = []
+    for r in results:
+        device, sensor, axis = _split_id(r.channel)
+        fit = r.noise_model
+        values = {
+            "N": _model_estimate(fit, "sigma_w"),
+            "B": _ieee_estimate(r.ieee.B, r.ieee.B_stderr),
+            "K": _ieee_estimate(r.ieee.K, r.ieee.K_stderr),
+            "sigma_b": _model_estimate(fit, "sigma_b"),
+            "tau_b": _model_estimate(fit, "tau_b"),
+        }
+        v = r.verdict
+        rows.append(
+            SummaryRow(
+                device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, fit.estimator, values,
+                fit_verdict(r), v.verdict if v is not None else DASH, tuple(v.reasons) if v is not None else (),
+            )
+        )  # fmt: skip
+    return rows
+
+
+def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
+    """``35.0 [34.8, 35.2]`` (times ``factor``); flags as :func:`fmt_flagged`."""
+    if e.flag or not math.isfinite(e.value):
+        return fmt_flagged(e.value * factor, e.flag, digits)
+    v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return fmt_number(v, digits)
+    # enough digits that a narrow interval does not print as [x, x]
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+        digits += 1
+    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
+
+
+def summary_markdown(rows: list[SummaryRow]) -> str:
+    """One Markdown table per sensor kind, display units, each value with its 90 % interval."""
+    parts = []
+    for sensor, rs in _by_sensor(rows).items():
+        head = ["device", "axis", "model"]
+        head += [f"{title} [{display_units(sensor, dim)[1]}]" for _, title, dim in SUMMARY_QUANTITIES]
+        head += ["fit", "enough data?"]
+        lines = [f"**{sensor}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in rs:
+            cells = [r.device, f"{r.axis}-{sensor}", f"{r.model} ({r.estimator})"]
+            for key, _, dim in SUMMARY_QUANTITIES:
+                cells.append(fmt_estimate(r.values[key], display_units(sensor, dim)[2]))
+            cells += [r.fit, r.enough]
+            lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"
+
+
+def summary_csv(rows: list[SummaryRow]) -> str:
+    """CSV of the summary, SI: per quantity value, 90 % interval, unit, flag; the two verdicts."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    head = ["device", "sensor", "axis", "n", "fs_hz", "model", "estimator"]
+    for key, _, _ in SUMMARY_QUANTITIES:
+        head += [key, f"{key}_lo90", f"{key}_hi90", f"{key}_unit", f"{key}_flag"]
+    head += ["fit", "enough_data", "enough_data_reasons"]
+    w.writerow(head)
+    for r in rows:
+        line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model, r.estimator]
+        for key, _, dim in SUMMARY_QUANTITIES:
+            e = r.values[key]
+            value = "" if e.flag == NOT_FITTED else repr(float(e.value))
+            line += [value, repr(float(e.lo)), repr(float(e.hi)), display_units(r.sensor, dim)[0], e.flag]
+        line += [r.fit, r.enough, "; ".join(r.enough_reasons)]
+        w.writerow(line)
+    return buf.getvalue()
+
+
+# -- bias temperature coefficients ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TempcoRow:
+    """The bias of one axis regressed on one temperature: ``result`` (a
+    :class:`~.temperature.TempcoResult`, slope in SI unit/K) or None with the ``reason``."""
+
+    channel: str
+    sensor: str
+    source: str
+    result: object | None
+    reason: str = ""
+    #: passes the report's family-wise test (Holm over all its coefficients; temperature.holm)
+    listed: bool = False
+
+
+def tempco_csv(rows: list[TempcoRow]) -> str:
+    """Every coefficient (significant or not), SI and display, with the autocorrelation test."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(
+        ["channel", "temperature", "slope", "slope_unit", "slope_display", "slope_display_unit", "stderr_ols",
+         "stderr_eff", "n_blocks", "n_eff", "rho_temp", "rho_resid", "p_value", "significant", "listed", "span_k",
+         "r2", "note"]
+    )  # fmt: skip
+    for r in rows:
+        si, disp, k = display_units(r.sensor, "rate")
+        tc = r.result
+        if tc is None:
+            w.writerow([r.channel, r.source, "", f"{si}/K", "", f"{disp}/K", *[""] * 11, r.reason])
+            continue
+        w.writerow(
+            [r.channel, r.source, repr(tc.slope), f"{si}/K", repr(tc.slope * k), f"{disp}/K", repr(tc.slope_stderr),
+             repr(tc.slope_stderr_eff), tc.n, f"{tc.n_eff:.4g}", f"{tc.rho_temp:.4f}", f"{tc.rho_resid:.4f}",
+             f"{tc.p_value:.3g}", tc.significant, r.listed, f"{tc.span_c:.4g}", f"{tc.r2:.4f}", r.reason]
+        )  # fmt: skip
+    return buf.getvalue()
+
+
+def tempco_markdown(rows: list[TempcoRow]) -> str:
+    """The listed coefficients only (display units, inflated standard error); an empty string when none."""
+    sig = [r for r in rows if r.result is not None and r.listed]
+    if not sig:
+        return ""
+    head = ["channel", "temperature", "slope", "± (autocorrelation-corrected)", "p", "n_eff / blocks", "span [K]", "R²"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in sig:
+        tc = r.result
+        _, disp, k = display_units(r.sensor, "rate")
+        cells = [r.channel, r.source, f"{tc.slope * k:.3g} {disp}/K", f"{tc.slope_stderr_eff * k:.2g}",
+                 f"{tc.p_value:.2g}", f"{tc.n_eff:.0f} / {tc.n}", f"{tc.span_c:.2f}", f"{tc.r2:.2f}"]  # fmt: skip
+        lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -49,8 +49,12 @@ def field_options(f):
             click.option(
                 "--time-column", default=None, metavar="COL", help="Text logs: time column (name or 0-based index)."
             ),
-            click.option("--gyro-columns", default=None, metavar="A,B,C", help="Text logs: gyro x,y,z columns."),
-            click.option("--accel-columns", default=None, metavar="A,B,C", help="Text logs: accel x,y,z columns."),
+            click.option(
+                "--gyro-columns", default=None, metavar="A,B,C", help="Text logs: gyro columns (one to three, x,y,z)."
+            ),
+            click.option(
+                "--accel-columns", default=None, metavar="A,B,C", help="Text logs: accel columns (one to three)."
+            ),
             click.option(
                 "--time-unit",
                 type=click.Choice(list(TIME_UNITS)),

@@ -12,52 +12,90 @@ from imustation.cli import cli
 from imustation.cli._field import field_options, plan_inputs, text_options
 from imustation.cli._parallel import cluster_options, report_failures, run_with_progress
 from imustation.errors import InputError
-from imustation.units import DEG2RAD
 
 
 def _g(x: float, fmt: str = ".3e") -> str:
-    return format(x, fmt) if math.isfinite(x) else "-"
+    return format(x, fmt) if math.isfinite(x) else ("inf" if x == math.inf else "-")
+
+
+#: sensor kind -> the heading of its block in the text table
+_KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "channels of unknown kind (plain arrays)"}
 
 
 def results_table(results) -> str:
-    """The text table of ``analyze``; with channels of several inputs every row starts with its input's name."""
+    """The text table of ``analyze``: one block per sensor kind, every column with its own unit.
+
+    sigma_w and sigma_b in SI and in the display units of the paper's Table IV
+    (deg/h/sqrt(Hz), deg/h/sqrt(h) for gyros; micro-g/sqrt(Hz), micro-g/sqrt(s) for
+    accelerometers; imustation.units.display_units); a parameter at its search bound or
+    not identified is printed as such (analysis/reports/tables.py).
+    """
     import os
 
-    names = {r.channel.source: os.path.basename(r.channel.source) for r in results}
-    if len(set(names.values())) < len(names):  # same file name in two folders
-        names = {src: src for src in names}
-    width = max(map(len, names.values()), default=0) if len(names) > 1 else 0
+    from imustation.analysis.reports.tables import AT_BOUND, NOT_IDENTIFIED, param_flag
+    from imustation.units import display_units, sensor_kind
+
+    # channels of several inputs: every row starts with its input's name
+    inputs = {r.channel.source: os.path.basename(r.channel.source) for r in results}
+    if len(set(inputs.values())) < len(inputs):  # same file name in two folders
+        inputs = {src: src for src in inputs}
+    width = max(map(len, inputs.values()), default=0) if len(inputs) > 1 else 0
 
     def where(r) -> str:
-        return f"{names[r.channel.source]:<{width}} " if width else ""
+        return f"{inputs[r.channel.source]:<{width}} " if width else ""
 
-    head = (f"{'input':<{width}} " if width else "") + (
-        f"{'channel':<22} {'n':>9} {'fs Hz':>7} {'sigma_w':>10} {'deg/h/rtHz':>10} {'sigma_b':>10} "
-        f"{'tau_b s':>9} {'b_on':>10} {'ADEV(1s)':>10}  fit"
-    )
-    lines = [head, "-" * len(head)]
+    def cell(fit, name: str, value: float, fmt: str) -> str:
+        flag = param_flag(fit, name)
+        return {AT_BOUND: "at bound", NOT_IDENTIFIED: "not ident."}.get(flag) or _g(value, fmt)
+
+    groups: dict = {}
     for r in results:
-        adev1 = _interp_adev(r.allan, 1.0)
-        fits = [f for f in (r.noise_model, r.mli, r.gmwm) if f is not None]
-        fits = [f for k, f in enumerate(fits) if all(f is not g for g in fits[:k])]
-        for m in fits:
-            flag = "ok" if m.converged else f"! {m.message}"
-            name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
-            lines.append(
-                where(r) + f"{name:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
-                f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
-                f"{_g(m.b_on):>10} {_g(adev1):>10}  {m.estimator} {flag}"
-            )
-        for alt in r.models:
-            lines.append(where(r) + f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
+        groups.setdefault(sensor_kind(r.channel.units, r.channel.id), []).append(r)
+    lines: list[str] = []
+    flagged = False
+    for kind, rs in groups.items():
+        dens, dens_d, kd = display_units(kind, "density")
+        drift, drift_d, kb = display_units(kind, "drift")
+        rate = display_units(kind, "rate")[0]
+        names = ("channel", "n", "fs Hz", "sigma_w", "sigma_w", "sigma_b", "sigma_b", "tau_b", "b_on", "ADEV(1s)")
+        units = ("", "", "", dens, dens_d, drift, drift_d, "s", rate, rate)
+        widths = (22, 9, 7, 10, 9, 11, 9, 10, 10, 10)
+        row = "{:<22} {:>9} {:>7} {:>10} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}  {}"
+        pad = f"{'':<{width}} " if width else ""
+        head = (f"{'input':<{width}} " if width else "") + row.format(*names, "fit")
+        if lines:
+            lines.append("")
+        lines += [f"{_KIND_TITLES[kind]} ({rate})", head, pad + row.format(*units, ""), "-" * len(head)]
+        for r in rs:
+            adev1 = _interp_adev(r.allan, 1.0)
+            fits = [f for f in (r.noise_model, r.mli, r.gmwm) if f is not None]
+            fits = [f for k, f in enumerate(fits) if all(f is not g for g in fits[:k])]
+            for m in fits:
+                flag = "ok" if m.converged else f"! {m.message}"
+                name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
+                sb = cell(m, "sigma_b", m.sigma_b, ".3e")
+                sb_d = cell(m, "sigma_b", m.sigma_b * kb, ".4g")
+                tb = cell(m, "tau_b", m.tau_b, ".1f")
+                flagged |= any(c in ("at bound", "not ident.") for c in (sb, tb))
+                lines.append(
+                    where(r)
+                    + row.format(
+                        name[: widths[0]] if len(name) > widths[0] and m is not r.noise_model else name,
+                        r.channel.n, f"{r.channel.fs_hz:g}", _g(m.sigma_w), _g(m.sigma_w * kd, ".4g"),
+                        sb, sb_d, tb, _g(m.b_on), _g(adev1), f"{m.estimator} {flag}",
+                    )
+                )  # fmt: skip
+            for alt in r.models:
+                lines.append(where(r) + f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
     for r in results:
         if r.verdict is not None:
-            label = f"{names[r.channel.source]}: {r.channel.id}" if width else r.channel.id
+            label = f"{inputs[r.channel.source]}: {r.channel.id}" if width else r.channel.id
             lines.append(f"enough data? {label}: {r.verdict.verdict} - {'; '.join(r.verdict.reasons)}")
-    lines.append(
-        "units: sigma_w (unit)/s*sqrt(s) = (unit)/sqrt(Hz); sigma_b (unit)/s/sqrt(Hz); "
-        "b_on, ADEV in the channel unit (rad/s or m/s^2)"
-    )
+    if flagged:
+        lines.append(
+            "at bound: the fit stopped at its search bound (no estimate); not ident.: the 90 % interval is "
+            "missing or spans more than two decades (--json has the numbers)"
+        )
     return "\n".join(lines)
 
 
@@ -100,13 +138,14 @@ def _interp_adev(allan, tau: float) -> float:
     "--model",
     default=choices.DEFAULT_MODEL,
     show_default=True,
-    help="Noise model fitted, e.g. wn+gm, wn+2gm, wa+wn+gm.",
+    help=choices.MODEL_HELP,
 )
 @click.option(
     "--compare-models",
     "compare",
     is_flag=True,
-    help="Also fit wn+gm, wn+gm+rw and wn+2gm and report AIC/BIC (JSON key 'models').",
+    help="Also fit wn+gm (white noise + Gauss-Markov bias), wn+gm+rw (+ rate random walk) and wn+2gm (two "
+    "Gauss-Markov biases) and report AIC/BIC (JSON key 'models').",
 )
 @click.option(
     "--estimator",

@@ -14,7 +14,7 @@ from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.errors import InputError
 from imustation.outputs import check_file
-from imustation.units import format_duration, parse_duration
+from imustation.units import display_units, format_duration, parse_duration, sensor_kind
 
 #: virtual durations: the quick demo (byte-level capture), and the full lab (synthesised at the
 #: noise-model level by default: the byte-level lab capture runs ~14x real time, its ADIS16448
@@ -26,7 +26,9 @@ PARAMS = ("sigma_w", "sigma_b", "tau_b")
 PROFILES = ("paper", "datasheet")
 #: the shipped lab config of each profile
 LAB_CONFIGS = {"paper": "demo-lab.toml", "datasheet": "lab-realistic.toml"}
-TABLE_FIELDS = ("channel", "param", "simulated", "identified", "ci90_lo", "ci90_hi", "error_pct")
+TABLE_FIELDS = ("channel", "param", "simulated", "identified", "ci90_lo", "ci90_hi", "error_pct", "unit")
+#: the dimension of each compared parameter (imustation.units.display_units)
+PARAM_DIMENSIONS = {"sigma_w": "density", "sigma_b": "drift", "tau_b": "time"}
 
 
 @cli.command()
@@ -130,7 +132,10 @@ def demo(
             summary = run_capture(cfg, path, seconds, simulate=True, overwrite=overwrite, workers=workers)
             click.echo(f"  {sum(summary.samples.values())} samples in {summary.wall_s:.1f} s wall")
         channels = load_inputs([path], globs)
-        head = f"{'channel':<22} {'param':<8} {'simulated':>11} {'identified':>11} {'90% interval':>25} {'error':>8}"
+        head = (
+            f"{'channel':<22} {'param':<8} {'simulated':>11} {'identified':>11} {'90% interval':>25} {'error':>8}"
+            "  unit (SI)"
+        )
         click.echo(head)
         click.echo("-" * len(head))
         truths = simulated_truth(cfg)
@@ -148,9 +153,12 @@ def demo(
                 # no Gauss-Markov term simulated (datasheet profile): nothing to compare with
                 compared = 0 < sim_v < float("inf")
                 err = 100 * (fit_v / sim_v - 1) if compared else float("nan")
-                rows.append(dict(zip(TABLE_FIELDS, (ch.id, name, sim_v, fit_v, lo, hi, err), strict=True)))
+                unit = display_units(sensor_kind(ch.units, ch.id), PARAM_DIMENSIONS[name])[0]
+                rows.append(dict(zip(TABLE_FIELDS, (ch.id, name, sim_v, fit_v, lo, hi, err, unit), strict=True)))
                 shown, err_s = (f"{sim_v:>11.4g}", f"{err:>7.1f}%") if compared else (f"{'-':>11}", f"{'':>8}")
-                click.echo(f"{ch.id:<22} {name:<8} {shown} {fit_v:>11.4g} {f'[{lo:.3g}, {hi:.3g}]':>25} {err_s}")
+                click.echo(
+                    f"{ch.id:<22} {name:<8} {shown} {fit_v:>11.4g} {f'[{lo:.3g}, {hi:.3g}]':>25} {err_s}  {unit}"
+                )
         click.echo(f"  analysed {len(channels)} channels in {time.perf_counter() - t0:.1f} s")
     if table_path:
         with open(table_path, "w", newline="", encoding="utf-8") as fh:

@@ -48,8 +48,16 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
     show_default=True,
     help="Gauss-Markov bias -> random walk: sigma_b (conservative) or ADEV match at tau_b (docs/reports.md).",
 )
-@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
+@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP)
 @click.option("--topic", default="/imu0", show_default=True, help="IMU topic written for ROS-based tools.")
+@click.option(
+    "--inflate",
+    default=None,
+    metavar="F[,W]",
+    help="Multiply the written noise densities by F and the random walks by W (default F), e.g. 10: the "
+    "margin VIO users add for motion, vibration and temperature (docs/reports.md). The measured values "
+    "stay in the file's comments. Default: no inflation.",
+)
 def export(
     runs: tuple[str, ...],
     fmt: str,
@@ -62,6 +70,7 @@ def export(
     rw: str,
     model: str,
     topic: str,
+    inflate: str | None,
 ) -> None:
     """Fit every axis of RUN and write the noise parameters a VIO tool expects.
 
@@ -82,7 +91,9 @@ def export(
         raise InputError(f"{run}: export needs a run file (.h5)")
     from imustation.analysis.pipeline.channel import analyze_channel
     from imustation.analysis.pipeline.loaders import load_run
-    from imustation.analysis.reports.export import export_text, sensor_noise
+    from imustation.analysis.reports.export import export_text, inflate_sensors, parse_inflation, sensor_noise
+
+    factors = parse_inflation(inflate) if inflate is not None else None  # a bad value fails before the fits
 
     channels = load_run(run)
     gyros = _device_channels(channels, device, "gyro", run)
@@ -108,6 +119,15 @@ def export(
 
     gyro = sensor_noise(fit(gyros), "gyro", source, rw)
     accel = sensor_noise(fit(accels), "accel", source, rw) if accels else None
+    if factors is not None:
+        gyro, accel = inflate_sensors(gyro, accel, *factors)
+        for s in (gyro, accel):
+            if s is not None:
+                click.echo(
+                    f"inflated {s.kind}: noise density {s.measured_noise_density:.4e} -> {s.noise_density:.4e}, "
+                    f"random walk {s.measured_random_walk:.4e} -> {s.random_walk:.4e} (measured ones in the comments)",
+                    err=True,
+                )
     for s in (gyro, accel):
         for a in s.axes if s is not None else ():
             if a.warning:

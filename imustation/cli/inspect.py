@@ -8,6 +8,21 @@ from imustation.cli import cli
 from imustation.units import format_duration
 
 
+def _ended(rf) -> str:
+    """``ended_utc``: the end of the data. Imports made before it was (issue 23) hold the time of the
+    conversion there: then the end of the data is derived from the last sample and said so."""
+    a = rf.attrs
+    ended = a.get("ended_utc", "-")
+    if "source_format" not in a or "imported_utc" in a:
+        return str(ended)
+    import datetime as dt
+
+    last_ns = max((int(rf.dataset(d.name, "t")[d.n - 1]) for d in rf.devices.values() if d.n), default=0)
+    start = dt.datetime.fromisoformat(str(a["started_utc"]))
+    end = (start + dt.timedelta(microseconds=last_ns // 1000)).isoformat(timespec="milliseconds")
+    return f"{end} (end of the data; the file says {ended}, when it was converted)"
+
+
 @cli.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(dir_okay=False))
 def inspect(runs: tuple[str, ...]) -> None:
@@ -40,9 +55,14 @@ def _inspect(run: str) -> None:
         state = "complete" if rf.complete else f"INCOMPLETE ({crashed})"
         click.echo(f"{run}: {a.get('format')} v{a.get('format_version')}, station {a.get('station')!r}, {state}")
         click.echo(
-            f"  started {a.get('started_utc')}  ended {a.get('ended_utc', '-')}"
+            f"  started {a.get('started_utc')}  ended {_ended(rf)}"
             f"  simulated {bool(a.get('simulated'))}  software {a.get('software_version')}"
         )
+        if "source_format" in a:
+            click.echo(
+                f"  imported from {a.get('source')} ({a['source_format']})"
+                + (f" on {a['imported_utc']}" if "imported_utc" in a else "")
+            )
         if isinstance(rf, RunSeries):
             click.echo(
                 f"  rotated capture (run_id {a.get('run_id')}), parts {rf.numbers[0]}..{rf.numbers[-1]} read as one:"

@@ -26,6 +26,7 @@ from imustation.analysis.estimators.allan import oadev
 from imustation.analysis.estimators.mli import fit_integrated
 from imustation.analysis.estimators.pattern import integrate
 from imustation.errors import ImustationError
+from imustation.units import display_units
 
 #: rows kept per device before the buffer halves itself (x 3 axes x 8 bytes at most)
 MAX_ROWS = 1 << 21
@@ -152,12 +153,24 @@ def allan_curves(snap: Snapshot) -> dict:
     return out
 
 
+def parameter_units(kind: str = "gyro") -> dict:
+    """Units of the overlay's fitted values, for the page to print beside them: per parameter its SI
+    unit, display unit and SI -> display factor (:func:`imustation.units.display_units`)."""
+    dims = {"sigma_w": "density", "sigma_b": "drift", "tau_b": "time", "b_on": "rate"}
+    out = {}
+    for name, dim in dims.items():
+        si, display, factor = display_units(kind, dim)
+        out[name] = {"si": si, "display": display, "factor": factor}
+    return out
+
+
 def model_curves(snap: Snapshot, tau: np.ndarray) -> dict:
     """ML_i fit of :data:`MODEL` per axis and its Allan deviation at ``tau`` (s).
 
     Per axis: ``sigma_w`` (rad s^-1/sqrt(Hz)), ``sigma_b`` (rad s^-2/sqrt(Hz)),
-    ``tau_b`` (s), ``b_on`` (rad/s), ``converged`` and ``adev`` (rad/s); an axis
-    whose fit fails holds ``error`` instead.
+    ``tau_b`` (s), ``b_on`` (rad/s), ``converged``, ``at_bound`` (parameters that ended at their
+    search bound: no estimate) and ``adev`` (rad/s); an axis
+    whose fit fails holds ``error`` instead. ``units``: :func:`parameter_units` of a gyro.
     """
     t0 = time.perf_counter()
     axes: dict = {}
@@ -177,6 +190,13 @@ def model_curves(snap: Snapshot, tau: np.ndarray) -> dict:
             "tau_b": res.tau_b if math.isfinite(res.tau_b) else None,
             "b_on": res.b_on,
             "converged": bool(res.converged),
+            "at_bound": list(res.at_bound),
             "adev": curve,
         }
-    return {"model": MODEL, "axes": axes, "fit_s": time.perf_counter() - t0, "raw_rows": snap.raw_rows}
+    return {
+        "model": MODEL,
+        "axes": axes,
+        "units": parameter_units("gyro"),
+        "fit_s": time.perf_counter() - t0,
+        "raw_rows": snap.raw_rows,
+    }

@@ -1,11 +1,19 @@
 // imustation monitor page: polls the JSON endpoints and draws with uPlot (vendored, no CDN).
-// Read-only: only GET requests. Units: s, Hz, degC, rad/s.
+// Read-only: only GET requests. Units: s, Hz, degC, rad/s; fitted values also in deg/h units.
 "use strict";
 
 (function () {
   const token = new URLSearchParams(window.location.search).get("token");
+  // every curve its own colour: measured axes, their model overlays, and the temperatures (another palette)
   const AXIS_COLOURS = { x: "#d62728", y: "#2ca02c", z: "#1f77b4" };
-  const TEMP_COLOURS = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf"];
+  const MODEL_COLOURS = { x: "#9467bd", y: "#ff7f0e", z: "#17becf" };
+  const TEMP_COLOURS = ["#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#393b79", "#637939", "#843c39", "#7b4173"];
+  // units of the overlay's fitted values when the server does not send them (a gyro, SI and display)
+  const GYRO_UNITS = {
+    sigma_w: { si: "rad/s/\u221aHz", display: "\u00b0/h/\u221aHz", factor: 180 / Math.PI * 3600 },
+    sigma_b: { si: "rad/s\u00b2/\u221aHz", display: "\u00b0/h/\u221ah", factor: 180 / Math.PI * 3600 * 60 },
+    tau_b: { si: "s", display: "s", factor: 1 },
+  };
   const charts = { temp: null, allan: {} };
 
   function api(path) {
@@ -150,6 +158,44 @@
     charts.temp._key = key;
   }
 
+  function withUnit(v, u) {
+    // "1.75e-4 rad/s/\u221aHz (36.1 \u00b0/h/\u221aHz)": a fitted value in SI and in its display unit
+    if (v === null || v === undefined) return "-";
+    const si = v.toExponential(2) + " " + u.si;
+    return u.display === u.si ? si : si + " (" + Number((v * u.factor).toPrecision(3)) + " " + u.display + ")";
+  }
+
+  // error bars: the 68 % interval of each measured point, drawn over the plot area (uPlot draw hook)
+  function errorBars(bars) {
+    return function (u) {
+      const ctx = u.ctx;
+      ctx.save();
+      ctx.beginPath();
+      ctx.rect(u.bbox.left, u.bbox.top, u.bbox.width, u.bbox.height);
+      ctx.clip();
+      let drawn = 0;
+      bars.forEach(function (b) {
+        if (!u.series[b.idx].show) return;
+        ctx.strokeStyle = b.colour;
+        ctx.lineWidth = 1;
+        ctx.beginPath();
+        for (let i = 0; i < u.data[0].length; i++) {
+          const lo = b.lo[i], hi = b.hi[i], t = u.data[0][i];
+          if (lo === null || hi === null || t === null || lo <= 0) continue;
+          drawn++;
+          const x = Math.round(u.valToPos(t, "x", true));
+          const y0 = u.valToPos(lo, "y", true), y1 = u.valToPos(hi, "y", true);
+          ctx.moveTo(x, y0); ctx.lineTo(x, y1);
+          ctx.moveTo(x - 3, y0); ctx.lineTo(x + 3, y0);
+          ctx.moveTo(x - 3, y1); ctx.lineTo(x + 3, y1);
+        }
+        ctx.stroke();
+      });
+      ctx.restore();
+      u.root.setAttribute("data-error-bars", String(drawn));  // how many were drawn (the browser test reads it)
+    };
+  }
+
   function renderAllan(doc) {
     const box = document.getElementById("allan-plots");
     const note = document.getElementById("allan-note");
@@ -163,10 +209,15 @@
       if (!d.tau || !d.tau.length || !axes.length) return;
       const data = [d.tau];
       const series = [{ label: "\u03c4 (s)" }];
+      const unit = d.units || "rad/s";
+      const bars = [];
       axes.forEach(function (a) {
         data.push(d.axes[a].adev);
-        series.push({ label: a, stroke: AXIS_COLOURS[a] || "#444", width: 1.5,
-          value: function (u, v) { return v === null ? "-" : v.toExponential(3); } });
+        bars.push({ idx: series.length, lo: d.axes[a].lo || [], hi: d.axes[a].hi || [],
+          colour: AXIS_COLOURS[a] || "#444" });
+        series.push({ label: a + " (68 % bars)", stroke: AXIS_COLOURS[a] || "#444", width: 1.5,
+          points: { show: true, size: 5 },
+          value: function (u, v) { return v === null ? "-" : v.toExponential(3) + " " + unit; } });
       });
       const model = d.model;
       if (model && model.axes) {
@@ -174,17 +225,23 @@
           const m = model.axes[a];
           if (!m || !m.adev) return;
           data.push(m.adev);
-          series.push({ label: a + " model", stroke: AXIS_COLOURS[a] || "#444", width: 1, dash: [6, 4],
-            value: function (u, v) { return v === null ? "-" : v.toExponential(3); } });
+          series.push({ label: a + " model", stroke: MODEL_COLOURS[a] || "#999", width: 1.5, dash: [6, 4],
+            points: { show: false },
+            value: function (u, v) { return v === null ? "-" : v.toExponential(3) + " " + unit; } });
         });
       }
       let text = name + ": " + fmtDuration(d.duration_s) + " of data (" + d.samples + " samples" +
         (d.decimation > 1 ? ", shortest \u03c4 " + d.decimation + " samples" : "") + ")";
       if (model) {
+        const units = model.units || GYRO_UNITS;
         const parts = axes.filter(function (a) { return model.axes[a] && !model.axes[a].error; }).map(function (a) {
           const m = model.axes[a];
-          return a + ": \u03c3w " + m.sigma_w.toExponential(2) + ", \u03c3b " + m.sigma_b.toExponential(2) +
-            ", \u03c4b " + (m.tau_b === null ? "\u221e" : m.tau_b.toFixed(0) + " s");
+          const bound = m.at_bound || [];
+          // a value at its search bound is no estimate: said so, the number in brackets
+          const show = function (key, text) { return bound.indexOf(key) >= 0 ? "at bound (" + text + ")" : text; };
+          return a + ": \u03c3w " + withUnit(m.sigma_w, units.sigma_w) + ", \u03c3b " +
+            show("sigma_b", withUnit(m.sigma_b, units.sigma_b)) + ", \u03c4b " +
+            show("tau_b", m.tau_b === null ? "\u221e" : m.tau_b.toFixed(0) + " s");
         });
         text += "; ML_i " + model.model + " fitted " + (model.fitted_utc || "") + " \u2014 " + parts.join("; ");
       } else {
@@ -194,6 +251,7 @@
       const key = series.map(function (s) { return s.label; }).join("|");
       let chart = charts.allan[name];
       if (chart && chart._key === key) {
+        chart._bars.list = bars;
         chart.setData(data);
         return;
       }
@@ -201,16 +259,19 @@
       if (!holder) {
         holder = el("div", null, "allan");
         holder.id = "allan-" + name;
-        holder.appendChild(el("h3", name + ": gyro overlapping Allan deviation (rad/s)"));
+        holder.appendChild(el("h3", name + ": gyro overlapping Allan deviation (" + unit + "), 68 % error bars"));
         box.appendChild(holder);
       }
       if (chart) chart.destroy();
+      const barState = { list: bars };
       chart = new uPlot({
         width: plotWidth(box, names.length > 1 ? 0.49 : 1.0), height: 360, series: series,
         scales: { x: { time: false, distr: 3 }, y: { distr: 3 } },
-        axes: [{ label: "\u03c4 (s)", values: logTicks }, { label: "rad/s", values: logTicks, size: 60 }],
+        axes: [{ label: "\u03c4 (s)", values: logTicks }, { label: unit, values: logTicks, size: 60 }],
+        hooks: { draw: [function (u) { errorBars(barState.list)(u); }] },
       }, data, holder);
       chart._key = key;
+      chart._bars = barState;
       charts.allan[name] = chart;
     });
     note.replaceChildren();

@@ -1,0 +1,125 @@
+"""Every number carries its own channel's unit: the display-unit helper, analyze's text table, the report's
+summary and flags for values that are not estimates (issue 23)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.reports.tables import (
+    AT_BOUND,
+    DASH,
+    NOT_FITTED,
+    NOT_IDENTIFIED,
+    noise_rows,
+    summary_csv,
+    summary_markdown,
+    summary_rows,
+    table_csv,
+    table_latex,
+    table_markdown,
+)
+from imustation.cli.analyze import results_table
+from imustation.units import G0, display_units, sensor_kind
+
+FS = 100.0
+
+
+def test_display_units_per_sensor_kind():
+    # the paper's Table IV units: deg/h/sqrt(Hz) for gyros, micro-g/sqrt(Hz) for accelerometers
+    si, disp, k = display_units("gyro", "density")
+    assert (si, disp) == ("rad/s/√Hz", "°/h/√Hz") and 1.6968e-4 * k == pytest.approx(35.0, abs=0.005)
+    si, disp, k = display_units("accel", "density")
+    assert (si, disp) == ("m/s²/√Hz", "µg/√Hz") and G0 * 1e-6 * k == pytest.approx(1.0)
+    assert display_units("accel", "drift")[:2] == ("m/s³/√Hz", "µg/√s")
+    assert display_units("gyro", "angle")[:2] == ("rad", "°")
+    assert display_units(None, "density") == ("unit/√Hz", "unit/√Hz", 1.0)  # a plain array: no conversion
+    assert display_units("accel", "time") == ("s", "s", 1.0)
+    with pytest.raises(ValueError):
+        display_units("baro", "density")
+    assert sensor_kind("m/s^2") == "accel" and sensor_kind("", "dev/gyro/x") == "gyro" and sensor_kind("") is None
+
+
+@pytest.fixture(scope="module")
+def analysed():
+    """An accelerometer and a gyro axis of 3 h-equivalent noise (fast: 100 Hz, 20k samples), and a short
+    white-noise gyro whose tau_b ends at its search bound."""
+    rng = np.random.default_rng(11)
+    accel = Channel("imu/accel/x", FS, "m/s^2", 9.8 + rng.normal(0, 7e-4 * math.sqrt(FS), 20_000))
+    gyro = Channel("imu/gyro/x", FS, "rad/s", rng.normal(0, 1.7e-4 * math.sqrt(FS), 20_000))
+    short = Channel("fog/gyro/z", FS, "rad/s", np.random.default_rng(1).normal(0, 1e-3, 2000))
+    return [analyze_channel(ch) for ch in (accel, gyro, short)]
+
+
+def test_analyze_table_gives_each_kind_its_units(analysed):
+    text = results_table(analysed)
+    acc_block, gyro_block = text.split("\n\n")[:2]
+    assert acc_block.startswith("accelerometers (m/s²)") and "m/s²/√Hz" in acc_block and "µg/√Hz" in acc_block
+    assert "°/h" not in acc_block and "deg/h" not in acc_block
+    assert gyro_block.startswith("gyroscopes (rad/s)") and "rad/s/√Hz" in gyro_block and "°/h/√Hz" in gyro_block
+    # the accelerometer's sigma_w in micro-g/sqrt(Hz): 7e-4 m/s^2/sqrt(Hz) = 71.4 ug/sqrt(Hz)
+    acc_row = next(ln for ln in acc_block.splitlines() if ln.startswith("imu/accel/x"))
+    assert float(acc_row.split()[4]) == pytest.approx(7e-4 / G0 * 1e6, rel=0.05)
+    assert "sigma_w (unit)/s*sqrt(s)" not in text
+    # tau_b at its search bound is printed as such, with a legend line
+    fog = next(ln for ln in gyro_block.splitlines() if ln.startswith("fog/gyro/z"))
+    assert "at bound" in fog and "at bound: the fit stopped at its search bound" in text
+
+
+def test_summary_and_flags(analysed):
+    fog = analysed[2].noise_model
+    assert "tau_b" in fog.at_bound
+    rows = noise_rows(analysed)
+    assert rows[2].flag("tau_b") == AT_BOUND
+    md = table_markdown(rows)
+    assert f"at bound ({fog.tau_b:.3g})" in md and f"| {fog.tau_b:.3g} |" not in md
+    # the IEEE fit of pure white noise needs no B or K: not fitted, shown as a dash, empty in the CSV
+    assert analysed[1].ieee.K == 0.0 and rows[1].flag("K") == NOT_FITTED
+    table = list(csv.DictReader(io.StringIO(table_csv(rows))))
+    assert table[1]["K"] == "" and table[1]["K_flag"] == NOT_FITTED and table[2]["tau_b_flag"] == AT_BOUND
+    assert "--" in table_latex(rows) and r"\textsuperscript{b}" in table_latex(rows)
+
+    summary = summary_rows(analysed)
+    s_md = summary_markdown(summary)
+    assert "N [µg/√Hz]" in s_md and "N [°/h/√Hz]" in s_md and "σ_b [°/h/√h]" in s_md and "τ_b [s]" in s_md
+    gyro_line = next(ln for ln in s_md.splitlines() if ln.startswith("| imu | x-gyro"))
+    cells = [c.strip() for c in gyro_line.strip("|").split("|")]
+    n_cell, k_cell = cells[3], cells[5]
+    n, lo, hi = (float(v) for v in n_cell.replace("[", "").replace("]", "").replace(",", "").split())
+    assert lo < n < hi and n == pytest.approx(1.7e-4 * 3600 * 180 / math.pi, rel=0.05)  # deg/h/sqrt(Hz)
+    assert k_cell == DASH
+    # the fit verdict is not given by this analysis: a dash, never a guess; the data verdict is
+    assert cells[-2] == DASH and cells[-1] in ("enough", "marginal", "not enough")
+    s_csv = list(csv.DictReader(io.StringIO(summary_csv(summary))))
+    assert s_csv[2]["tau_b_flag"] == AT_BOUND and s_csv[0]["N_unit"] == "m/s²/√Hz"
+    assert float(s_csv[1]["N_lo90"]) < float(s_csv[1]["N"]) < float(s_csv[1]["N_hi90"])
+
+
+def test_not_identified_when_the_interval_spans_two_decades(analysed):
+    fit = analysed[1].noise_model
+    wide = replace(fit, ci90={**fit.ci90, "sigma_b": (fit.sigma_b / 30, fit.sigma_b * 30)}, at_bound=())
+    row = noise_rows([replace(analysed[1], noise_model=wide)])[0]
+    assert row.flag("sigma_b") == NOT_IDENTIFIED
+    assert "not identified" in table_markdown([row])
+
+
+def test_model_names_are_spelled_out_in_every_help():
+    from click.testing import CliRunner
+
+    from imustation.analysis.estimators.noise_models import _TERM_ORDER
+    from imustation.analysis.pipeline.choices import MODEL_TERMS
+    from imustation.cli import cli
+
+    assert set(MODEL_TERMS) == set(_TERM_ORDER)  # a new term code needs its words in the help
+    for cmd in ("analyze", "report", "export", "fleet"):
+        out = " ".join(CliRunner().invoke(cli, [cmd, "--help"]).output.split())
+        for words in ("wn white rate noise", "gm first-order Gauss-Markov bias", "rw rate random walk",
+                      "wa white angle noise"):  # fmt: skip
+            assert words in out, (cmd, words)
