@@ -192,3 +192,38 @@ def test_flicker_floor_does_not_fit_wn_gm_and_is_located():
         assert "s model" in a.summary()
     # the same record fits its true model
     assert model_adequacy(oadev(x, fs), truth, fs, [n]).verdict == FITS
+
+
+def test_analyze_json_text_and_plot_carry_the_adequacy(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import Channel
+    from imustation.analysis.reports.plots import allan_figure
+    from imustation.cli import cli
+
+    fs, n = 50.0, 180_000
+    x = _flicker(1e-4, 4e-5, 1.0, 3000.0).simulate(n, fs, seed=4)
+    path = tmp_path / "flicker.npy"
+    np.save(path, x)
+    out = CliRunner().invoke(cli, ["analyze", str(path), "--rate", str(fs), "--json"])
+    assert out.exit_code == 0, out.output
+    ch = json.loads(out.output)["channels"][0]
+    for block in ("noise_model", "mli"):
+        b = ch[block]
+        assert len(b["adev_model"]) == len(ch["allan"]["tau"])
+        assert b["adequacy"]["verdict"] == NO_FIT
+        assert b["adequacy"]["misfit"] and 0 < b["adequacy"]["p_value"] < ALPHA
+        assert len(b["adequacy"]["z"]) == len(ch["allan"]["tau"]) and sum(b["adequacy"]["tested"]) >= 5
+    # the model's ADEV is the fitted model's exact sampled ADEV
+    res = analyze_channel(Channel("flicker/0", fs, "rad/s", x))
+    np.testing.assert_allclose(
+        ch["noise_model"]["adev_model"], res.noise_model.noise_model.adev(res.allan.tau, fs), rtol=1e-9
+    )
+    text = CliRunner().invoke(cli, ["analyze", str(path), "--rate", str(fs)]).output
+    assert "model fit" in text.splitlines()[0]
+    assert any(line.startswith("model fit? flicker ML_i-F wn+gm: does not fit") for line in text.splitlines())
+    fig = allan_figure(res)
+    assert len(fig.axes) == 2 and "does not fit" in fig.axes[1].get_title()

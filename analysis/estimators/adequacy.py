@@ -75,7 +75,8 @@ class Misfit:
         return {"tau_lo": self.tau_lo, "tau_hi": self.tau_hi, "direction": self.direction, "z": self.z}
 
     def describe(self) -> str:
-        return f"{self.tau_lo:.3g}-{self.tau_hi:.3g} s {self.direction}"
+        where = f"{self.tau_lo:.3g} s" if self.tau_hi == self.tau_lo else f"{self.tau_lo:.3g}-{self.tau_hi:.3g} s"
+        return f"{where} {self.direction}"
 
 
 @dataclass(frozen=True)

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from imustation.analysis.estimators.adequacy import Adequacy, model_adequacy
 from imustation.analysis.estimators.allan import AllanResult, oadev
 from imustation.analysis.estimators.composite import fit_composite
 from imustation.analysis.estimators.fitting import MLiResult
@@ -35,6 +36,31 @@ class ChannelAnalysis:
     #: the default estimator's result (``noise_model`` block); reports and exports use it
     noise_model: MLiResult | None = None
     noise_method: str = ""
+    #: model adequacy of every fitted block, by block key ("noise_model", "mli", "gmwm", "models/<model>")
+    adequacy: dict[str, Adequacy] = field(default_factory=dict)
+
+    def adequacy_of(self, fit: MLiResult | None) -> Adequacy | None:
+        """The adequacy of one of this channel's fits (None for a fit without one)."""
+        if fit is None:
+            return None
+        for key, block in self.blocks().items():
+            if block is fit:
+                return self.adequacy.get(key)
+        return None
+
+    def blocks(self) -> dict[str, MLiResult]:
+        """Every fitted model block by its key (the JSON's block names; compared models as ``models/<name>``)."""
+        out = {k: f for k, f in (("noise_model", self.noise_model), ("mli", self.mli), ("gmwm", self.gmwm)) if f}
+        out.update({f"models/{r.model}": r for r in self.models})
+        return out
+
+
+def fit_adequacy(ch: Channel, allan: AllanResult, fit: MLiResult) -> Adequacy | None:
+    """Adequacy of ``fit`` against the channel's measured Allan variance (None without a model)."""
+    if fit.noise_model is None:
+        return None
+    n_fitted = sum(1 for k in fit.params if k != "b_on")
+    return model_adequacy(allan, fit.noise_model, ch.fs_hz, [b - a for a, b in ch.segments], n_fitted=n_fitted)
 
 
 def analyze_channel(
@@ -75,7 +101,14 @@ def analyze_channel(
     mli_block = mli if method in ("mli", "both") else None
     gmwm_block = gmwm if method in ("gmwm", "both") else None
     verdict = channel_verdict(ch, allan, best)
-    return ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
+    res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
+    done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
+    for key, fit in res.blocks().items():
+        if id(fit) not in done:
+            done[id(fit)] = fit_adequacy(ch, allan, fit)
+        if done[id(fit)] is not None:
+            res.adequacy[key] = done[id(fit)]
+    return res
 
 
 def _num(x: float) -> float | None:
@@ -96,6 +129,16 @@ def _clean(obj):
     return obj
 
 
+def _block(res: ChannelAnalysis, key: str, fit: MLiResult, extra: dict | None = None) -> dict:
+    """A fitted model block: the fit's keys, ``adev_model`` at ``allan.tau`` and its ``adequacy``."""
+    out = {**fit.as_dict(), **(extra or {})}
+    adq = res.adequacy.get(key)
+    if adq is not None:
+        out["adev_model"] = adq.adev_model
+        out["adequacy"] = adq.as_dict()
+    return out
+
+
 def channel_document(res: ChannelAnalysis) -> dict:
     ch = res.channel
     return _clean(
@@ -108,13 +151,13 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "source": ch.source,
             "gaps": ch.gaps,
             **(
-                {"noise_model": {**res.noise_model.as_dict(), "method": res.noise_model.estimator}}
+                {"noise_model": _block(res, "noise_model", res.noise_model, {"method": res.noise_model.estimator})}
                 if res.noise_model is not None
                 else {}
             ),
-            **({"mli": res.mli.as_dict()} if res.mli is not None else {}),
-            **({"gmwm": res.gmwm.as_dict()} if res.gmwm is not None else {}),
-            **({"models": [r.as_dict() for r in res.models]} if res.models else {}),
+            **({"mli": _block(res, "mli", res.mli)} if res.mli is not None else {}),
+            **({"gmwm": _block(res, "gmwm", res.gmwm)} if res.gmwm is not None else {}),
+            **({"models": [_block(res, f"models/{r.model}", r) for r in res.models]} if res.models else {}),
             "allan": {
                 "tau": res.allan.tau,
                 "adev": res.allan.adev,

@@ -145,7 +145,11 @@ def report_run(
     sections.append(
         '<p>Files: <a href="noise.csv">noise.csv</a>, <a href="noise.md">noise.md</a>, '
         '<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: ML_i fit of the '
-        f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured.</p>"
+        f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured. "
+        "Model fit: does the fitted model explain the measured Allan variance within its sampling "
+        "uncertainty, correlations across τ included (a generalised χ² test at 1 %, docs/noise-model.md "
+        "“Model adequacy”); where it does not, the τ ranges and whether the model is low or high there "
+        "(the residual panel under each Allan plot).</p>"
     )
 
     def sources(dev):

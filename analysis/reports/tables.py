@@ -3,7 +3,7 @@
 One row per axis: the ML_i parameters ``sigma_w``, ``sigma_b``, ``tau_b`` of the
 standard model, the IEEE-952 Allan-fit coefficients ``N``, ``B``, ``K`` and the
 measured Allan deviation at tau = 1 s, each in SI and in the usual display unit
-side by side:
+side by side, and whether the model fits the measured Allan variance (and where not):
 
 =========  ======================  ==============  ===================
 quantity   SI (gyro / accel)       gyro display    accel display
@@ -83,6 +83,11 @@ class NoiseRow:
     fs_hz: float
     model: str
     values: dict[str, float]
+    #: model adequacy of the fit against the measured Allan variance ("fits", "does not fit", ...)
+    fit: str = ""
+    fit_p: float = math.nan
+    #: tau ranges where the model misses, e.g. "5.2-98 s model low"
+    fit_where: str = ""
 
     def display(self, q: str) -> float:
         return self.values[q] * units_of(self.sensor, q)[2]
@@ -115,7 +120,9 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
             "K": r.ieee.K,
             "adev_1s": r.ieee.adev_1s,
         }
-        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, r.noise_model.model, vals))
+        adq = r.adequacy_of(r.noise_model)
+        fit = (adq.verdict, adq.p_value, "; ".join(m.describe() for m in adq.misfit)) if adq else ("", math.nan, "")
+        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, r.noise_model.model, vals, *fit))
     return rows
 
 
@@ -134,14 +141,21 @@ def table_csv(rows: list[NoiseRow]) -> str:
     head = ["device", "sensor", "axis", "n", "fs_hz", "model"]
     for q in QUANTITIES:
         head += [q, f"{q}_unit", f"{q}_display", f"{q}_display_unit"]
-    w.writerow(head)
+    w.writerow(head + ["model_fit", "model_fit_p", "model_fit_where"])
     for r in rows:
         line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model]
         for q in QUANTITIES:
             si, disp, _ = units_of(r.sensor, q)
             line += [repr(float(r.values[q])), si, repr(float(r.display(q))), disp]
-        w.writerow(line)
+        w.writerow(line + [r.fit, repr(float(r.fit_p)), r.fit_where])
     return buf.getvalue()
+
+
+def _fit_text(r: NoiseRow) -> str:
+    """``fits`` / ``does not fit: 5.2-98 s model low`` / ``–`` (no adequacy)."""
+    if not r.fit:
+        return "–"
+    return f"{r.fit}: {r.fit_where}" if r.fit_where else r.fit
 
 
 def _by_sensor(rows: list[NoiseRow]) -> dict[str, list[NoiseRow]]:
@@ -160,12 +174,14 @@ def table_markdown(rows: list[NoiseRow]) -> str:
             si, disp, _ = units_of(sensor, q)
             t = TITLES[q][0]
             head += [f"{t} [{si}]"] if si == disp else [f"{t} [{si}]", f"{t} [{disp}]"]
+        head.append("model fit")
         lines = [f"**{sensor}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in rs:
             cells = [r.device, f"{r.axis}-{sensor}"]
             for q in QUANTITIES:
                 si, disp, _ = units_of(sensor, q)
                 cells += [_fmt(r.values[q])] if si == disp else [_fmt(r.values[q]), _fmt(r.display(q))]
+            cells.append(_fit_text(r))
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
@@ -203,8 +219,12 @@ def table_latex(rows: list[NoiseRow]) -> str:
                 head.append(TITLES[q][1])
                 units.append(_latex_unit(u))
                 cols.append("r")
+        head.append("Fit")
+        units.append("")
+        cols.append("l")
         lines = [
-            rf"% {sensor}: ML_i sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s",
+            rf"% {sensor}: ML_i sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s;"
+            " model adequacy (fits / does not fit the measured Allan variance)",
             r"\begin{tabular}{ll" + "".join(cols) + "}",
             r"\toprule",
             " & ".join(head) + r" \\",
@@ -216,6 +236,7 @@ def table_latex(rows: list[NoiseRow]) -> str:
             for q in QUANTITIES:
                 si, disp, _ = units_of(sensor, q)
                 cells += [_latex_num(r.values[q])] + ([] if si == disp else [_latex_num(r.display(q))])
+            cells.append(_latex_text(r.fit) if r.fit else "--")
             lines.append(" & ".join(cells) + r" \\")
         lines += [r"\bottomrule", r"\end{tabular}"]
         parts.append("\n".join(lines))

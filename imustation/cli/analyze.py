@@ -22,7 +22,7 @@ def _g(x: float, fmt: str = ".3e") -> str:
 def results_table(results) -> str:
     head = (
         f"{'channel':<22} {'n':>9} {'fs Hz':>7} {'sigma_w':>10} {'deg/h/rtHz':>10} {'sigma_b':>10} "
-        f"{'tau_b s':>9} {'b_on':>10} {'ADEV(1s)':>10}  fit"
+        f"{'tau_b s':>9} {'b_on':>10} {'ADEV(1s)':>10} {'model fit':>12}  fit"
     )
     lines = [head, "-" * len(head)]
     for r in results:
@@ -32,13 +32,19 @@ def results_table(results) -> str:
         for m in fits:
             flag = "ok" if m.converged else f"! {m.message}"
             name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
+            adq = r.adequacy_of(m)
             lines.append(
                 f"{name:<22} {r.channel.n:>9} {r.channel.fs_hz:>7g} {_g(m.sigma_w):>10} "
                 f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
-                f"{_g(m.b_on):>10} {_g(adev1):>10}  {m.estimator} {flag}"
+                f"{_g(m.b_on):>10} {_g(adev1):>10} {adq.verdict if adq else '-':>12}  {m.estimator} {flag}"
             )
         for alt in r.models:
             lines.append(f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
+    for r in results:
+        for m in {id(f): f for f in r.blocks().values()}.values():
+            adq = r.adequacy_of(m)
+            if adq is not None and not adq.fits:
+                lines.append(f"model fit? {r.channel.id} {m.estimator} {m.model}: {adq.summary()}")
     for r in results:
         if r.verdict is not None:
             lines.append(f"enough data? {r.channel.id}: {r.verdict.verdict} - {'; '.join(r.verdict.reasons)}")
