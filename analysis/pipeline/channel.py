@@ -15,6 +15,7 @@ from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.estimators.mli import compare_models, fit_integrated
 from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.screen import screen
 from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, ESTIMATORS, METHODS
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
@@ -55,6 +56,25 @@ class ChannelAnalysis:
         return out
 
 
+class DegenerateChannel(InputError):
+    """A channel with nothing to characterise (constant, saturated, stuck, all quantisation):
+    skipped with its reason (:mod:`imustation.analysis.estimators.screen`); ``kind`` names which."""
+
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+    def __reduce__(self):  # travels back from cluster workers intact
+        return (type(self), (str(self), self.kind))
+
+
+def check_channel(ch: Channel) -> None:
+    """Raise :class:`DegenerateChannel` when the channel's samples are degenerate."""
+    deg = screen(ch.data, scale=ch.scale, units=ch.units)
+    if deg is not None:
+        raise DegenerateChannel(f"skipped {ch.id}: {deg.reason}", deg.kind)
+
+
 def fit_adequacy(ch: Channel, allan: AllanResult, fit: MLiResult) -> Adequacy | None:
     """Adequacy of ``fit`` against the channel's measured Allan variance (None without a model)."""
     if fit.noise_model is None:
@@ -75,6 +95,9 @@ def analyze_channel(
 ) -> ChannelAnalysis:
     """Allan deviation, IEEE-952 coefficients and the noise-model fits of one channel.
 
+    Raises :class:`DegenerateChannel` (an :class:`InputError`) for a channel with nothing to
+    characterise, before any fit.
+
     ``estimator`` (``"mli-f"``, ``"mli"`` or ``"gmwm"``) fills ``noise_model``,
     the result reports and exports use. ``method``: the comparison blocks
     ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
@@ -84,6 +107,7 @@ def analyze_channel(
         raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
+    check_channel(ch)
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     ieee = ieee_coefficients(allan)
     mli, models, gmwm = None, (), None

@@ -16,7 +16,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.channel import DegenerateChannel, analyze_channel
 from imustation.analysis.pipeline.choices import DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import load_run
 from imustation.analysis.reports import plots
@@ -53,10 +53,13 @@ class RunReport:
     files: tuple[str, ...]
     rows: tuple[NoiseRow, ...]
     warmup_s: dict[str, float]
+    #: channels not analysed, each with its reason (degenerate: constant, stuck, ...)
+    skipped: tuple[str, ...] = ()
 
     def summary(self) -> str:
-        """One line for the operator: the run and where its report is."""
-        return f"{self.path}: {len(self.files)} files in {self.folder}"
+        """One line for the operator: the run and where its report is (and how many channels were skipped)."""
+        skip = f" ({len(self.skipped)} channels skipped)" if self.skipped else ""
+        return f"{self.path}: {len(self.files)} files in {self.folder}{skip}"
 
 
 def check_warmup(warmup: str) -> float | None:
@@ -135,13 +138,25 @@ def report_run(
         if excluded[dev] > 0:
             _exclude_start(ch, int(round(excluded[dev] * ch.fs_hz)))
     results = []
+    skipped: list[str] = []
     for ch in channels:
         if progress is not None:
             progress(f"analysing {ch.id} ({ch.n} samples) ...")
-        results.append(analyze_channel(ch, model=model))
+        try:
+            results.append(analyze_channel(ch, model=model))
+        except DegenerateChannel as exc:  # named with its reason; the other channels go on
+            skipped.append(str(exc))
+            ch.release()
+            if progress is not None:
+                progress(str(exc))
     rows = noise_rows(results)
     written += write_tables(rows, out_dir)
-    sections.append("<h2>Noise table</h2>" + html_table(table_markdown(rows)))
+    sections.append(
+        "<h2>Noise table</h2>" + (html_table(table_markdown(rows)) if rows else "<p>No channel could be analysed.</p>")
+    )
+    if skipped:
+        items = "".join(f"<li>{html.escape(s)}</li>" for s in skipped)
+        sections.append(f"<h2>Skipped channels</h2><ul>{items}</ul>")
     sections.append(
         '<p>Files: <a href="noise.csv">noise.csv</a>, <a href="noise.md">noise.md</a>, '
         '<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: ML_i fit of the '
@@ -263,7 +278,7 @@ def report_run(
     with open(p, "w", encoding="utf-8") as fh:
         fh.write(page)
     written.append(p)
-    return RunReport(path, out_dir, tuple(written), tuple(rows), excluded)
+    return RunReport(path, out_dir, tuple(written), tuple(rows), excluded, tuple(skipped))
 
 
 def report_runs(

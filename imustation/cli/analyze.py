@@ -194,5 +194,10 @@ def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -
         click.echo(json.dumps(doc))
     else:
         click.echo(results_table(done))
+        skipped = [f for f in failures if f.skipped]
+        for f in skipped:  # named in the table's output too: the table alone must say what is missing
+            click.echo(f.error)
         if failures:
-            click.echo(f"{len(failures)} failed (see above); {len(done)} channels analysed", err=True)
+            counts = [f"{len(failures) - len(skipped)} failed" if len(failures) > len(skipped) else ""]
+            counts.append(f"{len(skipped)} skipped" if skipped else "")
+            click.echo(f"{', '.join(c for c in counts if c)} (see above); {len(done)} channels analysed", err=True)
