@@ -92,6 +92,7 @@ def analyze_channel(
     compare: tuple[str, ...] = (),
     method: str = DEFAULT_METHOD,
     estimator: str = DEFAULT_ESTIMATOR,
+    need: tuple[str, ...] | None = None,
 ) -> ChannelAnalysis:
     """Allan deviation, IEEE-952 coefficients and the noise-model fits of one channel.
 
@@ -102,6 +103,7 @@ def analyze_channel(
     the result reports and exports use. ``method``: the comparison blocks
     ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
     ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
+    ``need``: the parameters the "enough data?" verdict judges (:func:`.verdict.channel_verdict`).
     """
     if method not in METHODS:
         raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
@@ -124,7 +126,7 @@ def analyze_channel(
     # only the requested comparison blocks are reported
     mli_block = mli if method in ("mli", "both") else None
     gmwm_block = gmwm if method in ("gmwm", "both") else None
-    verdict = channel_verdict(ch, allan, best)
+    verdict = channel_verdict(ch, allan, best, need)
     res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
     done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
     for key, fit in res.blocks().items():

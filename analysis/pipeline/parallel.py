@@ -86,6 +86,8 @@ class AnalysisOptions:
     method: str = DEFAULT_METHOD
     rate_hz: float | None = None
     estimator: str = DEFAULT_ESTIMATOR
+    #: parameters the "enough data?" verdict judges (None: the model's sigma_w, sigma_b, tau_b)
+    need: tuple[str, ...] | None = None
 
 
 def _message(path: str, channel: str | None, exc: BaseException) -> str:
@@ -159,6 +161,7 @@ def analyze_task(path: str, channel: str, options: AnalysisOptions, data: Channe
         compare=options.compare,
         method=options.method,
         estimator=options.estimator,
+        need=options.need,
     )
     ch.release()  # run-file channels come back without samples (plain arrays keep theirs)
     return res

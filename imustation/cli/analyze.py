@@ -55,6 +55,19 @@ def results_table(results) -> str:
     return "\n".join(lines)
 
 
+def _needed(text: str | None) -> tuple[str, ...] | None:
+    """``--need`` as parameter names; InputError for a name no model has."""
+    if text is None:
+        return None
+    import re
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if not re.fullmatch(r"B|sigma_w|sigma_k|sigma_a|(sigma_b|tau_b)\d?", n)]
+    if not names or bad:
+        raise InputError(f"--need {text!r}: use model parameter names (sigma_w, sigma_b, tau_b, ...) or B")
+    return names
+
+
 def _interp_adev(allan, tau: float) -> float:
     import numpy as np
 
@@ -117,6 +130,13 @@ def _interp_adev(allan, tau: float) -> float:
     show_default=True,
     help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
 )
+@click.option(
+    "--need",
+    default=None,
+    metavar="NAMES",
+    help="Parameters the 'enough data?' verdict judges, comma-separated: model parameters (sigma_w, sigma_b, "
+    "tau_b, sigma_k, ...) and B (IEEE-952 bias instability). Default: the model's sigma_w, sigma_b, tau_b.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 @cluster_options
 @field_options
@@ -130,6 +150,7 @@ def analyze(
     compare: bool,
     estimator: str,
     method: str,
+    need: str | None,
     as_json: bool,
     workers: int | None,
     scheduler: str | None,
@@ -165,7 +186,9 @@ def analyze(
     text = text_options(time_column, gyro_columns, accel_columns, gyro_unit)
     # field recordings are streamed into memory (no run file); other inputs are read by their tasks
     tasks, failures = plan_inputs(inputs, globs, rate_hz, quiet=as_json, topic=topic, time_unit=time_unit, text=text)
-    opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
+    opts = AnalysisOptions(
+        pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need)
+    )
     _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit)
 
 
