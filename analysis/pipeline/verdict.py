@@ -24,7 +24,7 @@ Gauss-Markov bias has no Allan minimum, its deviation keeps falling beyond
 ``tau_b`` (issue 22: a record of 60 tau_b was called "not enough" for that).
 Interval spreads come from a fit of one record and vary between repeats (a
 weakly seen bias: tau_b's spread 3.5-19 over eight repeats); the bands are
-wide so that repeats of one device fall in one of them (docs/noise-model.md).
+wide so that repeats of one device fall in one of them (docs/import.md).
 """
 
 from __future__ import annotations
