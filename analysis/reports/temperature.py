@@ -209,8 +209,10 @@ def fit_warmup(
     if best is not None:
         rss, tau_b, coef_b, X = best
         s2 = rss / max(len(u) - 4, 1)
-        cov = s2 * np.linalg.inv(X.T @ X)
-        se = math.sqrt(max(cov[2, 2], 0.0))
+        try:
+            se = math.sqrt(max(float(s2 * np.linalg.inv(X.T @ X)[2, 2]), 0.0))
+        except np.linalg.LinAlgError:  # transient indistinguishable from the drift: none
+            se = math.inf
         if abs(coef_b[2]) >= max(WARMUP_SIGNIFICANCE * se, MIN_WARMUP_C):
             amp, tau, coef = float(coef_b[2]), float(tau_b), coef_b
     drift = float(coef[1]) / max(span, 1.0) * 3600.0
