@@ -307,8 +307,10 @@ def test_verdict_rules():
     assert warm.verdict == "marginal" and any("warm-up" in r for r in warm.reasons)
     hot = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, temp_span_c=5.0)
     assert hot.verdict == "marginal" and any("drift" in r for r in hot.reasons)
-    falling = data_verdict(36000.0, 300.0, 3600.0, allan_min_at_end=True)
-    assert falling.verdict == "not enough"
+    # a Gauss-Markov bias's Allan deviation keeps falling beyond tau_b: reported, judged only when B is needed
+    falling = data_verdict(36000.0, 300.0, 3600.0, allan_min_at_end=True, warmup_s=0.0, temp_span_c=0.5)
+    assert falling.verdict == "enough" and any("still falls" in r for r in falling.reasons)
+    assert data_verdict(36000.0, 300.0, 3600.0, allan_min_at_end=True, need=("B",)).verdict == "not enough"
     nofit = data_verdict(36000.0, math.nan, 200.0)
     assert nofit.verdict == "marginal"
     assert json.dumps(nofit.as_dict())

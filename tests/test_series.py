@@ -179,7 +179,7 @@ def test_analyze_of_several_inputs_names_the_input_of_each_row(week, tmp_path):
     rows = [line for line in res.output.splitlines() if "g/gyro/x" in line and "enough" not in line]
     assert rows[0].split()[:3] == ["week.h5", "g/gyro/x", "10000"]
     assert rows[1].split()[:3] == ["single.h5", "g/gyro/x", "2000"]
-    assert res.stdout.splitlines()[0].split()[:2] == ["input", "channel"]
+    assert res.stdout.splitlines()[1].split()[:2] == ["input", "channel"]  # under the sensor kind's title
     assert "enough data? single.h5: g/gyro/x:" in res.output
     # parts that are not consecutive: one line, exit 2
     res = CliRunner().invoke(cli, ["analyze", p1, p3])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from imustation.analysis.reports.plots import bias_track
-from imustation.analysis.reports.temperature import detect_warmup, device_temperature, fit_tempco
+from imustation.analysis.reports.temperature import detect_warmup, device_temperature, fit_tempco, fit_warmup
 from imustation.errors import InputError
 
 
@@ -80,6 +80,33 @@ def test_warmup_detection():
     assert settle - 600 <= end <= settle + 300
     assert detect_warmup(t, np.full_like(t, 25.0)) == 0.0
     assert detect_warmup(t, 25 + t / 600.0) == pytest.approx(t[-1])  # 6 degC/h: never settles
+
+
+def _quantised(temp, step=0.5):
+    return np.round(temp / step) * step
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_quantised_flat_temperature_is_no_warmup(seed):
+    # a die thermometer of 0.5 K resolution in a stable room: the reading toggles between steps
+    t = np.arange(0.0, 12 * 3600.0, 1.0)
+    rng = np.random.default_rng(seed)
+    temp = _quantised(25.2 + 0.05 * np.sin(2 * np.pi * t / 21600) + rng.normal(0, 0.15, len(t)))
+    assert detect_warmup(t, temp) == 0.0
+    # nor is one step of a slow room drift crossing a quantisation level, without any noise
+    assert detect_warmup(t, _quantised(25.1 + 0.8 * t / t[-1])) == 0.0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_quantised_exponential_warmup_is_found_near_the_truth(seed):
+    t = np.arange(0.0, 12 * 3600.0, 1.0)
+    rng = np.random.default_rng(seed)
+    amp, tau, limit = 5.0, 900.0, 1.0  # K, s, K/h
+    temp = _quantised(30.0 - amp * np.exp(-t / tau) + rng.normal(0, 0.1, len(t)))
+    truth = tau * math.log(amp * 3600.0 / (tau * limit))  # where the transient slows below the limit: 2696 s
+    fit = fit_warmup(t, temp, max_rate_c_per_h=limit)
+    assert fit.end_s == pytest.approx(truth, rel=0.1)
+    assert fit.amplitude_c == pytest.approx(-amp, rel=0.1) and fit.tau_s == pytest.approx(tau, rel=0.2)
 
 
 def test_device_temperature_from_run(sim_run):

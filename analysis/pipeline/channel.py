@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from imustation.analysis.estimators.adequacy import Adequacy, model_adequacy
 from imustation.analysis.estimators.allan import AllanResult, oadev
 from imustation.analysis.estimators.composite import fit_composite
 from imustation.analysis.estimators.fitting import MLiResult
@@ -14,6 +15,7 @@ from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.estimators.mli import compare_models, fit_integrated
 from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.screen import screen
 from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, ESTIMATORS, METHODS
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
@@ -35,6 +37,50 @@ class ChannelAnalysis:
     #: the default estimator's result (``noise_model`` block); reports and exports use it
     noise_model: MLiResult | None = None
     noise_method: str = ""
+    #: model adequacy of every fitted block, by block key ("noise_model", "mli", "gmwm", "models/<model>")
+    adequacy: dict[str, Adequacy] = field(default_factory=dict)
+
+    def adequacy_of(self, fit: MLiResult | None) -> Adequacy | None:
+        """The adequacy of one of this channel's fits (None for a fit without one)."""
+        if fit is None:
+            return None
+        for key, block in self.blocks().items():
+            if block is fit:
+                return self.adequacy.get(key)
+        return None
+
+    def blocks(self) -> dict[str, MLiResult]:
+        """Every fitted model block by its key (the JSON's block names; compared models as ``models/<name>``)."""
+        out = {k: f for k, f in (("noise_model", self.noise_model), ("mli", self.mli), ("gmwm", self.gmwm)) if f}
+        out.update({f"models/{r.model}": r for r in self.models})
+        return out
+
+
+class DegenerateChannel(InputError):
+    """A channel with nothing to characterise (constant, saturated, stuck, all quantisation):
+    skipped with its reason (:mod:`imustation.analysis.estimators.screen`); ``kind`` names which."""
+
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+    def __reduce__(self):  # travels back from cluster workers intact
+        return (type(self), (str(self), self.kind))
+
+
+def check_channel(ch: Channel) -> None:
+    """Raise :class:`DegenerateChannel` when the channel's samples are degenerate."""
+    deg = screen(ch.data, scale=ch.scale, units=ch.units)
+    if deg is not None:
+        raise DegenerateChannel(f"skipped {ch.id}: {deg.reason}", deg.kind)
+
+
+def fit_adequacy(ch: Channel, allan: AllanResult, fit: MLiResult) -> Adequacy | None:
+    """Adequacy of ``fit`` against the channel's measured Allan variance (None without a model)."""
+    if fit.noise_model is None:
+        return None
+    n_fitted = sum(1 for k in fit.params if k != "b_on")
+    return model_adequacy(allan, fit.noise_model, ch.fs_hz, [b - a for a, b in ch.segments], n_fitted=n_fitted)
 
 
 def analyze_channel(
@@ -46,18 +92,24 @@ def analyze_channel(
     compare: tuple[str, ...] = (),
     method: str = DEFAULT_METHOD,
     estimator: str = DEFAULT_ESTIMATOR,
+    need: tuple[str, ...] | None = None,
 ) -> ChannelAnalysis:
     """Allan deviation, IEEE-952 coefficients and the noise-model fits of one channel.
+
+    Raises :class:`DegenerateChannel` (an :class:`InputError`) for a channel with nothing to
+    characterise, before any fit.
 
     ``estimator`` (``"mli-f"``, ``"mli"`` or ``"gmwm"``) fills ``noise_model``,
     the result reports and exports use. ``method``: the comparison blocks
     ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
     ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
+    ``need``: the parameters the "enough data?" verdict judges (:func:`.verdict.channel_verdict`).
     """
     if method not in METHODS:
         raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
+    check_channel(ch)
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     ieee = ieee_coefficients(allan)
     mli, models, gmwm = None, (), None
@@ -74,8 +126,15 @@ def analyze_channel(
     # only the requested comparison blocks are reported
     mli_block = mli if method in ("mli", "both") else None
     gmwm_block = gmwm if method in ("gmwm", "both") else None
-    verdict = channel_verdict(ch, allan, best)
-    return ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
+    verdict = channel_verdict(ch, allan, best, need)
+    res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
+    done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
+    for key, fit in res.blocks().items():
+        if id(fit) not in done:
+            done[id(fit)] = fit_adequacy(ch, allan, fit)
+        if done[id(fit)] is not None:
+            res.adequacy[key] = done[id(fit)]
+    return res
 
 
 def _num(x: float) -> float | None:
@@ -96,6 +155,16 @@ def _clean(obj):
     return obj
 
 
+def _block(res: ChannelAnalysis, key: str, fit: MLiResult, extra: dict | None = None) -> dict:
+    """A fitted model block: the fit's keys, ``adev_model`` at ``allan.tau`` and its ``adequacy``."""
+    out = {**fit.as_dict(), **(extra or {})}
+    adq = res.adequacy.get(key)
+    if adq is not None:
+        out["adev_model"] = adq.adev_model
+        out["adequacy"] = adq.as_dict()
+    return out
+
+
 def channel_document(res: ChannelAnalysis) -> dict:
     ch = res.channel
     return _clean(
@@ -108,13 +177,13 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "source": ch.source,
             "gaps": ch.gaps,
             **(
-                {"noise_model": {**res.noise_model.as_dict(), "method": res.noise_model.estimator}}
+                {"noise_model": _block(res, "noise_model", res.noise_model, {"method": res.noise_model.estimator})}
                 if res.noise_model is not None
                 else {}
             ),
-            **({"mli": res.mli.as_dict()} if res.mli is not None else {}),
-            **({"gmwm": res.gmwm.as_dict()} if res.gmwm is not None else {}),
-            **({"models": [r.as_dict() for r in res.models]} if res.models else {}),
+            **({"mli": _block(res, "mli", res.mli)} if res.mli is not None else {}),
+            **({"gmwm": _block(res, "gmwm", res.gmwm)} if res.gmwm is not None else {}),
+            **({"models": [_block(res, f"models/{r.model}", r) for r in res.models]} if res.models else {}),
             "allan": {
                 "tau": res.allan.tau,
                 "adev": res.allan.adev,

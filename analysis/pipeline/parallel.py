@@ -10,6 +10,8 @@ the JSON of a parallel analysis is identical to the serial one.
 
 A task that fails (missing or corrupt file, bad channel, worker killed for
 exceeding its memory limit) becomes a :class:`TaskFailure`; the others finish.
+A degenerate channel (constant, saturated, stuck, all quantisation) is a failure
+marked ``skipped`` with its kind.
 Results come back in task order whatever the completion order.
 
 With ``threads_per_worker=1`` a worker runs one task at a time, so the worker's
@@ -26,7 +28,7 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
-from imustation.analysis.pipeline.channel import ChannelAnalysis, analyze_channel
+from imustation.analysis.pipeline.channel import ChannelAnalysis, DegenerateChannel, analyze_channel
 from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import Channel, NoChannelsError, load_inputs
 from imustation.errors import ImustationError, InputError
@@ -64,9 +66,14 @@ class TaskFailure:
     path: str
     channel: str | None
     error: str
+    #: set when the channel was skipped as degenerate: "constant", "saturated", "stuck", "quantisation"
+    skipped: str | None = None
 
     def as_dict(self) -> dict:
-        return {"source": self.path, "channel": self.channel, "error": self.error}
+        out = {"source": self.path, "channel": self.channel, "error": self.error}
+        if self.skipped:
+            out["skipped"] = self.skipped
+        return out
 
 
 @dataclass(frozen=True)
@@ -80,6 +87,8 @@ class AnalysisOptions:
     method: str = DEFAULT_METHOD
     rate_hz: float | None = None
     estimator: str = DEFAULT_ESTIMATOR
+    #: parameters the "enough data?" verdict judges (None: the model's sigma_w, sigma_b, tau_b)
+    need: tuple[str, ...] | None = None
 
 
 def _message(path: str, channel: str | None, exc: BaseException) -> str:
@@ -153,6 +162,7 @@ def analyze_task(path: str, channel: str, options: AnalysisOptions, data: Channe
         compare=options.compare,
         method=options.method,
         estimator=options.estimator,
+        need=options.need,
     )
     ch.release()  # run-file channels come back without samples (plain arrays keep theirs)
     return res
@@ -186,7 +196,8 @@ def run_tasks(
         fail = None
         if exc is not None:
             t = tasks[i]
-            fail = failed[i] = TaskFailure(t.path, t.channel, _message(t.path, t.channel, exc))
+            kind = exc.kind if isinstance(exc, DegenerateChannel) else None
+            fail = failed[i] = TaskFailure(t.path, t.channel, _message(t.path, t.channel, exc), kind)
         else:
             results[i] = res
         if on_done is not None:

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from imustation.analysis.estimators.noise_models import GaussMarkov
@@ -293,8 +294,10 @@ def export_text(
     topic: str = "/imu0",
     g_norm: float = G0,
     origin: str = "",
+    skipped: Sequence[str] = (),
 ) -> str:
-    """The file for ``fmt``: keys of :func:`export_dict`, with comments naming units, source and axes."""
+    """The file for ``fmt``: keys of :func:`export_dict`, with comments naming units, source and axes
+    (and the axes ``skipped``, each a sentence with its reason)."""
     d = export_dict(gyro, accel, fmt, topic=topic, g_norm=g_norm)
     how = (
         "IEEE-952 Allan fit: noise density = N, random walk = K"
@@ -318,6 +321,8 @@ def export_text(
             comments.append(f"  {a.channel}: {a.noise_density:.4e}, {a.random_walk:.4e}")
             if a.warning:
                 comments.append(f"  WARNING {a.channel}: random walk doubtful: {a.warning}; record longer")
+    for why in skipped:
+        comments.append(f"  {why}")
     if accel is None:
         comments.append("no accelerometer exported: accelerometer keys left out (add them before use)")
     if fmt == "vins":

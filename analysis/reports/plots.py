@@ -2,7 +2,8 @@
 
 * :func:`allan_figure` — measured Allan deviation with its confidence band, the
   identified model's Allan curve and each of its terms, and the earth-rate line
-  (Fig. 6 style);
+  (Fig. 6 style); below it the standardised residuals of the model-adequacy test
+  with their band and the tau ranges where the model does not fit;
 * :func:`allan_multi_figure` — several channels on one plot (Fig. 8);
 * :func:`psd_figure` — two-sided Welch PSD near Nyquist with the model's exact
   sampled PSD (Fig. 9);
@@ -25,6 +26,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from imustation.analysis.estimators.adequacy import MIN_EDF
 from imustation.analysis.estimators.noise_models import NoiseModel
 from imustation.analysis.estimators.psd import log_average, welch_psd
 from imustation.analysis.pipeline.channel import ChannelAnalysis
@@ -65,14 +67,48 @@ def settings_line(ch, temp_span_c: tuple[float, float] | None = None) -> str:
     return ", ".join(parts)
 
 
-def _new(title: str, settings: str) -> tuple[Figure, object]:
-    fig = Figure(figsize=_SIZE, layout="constrained")
+def _new(title: str, settings: str, residual_panel: bool = False) -> tuple[Figure, object, object]:
+    """A figure with one axes (and a residual axes below it, sharing x, or None) and its settings line."""
+    fig = Figure(figsize=(_SIZE[0], _SIZE[1] * 1.3) if residual_panel else _SIZE, layout="constrained")
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
+    if residual_panel:
+        ax, low = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    else:
+        ax, low = fig.add_subplot(), None
     ax.set_title(title, fontsize=10)
     fig.text(0.5, 0.005, settings, ha="center", va="bottom", fontsize=7, color="0.3", wrap=True)
     fig.get_layout_engine().set(h_pad=0.25)
-    return fig, ax
+    return fig, ax, low
+
+
+def _residual_panel(ax, tau: np.ndarray, adq) -> None:
+    """Standardised residuals of the measured AVAR against the model, the band, the misfit ranges."""
+    z = np.asarray(adq.z, dtype=float)
+    shown = np.isfinite(z)
+    tested_edf = shown & (np.asarray(adq.edf) >= MIN_EDF)
+    big = float(np.max(np.abs(z[tested_edf]))) if tested_edf.any() else 0.0
+    lim = min(max(4.0, 1.15 * adq.band if math.isfinite(adq.band) else 0.0, 1.1 * big), 50.0)
+    zc = np.clip(z, -lim, lim)
+    ax.semilogx(tau[tested_edf], zc[tested_edf], "k.", ms=3)
+    ax.semilogx(tau[shown & ~tested_edf], zc[shown & ~tested_edf], ".", color="0.6", ms=3)
+    tested = np.asarray(adq.tested, dtype=bool)
+    ax.semilogx(tau[tested], zc[tested], "o", mfc="none", mec="C0", ms=5)
+    if math.isfinite(adq.band):
+        for sgn in (-1, 1):
+            ax.axhline(sgn * adq.band, color="C3", ls="--", lw=0.8)
+    ax.axhline(0.0, color="0.4", lw=0.6)
+    for m in adq.misfit:
+        ax.axvspan(m.tau_lo / 1.05, m.tau_hi * 1.05, color="C3", alpha=0.12, lw=0)
+    ax.set_ylim(-lim * 1.05, lim * 1.05)
+    ax.set_ylabel("residual z", fontsize=8)
+    ax.set_xlabel("averaging time τ [s]")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    band = f"±{adq.band:.2f}" if math.isfinite(adq.band) else "-"
+    ax.set_title(
+        f"model {adq.summary()}\nz of measured vs model AVAR (○ taus of the χ² statistic, grey < {MIN_EDF:g} EDF), "
+        f"dashed: band {band}",
+        fontsize=7,
+    )
 
 
 def _term_label(t, sensor: str | None, bound: dict[str, float] | None = None) -> str:
@@ -92,7 +128,8 @@ def _term_label(t, sensor: str | None, bound: dict[str, float] | None = None) ->
 def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = True) -> Figure:
     """Fig. 6: ADEV with its 68 % band, the identified model's ADEV and terms; earth rate for gyros."""
     ch, al = res.channel, res.allan
-    fig, ax = _new(f"Allan deviation — {ch.id}", settings)
+    adq = res.adequacy_of(res.noise_model)
+    fig, ax, low = _new(f"Allan deviation — {ch.id}", settings, residual_panel=adq is not None)
     ax.fill_between(al.tau, al.adev_lo, al.adev_hi, color="0.8", label="68 % confidence", linewidth=0)
     ax.loglog(al.tau, al.adev, "k.", ms=3, label="measured (overlapping)")
     fit = res.noise_model
@@ -106,10 +143,13 @@ def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = Tr
     sensor = _sensor(ch)
     if earth_rate and sensor == "gyro":
         ax.axhline(EARTH_RATE, color="C2", ls=":", lw=1, label=f"earth rate {EARTH_RATE:.3g} rad/s")
-    ax.set_xlabel("averaging time τ [s]")
     ax.set_ylabel(f"Allan deviation [{units_of(sensor, 'B')[0]}]")
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     ax.legend(fontsize=7, loc="best")
+    if adq is not None:
+        _residual_panel(low, np.asarray(al.tau, dtype=float), adq)
+    else:
+        ax.set_xlabel("averaging time τ [s]")
     return fig
 
 
@@ -117,7 +157,7 @@ def allan_multi_figure(
     results: Sequence[ChannelAnalysis], title: str = "Allan deviation", settings: str = ""
 ) -> Figure:
     """Fig. 8: measured ADEV (with bands) of several channels, and their identified models."""
-    fig, ax = _new(title, settings)
+    fig, ax, _ = _new(title, settings)
     sensors = set()
     for i, res in enumerate(results):
         al, c = res.allan, f"C{i % 10}"
@@ -143,7 +183,7 @@ def psd_figure(res: ChannelAnalysis, settings: str = "", f_min_hz: float = 1.0) 
     nps = int(min(2 ** math.floor(math.log2(_PSD_WINDOW_S * ch.fs_hz)), 2 ** math.floor(math.log2(longest))))
     psd = log_average(welch_psd(ch.data, ch.fs_hz, scale=ch.scale, nperseg=nps, segments=ch.segments, sides="two"), 40)
     keep = psd.f >= min(f_min_hz, ch.fs_hz / 4)
-    fig, ax = _new(f"PSD near Nyquist — {ch.id}", settings)
+    fig, ax, _ = _new(f"PSD near Nyquist — {ch.id}", settings)
     ax.loglog(psd.f[keep], psd.psd[keep], color="0.6", lw=1, label=f"Welch ({psd.windows} windows of {psd.nperseg})")
     model = res.noise_model.noise_model
     if model is not None:
@@ -178,7 +218,7 @@ def temperature_figure(
     warmup_s: float | None = None,
 ) -> Figure:
     """Temperature (°C) over time (s from the start), with biases ``(label, t_s, bias)`` on a second axis."""
-    fig, ax = _new(f"Temperature and bias — {label}", settings)
+    fig, ax, _ = _new(f"Temperature and bias — {label}", settings)
     h = 3600.0
     ax.plot(t_s / h, temp_c, "k-", lw=1.2, label="temperature")
     ax.set_xlabel("time [h]")
@@ -221,7 +261,7 @@ def attitude_figure(res: ChannelAnalysis, settings: str = "", n_lags: int = 20, 
     lags = np.logspace(np.log10(10.0 / ch.fs_hz), np.log10(t_max), n_lags)
     sp = angle_spread(ch.data, ch.fs_hz, lags, scale=ch.scale, segment=(a, b))
     unit = display_units(_sensor(ch), "angle")[0]
-    fig, ax = _new(f"Attitude-error growth — {ch.id}", settings)
+    fig, ax, _ = _new(f"Attitude-error growth — {ch.id}", settings)
     yerr = np.vstack([sp.std - sp.std_lo, sp.std_hi - sp.std])
     ax.errorbar(sp.t_s, sp.std, yerr=yerr, fmt="k.", ms=4, lw=0.8, label=f"data: std over {sp.windows} windows")
     model = res.noise_model.noise_model

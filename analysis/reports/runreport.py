@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.channel import DegenerateChannel, analyze_channel
 from imustation.analysis.pipeline.choices import DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import load_run
 from imustation.analysis.reports import plots
@@ -94,10 +94,13 @@ class RunReport:
     files: tuple[str, ...]
     rows: tuple[NoiseRow, ...]
     warmup_s: dict[str, float]
+    #: channels not analysed, each with its reason (degenerate: constant, stuck, ...)
+    skipped: tuple[str, ...] = ()
 
     def summary(self) -> str:
-        """One line for the operator: the run and where its report is."""
-        return f"{self.path}: {len(self.files)} files in {self.folder}"
+        """One line for the operator: the run and where its report is (and how many channels were skipped)."""
+        skip = f" ({len(self.skipped)} channels skipped)" if self.skipped else ""
+        return f"{self.path}: {len(self.files)} files in {self.folder}{skip}"
 
 
 def check_warmup(warmup: str) -> float | None:
@@ -182,25 +185,40 @@ def report_run(
         if excluded[dev] > 0:
             _exclude_start(ch, int(round(excluded[dev] * ch.fs_hz)))
     results = []
+    skipped: list[str] = []
     for ch in channels:
         if progress is not None:
             progress(f"analysing {ch.id} ({ch.n} samples) ...")
-        results.append(analyze_channel(ch, model=model))
+        try:
+            results.append(analyze_channel(ch, model=model))
+        except DegenerateChannel as exc:  # named with its reason; the other channels go on
+            skipped.append(str(exc))
+            ch.release()
+            if progress is not None:
+                progress(str(exc))
     rows = noise_rows(results)
     written += write_tables(rows, out_dir)
     summary = summary_rows(results)
     for name, text in (("summary.csv", summary_csv(summary)), ("summary.md", summary_markdown(summary))):
         written.append(_write(os.path.join(out_dir, name), text))
     estimator = results[0].noise_model.estimator if results else ""
-    sections.append("<h2>Summary</h2>" + html_table(summary_markdown(summary)) + SUMMARY_LEGEND.format(
+    sections.append("<h2>Summary</h2>" + (html_table(summary_markdown(summary)) if results else
+                    "<p>No channel could be analysed.</p>") + SUMMARY_LEGEND.format(
         estimator=html.escape(estimator), model=html.escape(model)))  # fmt: skip
+    if skipped:
+        items = "".join(f"<li>{html.escape(s)}</li>" for s in skipped)
+        sections.append(f"<h2>Skipped channels</h2><ul>{items}</ul>")
     details = [
         "<h2>Details</h2><h3>Noise table (Table IV layout)</h3>" + html_table(table_markdown(rows)),
         '<p>Files: <a href="noise.csv">noise.csv</a>, <a href="noise.md">noise.md</a>, '
         f'<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: {html.escape(estimator)} fit of the '
         f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured. "
         "—: not fitted (the Allan fit did not need the term); at bound: the fit stopped at its search bound; "
-        "not identified: the 90 % interval is missing or spans more than two decades.</p>",
+        "not identified: the 90 % interval is missing or spans more than two decades. "
+        "Model fit: does the fitted model explain the measured Allan variance within its sampling "
+        "uncertainty, correlations across τ included (a generalised χ² test at 1 %, docs/noise-model.md "
+        "“Model adequacy”); where it does not, the τ ranges and whether the model is low or high there "
+        "(the residual panel under each Allan plot).</p>",
     ]
 
     def sources(dev):
@@ -308,7 +326,7 @@ def report_run(
     with open(p, "w", encoding="utf-8") as fh:
         fh.write(page)
     written.append(p)
-    return RunReport(path, out_dir, tuple(written), tuple(rows), excluded)
+    return RunReport(path, out_dir, tuple(written), tuple(rows), excluded, tuple(skipped))
 
 
 def report_runs(

@@ -8,7 +8,8 @@
   :func:`table_latex` — the details: the noise-model parameters ``sigma_w``,
   ``sigma_b``, ``tau_b``, the IEEE-952 Allan-fit coefficients ``N``, ``B``,
   ``K`` and the measured Allan deviation at tau = 1 s, each in SI and in the
-  display unit side by side:
+  display unit side by side, and whether the model fits the measured Allan
+  variance (and where not):
 
 =========  ======================  ==============  ===================
 quantity   SI (gyro / accel)       gyro display    accel display
@@ -158,6 +159,11 @@ class NoiseRow:
     model: str
     values: dict[str, float]
     flags: dict[str, str] = field(default_factory=dict)
+    #: model adequacy of the fit against the measured Allan variance ("fits", "does not fit", ...)
+    fit: str = ""
+    fit_p: float = math.nan
+    #: tau ranges where the model misses, e.g. "5.2-98 s model low"
+    fit_where: str = ""
 
     def display(self, q: str) -> float:
         return self.values[q] * units_of(self.sensor, q)[2]
@@ -184,7 +190,9 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
         flags = {q: param_flag(fit, q) for q in ("sigma_b", "tau_b")}
         flags |= {q: _ieee_flag(vals[q]) for q in ("N", "B", "K")}
         flags = {q: f for q, f in flags.items() if f}
-        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, vals, flags))
+        adq = r.adequacy_of(r.noise_model)
+        verdict = (adq.verdict, adq.p_value, "; ".join(m.describe() for m in adq.misfit)) if adq else ("", math.nan, "")
+        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, vals, flags, *verdict))
     return rows
 
 
@@ -215,7 +223,7 @@ def table_csv(rows: list[NoiseRow]) -> str:
     head = ["device", "sensor", "axis", "n", "fs_hz", "model"]
     for q in QUANTITIES:
         head += [q, f"{q}_unit", f"{q}_display", f"{q}_display_unit", f"{q}_flag"]
-    w.writerow(head)
+    w.writerow(head + ["model_fit", "model_fit_p", "model_fit_where"])
     for r in rows:
         line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model]
         for q in QUANTITIES:
@@ -224,12 +232,19 @@ def table_csv(rows: list[NoiseRow]) -> str:
                 line += ["", si, "", disp, r.flag(q)]
             else:
                 line += [repr(float(r.values[q])), si, repr(float(r.display(q))), disp, r.flag(q)]
-        w.writerow(line)
+        w.writerow(line + [r.fit, repr(float(r.fit_p)), r.fit_where])
     return buf.getvalue()
 
 
-def _by_sensor(rows):
-    out: dict[str, list] = {}
+def _fit_text(r: NoiseRow) -> str:
+    """``fits`` / ``does not fit: 5.2-98 s model low`` / ``–`` (no adequacy)."""
+    if not r.fit:
+        return "–"
+    return f"{r.fit}: {r.fit_where}" if r.fit_where else r.fit
+
+
+def _by_sensor(rows: list[NoiseRow]) -> dict[str, list[NoiseRow]]:
+    out: dict[str, list[NoiseRow]] = {}
     for r in rows:
         out.setdefault(r.sensor, []).append(r)
     return out
@@ -244,6 +259,7 @@ def table_markdown(rows: list[NoiseRow]) -> str:
             si, disp, _ = units_of(sensor, q)
             t = TITLES[q][0]
             head += [f"{t} [{si}]"] if si == disp else [f"{t} [{si}]", f"{t} [{disp}]"]
+        head.append("model fit")
         lines = [f"**{sensor}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in rs:
             cells = [r.device, f"{r.axis}-{sensor}"]
@@ -253,6 +269,7 @@ def table_markdown(rows: list[NoiseRow]) -> str:
                 cells.append(fmt_flagged(r.values[q], f))
                 if si != disp:
                     cells.append(fmt_flagged(r.display(q), f))
+            cells.append(_fit_text(r))
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
@@ -293,8 +310,12 @@ def table_latex(rows: list[NoiseRow]) -> str:
                 head.append(TITLES[q][1])
                 units.append(_latex_unit(u))
                 cols.append("r")
+        head.append("Fit")
+        units.append("")
+        cols.append("l")
         lines = [
-            rf"% {sensor}: noise model sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s",
+            rf"% {sensor}: noise model sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s;"
+            " model adequacy (fits / does not fit the measured Allan variance)",
             r"% --: not fitted (IEEE-952 term not needed); b: at the search bound; n.i.: not identified",
             r"\begin{tabular}{ll" + "".join(cols) + "}",
             r"\toprule",
@@ -308,6 +329,7 @@ def table_latex(rows: list[NoiseRow]) -> str:
                 si, disp, _ = units_of(sensor, q)
                 f = r.flag(q)
                 cells += [_latex_num(r.values[q], f)] + ([] if si == disp else [_latex_num(r.display(q), f)])
+            cells.append(_latex_text(r.fit) if r.fit else "--")
             lines.append(" & ".join(cells) + r" \\")
         lines += [r"\bottomrule", r"\end{tabular}"]
         parts.append("\n".join(lines))
@@ -356,16 +378,15 @@ class SummaryRow:
 
 
 def fit_verdict(res: ChannelAnalysis) -> str:
-    """The model-adequacy verdict of the default fit ("fits", "does not fit ..."), or "—".
-
-    Issue 22 adds it to the fit (``adequacy`` with a ``verdict``); before that, and for
-    results that lack it, the summary shows "—" rather than guessing. A fit that did not
+    """The model-adequacy verdict of the default fit ("fits", "does not fit: <where>"), or "—"
+    for a fit without one (docs/noise-model.md, "Model adequacy"). A fit that did not
     converge says so.
     """
     fit = res.noise_model
-    ad = getattr(fit, "adequacy", None) or getattr(res, "adequacy", None)
-    verdict = ad.get("verdict") if isinstance(ad, dict) else getattr(ad, "verdict", None)
-    text = str(verdict) if verdict else DASH
+    adq = res.adequacy_of(fit)
+    text = DASH if adq is None else adq.verdict
+    if adq is not None and adq.misfit:
+        text += ": " + "; ".join(m.describe() for m in adq.misfit)
     if not fit.converged and not fit.at_bound:
         text += " (not converged)"
     return text

@@ -21,10 +21,12 @@
   12 h records with a Gauss-Markov bias and no temperature coefficient
   (tests/test_temperature.py, docs/reports.md): the OLS test finds a
   "coefficient" in most records, this one in a few per cent.
-* :func:`detect_warmup` finds the end of the warm-up: the first time after
-  which the temperature's rate of change (least-squares slope over sliding
-  windows) stays below a limit. The paper discards at least the first hour;
-  callers combine both (``max(detected, minimum)``).
+* :func:`fit_warmup` / :func:`detect_warmup` find the end of the warm-up from a
+  smooth fit of the temperature (level + linear drift + one exponential
+  transient): the first time after which the fitted curve changes slower than
+  a limit. Quantisation steps of a coarse die thermometer (0.5 K) are not a
+  warm-up: they average out of the fit. The paper discards at least the first
+  hour; callers combine both (``max(detected, minimum)``).
 
 Estimators take arrays and return dataclasses; only the two readers touch files.
 """
@@ -196,37 +198,112 @@ def _acf(x: np.ndarray) -> np.ndarray:
     return a / a[0] if a[0] > 0 else np.zeros(n)
 
 
+@dataclass(frozen=True)
+class WarmupFit:
+    """Smooth fit of a temperature record: ``T(t) = level + drift t + amplitude e^{-t/tau}``.
+
+    ``amplitude_c`` (K, 0 when no transient is resolved) and ``tau_s`` (s) describe the
+    warm-up transient, ``drift_c_per_h`` the linear drift; ``end_s`` is the end of the
+    warm-up (s from the first reading): from then on the smooth curve changes slower than
+    the limit. ``t0_s`` is the time of the first reading.
+    """
+
+    end_s: float
+    amplitude_c: float
+    tau_s: float
+    drift_c_per_h: float
+    level_c: float
+    t0_s: float
+
+    def smooth(self, t_s: np.ndarray) -> np.ndarray:
+        """The fitted curve at ``t_s`` (°C)."""
+        u = np.asarray(t_s, dtype=float) - self.t0_s
+        tr = self.amplitude_c * np.exp(-u / self.tau_s) if self.amplitude_c else 0.0
+        return self.level_c + self.drift_c_per_h / 3600.0 * u + tr
+
+
+#: smallest warm-up time constant fitted (s): thermal transients of a die take minutes
+MIN_WARMUP_TAU_S = 120.0
+#: a transient must exceed this many standard errors (and MIN_WARMUP_C) to count
+WARMUP_SIGNIFICANCE = 5.0
+#: ... and this amplitude (K)
+MIN_WARMUP_C = 0.05
+#: readings are averaged over blocks this long (s) before the fit: quantisation steps average out
+WARMUP_BLOCK_S = 60.0
+
+
+def fit_warmup(
+    t_s: np.ndarray, temp_c: np.ndarray, *, window_s: float = 600.0, max_rate_c_per_h: float = 1.0
+) -> WarmupFit:
+    """Fit the smooth warm-up model to a temperature record and find where the warm-up ends.
+
+    t_s, temp_c : readings (s, °C), increasing times.
+    window_s : settled data needed after the end (s): a record whose smooth curve settles
+        less than this before its last reading is still warming up (the end is the record's end).
+    max_rate_c_per_h : settled when the smooth curve changes slower than this (°C/h).
+
+    The readings are averaged over :data:`WARMUP_BLOCK_S` blocks and fitted by least squares
+    with a level, a linear drift and, for each time constant of a log grid from
+    :data:`MIN_WARMUP_TAU_S` to half the record, an exponential transient; the transient is
+    kept when its amplitude exceeds :data:`WARMUP_SIGNIFICANCE` standard errors and
+    :data:`MIN_WARMUP_C`. Quantisation steps, a slow drift or a flat record give no transient,
+    so no warm-up; a drift faster than the limit never settles.
+    """
+    t_s, temp_c = np.asarray(t_s, float), np.asarray(temp_c, float)
+    ok = np.isfinite(t_s) & np.isfinite(temp_c)
+    t_s, temp_c = t_s[ok], temp_c[ok]
+    if len(t_s) < 3:
+        return WarmupFit(0.0, 0.0, math.inf, 0.0, float(temp_c.mean()) if len(temp_c) else math.nan, 0.0)
+    t0 = float(t_s[0])
+    idx = np.floor((t_s - t0) / WARMUP_BLOCK_S).astype(np.int64)
+    cnt = np.bincount(idx)
+    keep = cnt > 0
+    u = (np.bincount(idx, weights=t_s - t0)[keep]) / cnt[keep]
+    y = np.bincount(idx, weights=temp_c)[keep] / cnt[keep]
+    span = float(u[-1] - u[0]) if len(u) else 0.0
+    null = np.stack([np.ones_like(u), u / max(span, 1.0)], axis=1)
+    coef0, *_ = np.linalg.lstsq(null, y, rcond=None)
+    best = None
+    if len(u) >= 8 and span >= 2 * MIN_WARMUP_TAU_S:
+        for tau in np.geomspace(MIN_WARMUP_TAU_S, span / 2.0, 40):
+            X = np.column_stack([null, np.exp(-u / tau)])
+            coef, res, rank, _ = np.linalg.lstsq(X, y, rcond=None)
+            if rank < 3:
+                continue
+            rss = float(np.sum((y - X @ coef) ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, tau, coef, X)
+    amp, tau, coef = 0.0, math.inf, coef0
+    if best is not None:
+        rss, tau_b, coef_b, X = best
+        s2 = rss / max(len(u) - 4, 1)
+        try:
+            se = math.sqrt(max(float(s2 * np.linalg.inv(X.T @ X)[2, 2]), 0.0))
+        except np.linalg.LinAlgError:  # transient indistinguishable from the drift: none
+            se = math.inf
+        if abs(coef_b[2]) >= max(WARMUP_SIGNIFICANCE * se, MIN_WARMUP_C):
+            amp, tau, coef = float(coef_b[2]), float(tau_b), coef_b
+    drift = float(coef[1]) / max(span, 1.0) * 3600.0
+    fit = WarmupFit(0.0, amp, tau, drift, float(coef[0]), t0)
+    # end: after it the smooth slope stays within the limit (the transient decays, the drift is constant)
+    grid = np.linspace(0.0, float(t_s[-1] - t0), 2001)
+    slope = drift + (-amp / tau * np.exp(-grid / tau) * 3600.0 if amp else np.zeros_like(grid))
+    fast = np.abs(slope) > max_rate_c_per_h
+    if not fast.any():
+        return fit
+    last = int(np.nonzero(fast)[0][-1])
+    end = float(grid[min(last + 1, len(grid) - 1)])
+    if last + 1 >= len(grid) or end > grid[-1] - window_s:
+        end = float(t_s[-1] - t0)  # not settled long enough to tell
+    return WarmupFit(t0 + end, amp, tau, drift, fit.level_c, t0)
+
+
 def detect_warmup(
     t_s: np.ndarray, temp_c: np.ndarray, *, window_s: float = 600.0, max_rate_c_per_h: float = 1.0
 ) -> float:
-    """End of the warm-up (s): first window start after which every window's |dT/dt| <= the limit.
+    """End of the warm-up (s, on the readings' time axis) from :func:`fit_warmup`'s smooth fit.
 
-    t_s, temp_c : temperature readings (s, °C), increasing times.
-    window_s : sliding window of the slope estimate (s), stepped by half a window.
-    max_rate_c_per_h : settled when the temperature changes slower than this (°C/h).
-    Returns 0 when the record is settled from the start, and the record's end
-    time when it never settles.
+    Returns 0 (the first reading's time) when the record is settled from the start,
+    and the last reading's time when it never settles.
     """
-    t_s, temp_c = np.asarray(t_s, float), np.asarray(temp_c, float)
-    if len(t_s) < 3 or t_s[-1] - t_s[0] < window_s:
-        return 0.0
-    starts = np.arange(t_s[0], t_s[-1] - window_s + 1e-9, window_s / 2.0)
-    # slope of each window from cumulative sums (vectorised least squares)
-    c = np.concatenate([[0.0], np.cumsum(t_s)])
-    c2 = np.concatenate([[0.0], np.cumsum(t_s * t_s)])
-    cy = np.concatenate([[0.0], np.cumsum(temp_c)])
-    cxy = np.concatenate([[0.0], np.cumsum(t_s * temp_c)])
-    lo = np.searchsorted(t_s, starts, side="left")
-    hi = np.searchsorted(t_s, starts + window_s, side="right")
-    k = (hi - lo).astype(float)
-    sx, sxx, sy, sxy = c[hi] - c[lo], c2[hi] - c2[lo], cy[hi] - cy[lo], cxy[hi] - cxy[lo]
-    den = k * sxx - sx * sx
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = np.where((k >= 3) & (den > 0), (k * sxy - sx * sy) / den, 0.0)  # °C/s
-    fast = np.abs(slope) * 3600.0 > max_rate_c_per_h
-    if not fast.any():
-        return 0.0
-    last = int(np.nonzero(fast)[0][-1])
-    if last + 1 >= len(starts):
-        return float(t_s[-1])
-    return float(starts[last + 1])
+    return fit_warmup(t_s, temp_c, window_s=window_s, max_rate_c_per_h=max_rate_c_per_h).end_s

@@ -72,7 +72,7 @@ def run_with_progress(
             for progress in shown:
                 progress.update(1)
             if fail is not None and several:
-                click.echo(f"\nfailed: {fail.error}", err=True)
+                click.echo(f"\n{failure_line(fail)}", err=True)
 
         return execute(
             tasks,
@@ -85,7 +85,12 @@ def run_with_progress(
         )
 
 
+def failure_line(f: TaskFailure) -> str:
+    """``failed: <error>``, or for a degenerate channel ``skipped <channel>: <reason>`` (its error says so)."""
+    return f.error if f.skipped else f"failed: {f.error}"
+
+
 def report_failures(failures: Sequence[TaskFailure]) -> None:
-    """One stderr line per failed run or channel."""
+    """One stderr line per failed run or skipped channel."""
     for f in failures:
-        click.echo(f"failed: {f.error}", err=True)
+        click.echo(failure_line(f), err=True)

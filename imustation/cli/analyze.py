@@ -58,9 +58,10 @@ def results_table(results) -> str:
         drift, drift_d, kb = display_units(kind, "drift")
         rate = display_units(kind, "rate")[0]
         names = ("channel", "n", "fs Hz", "sigma_w", "sigma_w", "sigma_b", "sigma_b", "tau_b", "b_on", "ADEV(1s)")
-        units = ("", "", "", dens, dens_d, drift, drift_d, "s", rate, rate)
-        widths = (22, 9, 7, 10, 9, 11, 9, 10, 10, 10)
-        row = "{:<22} {:>9} {:>7} {:>10} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}  {}"
+        names += ("model fit",)
+        units = ("", "", "", dens, dens_d, drift, drift_d, "s", rate, rate, "")
+        widths = (22, 9, 7, 10, 9, 11, 9, 10, 10, 10, 12)
+        row = "{:<22} {:>9} {:>7} {:>10} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10} {:>12}  {}"
         pad = f"{'':<{width}} " if width else ""
         head = (f"{'input':<{width}} " if width else "") + row.format(*names, "fit")
         if lines:
@@ -76,17 +77,23 @@ def results_table(results) -> str:
                 sb = cell(m, "sigma_b", m.sigma_b, ".3e")
                 sb_d = cell(m, "sigma_b", m.sigma_b * kb, ".4g")
                 tb = cell(m, "tau_b", m.tau_b, ".1f")
+                adq = r.adequacy_of(m)
                 flagged |= any(c in ("at bound", "not ident.") for c in (sb, tb))
                 lines.append(
                     where(r)
                     + row.format(
                         name[: widths[0]] if len(name) > widths[0] and m is not r.noise_model else name,
                         r.channel.n, f"{r.channel.fs_hz:g}", _g(m.sigma_w), _g(m.sigma_w * kd, ".4g"),
-                        sb, sb_d, tb, _g(m.b_on), _g(adev1), f"{m.estimator} {flag}",
+                        sb, sb_d, tb, _g(m.b_on), _g(adev1), adq.verdict if adq else "-", f"{m.estimator} {flag}",
                     )
                 )  # fmt: skip
             for alt in r.models:
                 lines.append(where(r) + f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
+    for r in results:
+        for m in {id(f): f for f in r.blocks().values()}.values():
+            adq = r.adequacy_of(m)
+            if adq is not None and not adq.fits:
+                lines.append(f"model fit? {r.channel.id} {m.estimator} {m.model}: {adq.summary()}")
     for r in results:
         if r.verdict is not None:
             label = f"{inputs[r.channel.source]}: {r.channel.id}" if width else r.channel.id
@@ -97,6 +104,19 @@ def results_table(results) -> str:
             "missing or spans more than two decades (--json has the numbers)"
         )
     return "\n".join(lines)
+
+
+def _needed(text: str | None) -> tuple[str, ...] | None:
+    """``--need`` as parameter names; InputError for a name no model has."""
+    if text is None:
+        return None
+    import re
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if not re.fullmatch(r"B|sigma_w|sigma_k|sigma_a|(sigma_b|tau_b)\d?", n)]
+    if not names or bad:
+        raise InputError(f"--need {text!r}: use model parameter names (sigma_w, sigma_b, tau_b, ...) or B")
+    return names
 
 
 def _interp_adev(allan, tau: float) -> float:
@@ -162,6 +182,13 @@ def _interp_adev(allan, tau: float) -> float:
     show_default=True,
     help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
 )
+@click.option(
+    "--need",
+    default=None,
+    metavar="NAMES",
+    help="Parameters the 'enough data?' verdict judges, comma-separated: model parameters (sigma_w, sigma_b, "
+    "tau_b, sigma_k, ...) and B (IEEE-952 bias instability). Default: the model's sigma_w, sigma_b, tau_b.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 @cluster_options
 @field_options
@@ -175,6 +202,7 @@ def analyze(
     compare: bool,
     estimator: str,
     method: str,
+    need: str | None,
     as_json: bool,
     workers: int | None,
     scheduler: str | None,
@@ -210,7 +238,9 @@ def analyze(
     text = text_options(time_column, gyro_columns, accel_columns, gyro_unit)
     # field recordings are streamed into memory (no run file); other inputs are read by their tasks
     tasks, failures = plan_inputs(inputs, globs, rate_hz, quiet=as_json, topic=topic, time_unit=time_unit, text=text)
-    opts = AnalysisOptions(pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator)
+    opts = AnalysisOptions(
+        pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need)
+    )
     _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit)
 
 
@@ -239,5 +269,10 @@ def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -
         click.echo(json.dumps(doc))
     else:
         click.echo(results_table(done))
+        skipped = [f for f in failures if f.skipped]
+        for f in skipped:  # named in the table's output too: the table alone must say what is missing
+            click.echo(f.error)
         if failures:
-            click.echo(f"{len(failures)} failed (see above); {len(done)} channels analysed", err=True)
+            counts = [f"{len(failures) - len(skipped)} failed" if len(failures) > len(skipped) else ""]
+            counts.append(f"{len(skipped)} skipped" if skipped else "")
+            click.echo(f"{', '.join(c for c in counts if c)} (see above); {len(done)} channels analysed", err=True)

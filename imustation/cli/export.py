@@ -89,7 +89,7 @@ def export(
     [run] = joined
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
-    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.channel import DegenerateChannel, analyze_channel
     from imustation.analysis.pipeline.loaders import load_run
     from imustation.analysis.reports.export import export_text, inflate_sensors, parse_inflation, sensor_noise
 
@@ -109,16 +109,24 @@ def export(
             + "; name one with --accel-device or pass --gyro-only"
         )
 
-    def fit(chs):
+    skipped: list[str] = []
+
+    def fit(chs, kind):
         out = []
         for ch in chs:
             click.echo(f"fitting {ch.id} ({ch.n} samples) ...", err=True)
-            out.append(analyze_channel(ch, model=model))
+            try:
+                out.append(analyze_channel(ch, model=model))
+            except DegenerateChannel as exc:  # the sensor's other axes are exported
+                click.echo(f"warning: {exc}", err=True)
+                skipped.append(str(exc))
             ch.release()
+        if chs and not out:
+            raise InputError(f"{run}: every {kind} axis was skipped ({'; '.join(skipped)})")
         return out
 
-    gyro = sensor_noise(fit(gyros), "gyro", source, rw)
-    accel = sensor_noise(fit(accels), "accel", source, rw) if accels else None
+    gyro = sensor_noise(fit(gyros, "gyroscope"), "gyro", source, rw)
+    accel = sensor_noise(fit(accels, "accelerometer"), "accel", source, rw) if accels else None
     if factors is not None:
         gyro, accel = inflate_sensors(gyro, accel, *factors)
         for s in (gyro, accel):
@@ -132,7 +140,7 @@ def export(
         for a in s.axes if s is not None else ():
             if a.warning:
                 click.echo(f"warning: {a.channel}: random walk doubtful: {a.warning}", err=True)
-    text = export_text(gyro, accel, fmt, topic=topic, origin=run)
+    text = export_text(gyro, accel, fmt, topic=topic, origin=run, skipped=skipped)
     if output:
         with open(output, "w", encoding="utf-8") as fh:
             fh.write(text)

@@ -1,0 +1,61 @@
+"""The "enough data?" verdict judges the needed parameters' intervals and the record length (issue 22)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from imustation.analysis.estimators.noise_models import standard
+from imustation.analysis.pipeline.channel import analyze_channel
+from imustation.analysis.pipeline.loaders import Channel
+from imustation.cli import cli
+
+FS, HOURS, TAU_B = 50.0, 2.8, 168.0  # a record of 60 tau_b, as the issue's ADIS16405 runs
+
+
+def test_repeats_of_one_device_get_one_verdict():
+    model = standard(1.05e-4, 5e-6, TAU_B)
+    n = int(HOURS * 3600 * FS)
+    verdicts = []
+    for seed in range(6):
+        res = analyze_channel(Channel("d/gyro/z", FS, "rad/s", model.simulate(n, FS, seed=seed)))
+        v = res.verdict
+        verdicts.append(v.verdict)
+        assert v.need == ("sigma_w", "sigma_b", "tau_b") and set(v.spread) == set(v.need)
+        # the Allan deviation still falling at the longest tau is the Gauss-Markov bias, not a lack of data
+        assert not any("still falls" in r and "no bias instability" in r for r in v.reasons)
+    assert verdicts == ["enough"] * 6
+
+
+def test_need_selects_the_judged_parameters(tmp_path):
+    # a bias buried in white noise: sigma_w is known, tau_b is not (a wide interval)
+    n = int(HOURS * 3600 * FS)
+    x = standard(1.05e-4, 1.26e-6, TAU_B).simulate(n, FS, seed=7)
+    path = tmp_path / "weak.npy"
+    np.save(path, x)
+
+    def verdict(*extra):
+        out = CliRunner().invoke(cli, ["analyze", str(path), "--rate", str(FS), "--json", *extra])
+        assert out.exit_code == 0, out.output
+        return json.loads(out.stdout)["channels"][0]["verdict"]
+
+    full = verdict()
+    assert full["verdict"] != "enough" and full["spread"]["tau_b"] > 3
+    only_w = verdict("--need", "sigma_w")
+    assert only_w["verdict"] == "enough" and only_w["need"] == ["sigma_w"]
+    bad = CliRunner().invoke(cli, ["analyze", str(path), "--rate", str(FS), "--need", "sigma_x"])
+    assert bad.exit_code != 0 and "--need" in bad.output
+
+
+@pytest.mark.parametrize("name", ["tau_b", "sigma_a"])
+def test_a_needed_parameter_the_model_lacks_is_not_enough(name):
+    from imustation.analysis.pipeline.verdict import data_verdict, fit_intervals
+
+    res = analyze_channel(Channel("d/gyro/z", FS, "rad/s", standard(1e-4, 5e-6, 100.0).simulate(200_000, FS, 1)),
+                          model="wn+rw" if name == "tau_b" else "wn+gm")  # fmt: skip
+    iv = fit_intervals(res.noise_model, ("sigma_w", name))
+    v = data_verdict(4000.0, 100.0, 100.0, intervals=iv, need=("sigma_w", name))
+    assert v.verdict == "not enough" and any(f"{name} is not a parameter" in r for r in v.reasons)
