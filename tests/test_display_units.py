@@ -13,15 +13,13 @@ import pytest
 
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
 from imustation.analysis.reports.tables import (
     AT_BOUND,
     DASH,
     NOT_FITTED,
     NOT_IDENTIFIED,
     noise_rows,
-    summary_csv,
-    summary_markdown,
-    summary_rows,
     table_csv,
     table_latex,
     table_markdown,
