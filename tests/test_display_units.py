@@ -121,3 +121,11 @@ def test_model_names_are_spelled_out_in_every_help():
         for words in ("wn white rate noise", "gm first-order Gauss-Markov bias", "rw rate random walk",
                       "wa white angle noise"):  # fmt: skip
             assert words in out, (cmd, words)
+
+
+def test_plain_arrays_keep_their_own_unit():
+    # a plain array does not say what it measured: no gyro or accelerometer display unit is made up
+    ch = Channel("plain/0", FS, "", np.random.default_rng(6).normal(0, 1e-3, 20_000))
+    text = results_table([analyze_channel(ch)])
+    assert text.startswith("plain arrays, in their own unit") and "unit/√Hz" in text
+    assert "°" not in text and "µg" not in text
