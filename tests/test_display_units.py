@@ -13,15 +13,13 @@ import pytest
 
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
 from imustation.analysis.reports.tables import (
     AT_BOUND,
     DASH,
     NOT_FITTED,
     NOT_IDENTIFIED,
     noise_rows,
-    summary_csv,
-    summary_markdown,
-    summary_rows,
     table_csv,
     table_latex,
     table_markdown,
@@ -95,8 +93,8 @@ def test_summary_and_flags(analysed):
     n, lo, hi = (float(v) for v in n_cell.replace("[", "").replace("]", "").replace(",", "").split())
     assert lo < n < hi and n == pytest.approx(1.7e-4 * 3600 * 180 / math.pi, rel=0.05)  # deg/h/sqrt(Hz)
     assert k_cell == DASH
-    # the fit verdict is not given by this analysis: a dash, never a guess; the data verdict is
-    assert cells[-2] == DASH and cells[-1] in ("enough", "marginal", "not enough")
+    # the fit verdict is the model-adequacy test's (docs/noise-model.md); the data verdict is given
+    assert cells[-2].startswith(("fits", "does not fit")) and cells[-1] in ("enough", "marginal", "not enough")
     s_csv = list(csv.DictReader(io.StringIO(summary_csv(summary))))
     assert s_csv[2]["tau_b_flag"] == AT_BOUND and s_csv[0]["N_unit"] == "m/s²/√Hz"
     assert float(s_csv[1]["N_lo90"]) < float(s_csv[1]["N"]) < float(s_csv[1]["N_hi90"])
@@ -123,3 +121,11 @@ def test_model_names_are_spelled_out_in_every_help():
         for words in ("wn white rate noise", "gm first-order Gauss-Markov bias", "rw rate random walk",
                       "wa white angle noise"):  # fmt: skip
             assert words in out, (cmd, words)
+
+
+def test_plain_arrays_keep_their_own_unit():
+    # a plain array does not say what it measured: no gyro or accelerometer display unit is made up
+    ch = Channel("plain/0", FS, "", np.random.default_rng(6).normal(0, 1e-3, 20_000))
+    text = results_table([analyze_channel(ch)])
+    assert text.startswith("plain arrays, in their own unit") and "unit/√Hz" in text
+    assert "°" not in text and "µg" not in text

@@ -26,13 +26,11 @@ from imustation.analysis.pipeline.choices import DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import load_run
 from imustation.analysis.reports import plots
 from imustation.analysis.reports.pages import CSS, figure_html, html_table
+from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
 from imustation.analysis.reports.tables import (
     NoiseRow,
     TempcoRow,
     noise_rows,
-    summary_csv,
-    summary_markdown,
-    summary_rows,
     table_csv,
     table_latex,
     table_markdown,

@@ -1,15 +1,12 @@
-"""The report's tables: one summary row per axis, and the per-device noise table (the paper's Table IV layout).
+"""The report's detail tables: the noise table (the paper's Table IV layout) and the temperature coefficients.
 
-* :func:`summary_rows` / :func:`summary_markdown` / :func:`summary_csv` — what a
-  report opens with: per sensor and axis N, B, K, the bias model (σ_b, τ_b), each
-  with its 90 % interval, the fit verdict and the "enough data?" verdict, in the
-  display units of the axis's own sensor.
+(The summary a report opens with is :mod:`.summary`.)
+
 * :func:`noise_rows` / :func:`table_csv` / :func:`table_markdown` /
-  :func:`table_latex` — the details: the noise-model parameters ``sigma_w``,
-  ``sigma_b``, ``tau_b``, the IEEE-952 Allan-fit coefficients ``N``, ``B``,
-  ``K`` and the measured Allan deviation at tau = 1 s, each in SI and in the
-  display unit side by side, and whether the model fits the measured Allan
-  variance (and where not):
+  :func:`table_latex` — the noise-model parameters ``sigma_w``, ``sigma_b``,
+  ``tau_b``, the IEEE-952 Allan-fit coefficients ``N``, ``B``, ``K`` and the
+  measured Allan deviation at tau = 1 s, each in SI and in the display unit side
+  by side, and whether the model fits the measured Allan variance (and where not):
 
 =========  ======================  ==============  ===================
 quantity   SI (gyro / accel)       gyro display    accel display
@@ -50,15 +47,15 @@ __all__ = [
     "RADPS_TO_DPH",
     "SQRT_S_PER_SQRT_H",
     "NoiseRow",
-    "SummaryRow",
     "noise_rows",
     "param_flag",
-    "summary_rows",
+    "param_key",
+    "ieee_flag",
+    "by_sensor",
+    "split_channel_id",
     "table_csv",
     "table_latex",
     "table_markdown",
-    "summary_csv",
-    "summary_markdown",
     "units_of",
     "TempcoRow",
     "tempco_csv",
@@ -97,7 +94,7 @@ def units_of(sensor: str | None, quantity: str) -> tuple[str, str, float]:
     return display_units(sensor, _DIM[quantity])
 
 
-def _split_id(ch) -> tuple[str, str, str]:
+def split_channel_id(ch) -> tuple[str, str, str]:
     """(device, sensor, axis) of a ``device/gyro|accel/axis`` id, else the sensor from the units."""
     parts = ch.id.split("/")
     kind = sensor_kind(ch.units, ch.id)
@@ -110,7 +107,7 @@ def _split_id(ch) -> tuple[str, str, str]:
     return ch.id, kind, "-"
 
 
-def _param_key(fit, name: str) -> str:
+def param_key(fit, name: str) -> str:
     """Key of ``fit``'s params/intervals behind the summary name ``name``: the slowest of several
     Gauss-Markov terms (``sigma_b2``...) or a random walk's ``sigma_k`` for ``sigma_b``."""
     if name in ("sigma_b", "tau_b"):
@@ -126,7 +123,7 @@ def _param_key(fit, name: str) -> str:
 
 def param_flag(fit, name: str) -> str:
     """``AT_BOUND``, ``NOT_IDENTIFIED`` or "" for the noise-model parameter ``name`` (sigma_w, sigma_b, tau_b)."""
-    key = _param_key(fit, name)
+    key = param_key(fit, name)
     if key in fit.at_bound or name in fit.at_bound:
         return AT_BOUND
     value = float(getattr(fit, name))
@@ -141,7 +138,7 @@ def param_flag(fit, name: str) -> str:
     return ""
 
 
-def _ieee_flag(value: float) -> str:
+def ieee_flag(value: float) -> str:
     """IEEE-952 terms the Allan fit did not need are 0: "not fitted", not a measurement of zero."""
     return NOT_FITTED if value == 0.0 else ""
 
@@ -176,7 +173,7 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
     """Rows for every analysed channel: run-file ``device/gyro|accel/axis`` ids or channels with units."""
     rows = []
     for r in results:
-        device, sensor, axis = _split_id(r.channel)
+        device, sensor, axis = split_channel_id(r.channel)
         fit = r.noise_model
         vals = {
             "sigma_w": fit.sigma_w,
@@ -188,7 +185,7 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
             "adev_1s": r.ieee.adev_1s,
         }
         flags = {q: param_flag(fit, q) for q in ("sigma_b", "tau_b")}
-        flags |= {q: _ieee_flag(vals[q]) for q in ("N", "B", "K")}
+        flags |= {q: ieee_flag(vals[q]) for q in ("N", "B", "K")}
         flags = {q: f for q, f in flags.items() if f}
         adq = r.adequacy_of(r.noise_model)
         verdict = (adq.verdict, adq.p_value, "; ".join(m.describe() for m in adq.misfit)) if adq else ("", math.nan, "")
@@ -243,7 +240,7 @@ def _fit_text(r: NoiseRow) -> str:
     return f"{r.fit}: {r.fit_where}" if r.fit_where else r.fit
 
 
-def _by_sensor(rows: list[NoiseRow]) -> dict[str, list[NoiseRow]]:
+def by_sensor(rows: list[NoiseRow]) -> dict[str, list[NoiseRow]]:
     out: dict[str, list[NoiseRow]] = {}
     for r in rows:
         out.setdefault(r.sensor, []).append(r)
@@ -253,7 +250,7 @@ def _by_sensor(rows: list[NoiseRow]) -> dict[str, list[NoiseRow]]:
 def table_markdown(rows: list[NoiseRow]) -> str:
     """One Markdown table per sensor kind; each quantity in SI and display units."""
     parts = []
-    for sensor, rs in _by_sensor(rows).items():
+    for sensor, rs in by_sensor(rows).items():
         head = ["device", "axis"]
         for q in QUANTITIES:
             si, disp, _ = units_of(sensor, q)
@@ -302,7 +299,7 @@ def _latex_text(s: str) -> str:
 def table_latex(rows: list[NoiseRow]) -> str:
     """One ``tabular`` per sensor kind (booktabs rules), SI and display columns."""
     parts = []
-    for sensor, rs in _by_sensor(rows).items():
+    for sensor, rs in by_sensor(rows).items():
         cols, head, units = [], ["Device", "Axis"], ["", ""]
         for q in QUANTITIES:
             si, disp, _ = units_of(sensor, q)
@@ -334,149 +331,6 @@ def table_latex(rows: list[NoiseRow]) -> str:
         lines += [r"\bottomrule", r"\end{tabular}"]
         parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
-
-
-# -- the summary: one row per sensor and axis ------------------------------------------------------
-
-#: summary quantities: (key, title, dimension)
-SUMMARY_QUANTITIES = (
-    ("N", "N", "density"),
-    ("B", "B", "rate"),
-    ("K", "K", "drift"),
-    ("sigma_b", "σ_b", "drift"),
-    ("tau_b", "τ_b", "time"),
-)
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """A value with its 90 % interval (SI; NaN where there is none) and its flag."""
-
-    value: float
-    lo: float = math.nan
-    hi: float = math.nan
-    flag: str = ""
-
-
-@dataclass(frozen=True)
-class SummaryRow:
-    """One sensor axis: N (the noise model's sigma_w), B and K (IEEE-952 Allan fit), the bias model's
-    ``sigma_b`` and ``tau_b`` (:class:`Estimate` each, SI), the model's name, the fit verdict and
-    the "enough data?" verdict (with its reasons); ``"—"`` for a verdict the analysis did not give."""
-
-    device: str
-    sensor: str
-    axis: str
-    n: int
-    fs_hz: float
-    model: str
-    estimator: str
-    values: dict[str, Estimate]
-    fit: str
-    enough: str
-    enough_reasons: tuple[str, ...] = ()
-
-
-def fit_verdict(res: ChannelAnalysis) -> str:
-    """The model-adequacy verdict of the default fit ("fits", "does not fit: <where>"), or "—"
-    for a fit without one (docs/noise-model.md, "Model adequacy"). A fit that did not
-    converge says so.
-    """
-    fit = res.noise_model
-    adq = res.adequacy_of(fit)
-    text = DASH if adq is None else adq.verdict
-    if adq is not None and adq.misfit:
-        text += ": " + "; ".join(m.describe() for m in adq.misfit)
-    if not fit.converged and not fit.at_bound:
-        text += " (not converged)"
-    return text
-
-
-def _ieee_estimate(value: float, stderr: float) -> Estimate:
-    flag = _ieee_flag(value)
-    if flag or not math.isfinite(stderr):
-        return Estimate(value, flag=flag)
-    return Estimate(value, max(0.0, value - Z90 * stderr), value + Z90 * stderr)
-
-
-def _model_estimate(fit, name: str) -> Estimate:
-    value = float(getattr(fit, name))
-    ci = fit.ci90.get(name) or fit.ci90.get(_param_key(fit, name)) or (math.nan, math.nan)
-    return Estimate(value, float(ci[0]), float(ci[1]), param_flag(fit, name))
-
-
-def summary_rows(results: list[ChannelAnalysis]) -> list[SummaryRow]:
-    """One :class:`SummaryRow` per analysed channel, in the order given."""
-    rows = []
-    for r in results:
-        device, sensor, axis = _split_id(r.channel)
-        fit = r.noise_model
-        values = {
-            "N": _model_estimate(fit, "sigma_w"),
-            "B": _ieee_estimate(r.ieee.B, r.ieee.B_stderr),
-            "K": _ieee_estimate(r.ieee.K, r.ieee.K_stderr),
-            "sigma_b": _model_estimate(fit, "sigma_b"),
-            "tau_b": _model_estimate(fit, "tau_b"),
-        }
-        v = r.verdict
-        rows.append(
-            SummaryRow(
-                device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, fit.estimator, values,
-                fit_verdict(r), v.verdict if v is not None else DASH, tuple(v.reasons) if v is not None else (),
-            )
-        )  # fmt: skip
-    return rows
-
-
-def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
-    """``35.0 [34.8, 35.2]`` (times ``factor``); flags as :func:`fmt_flagged`."""
-    if e.flag or not math.isfinite(e.value):
-        return fmt_flagged(e.value * factor, e.flag, digits)
-    v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return fmt_number(v, digits)
-    # enough digits that a narrow interval does not print as [x, x]
-    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
-        digits += 1
-    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
-
-
-def summary_markdown(rows: list[SummaryRow]) -> str:
-    """One Markdown table per sensor kind, display units, each value with its 90 % interval."""
-    parts = []
-    for sensor, rs in _by_sensor(rows).items():
-        head = ["device", "axis", "model"]
-        head += [f"{title} [{display_units(sensor, dim)[1]}]" for _, title, dim in SUMMARY_QUANTITIES]
-        head += ["fit", "enough data?"]
-        lines = [f"**{sensor}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for r in rs:
-            cells = [r.device, f"{r.axis}-{sensor}", f"{r.model} ({r.estimator})"]
-            for key, _, dim in SUMMARY_QUANTITIES:
-                cells.append(fmt_estimate(r.values[key], display_units(sensor, dim)[2]))
-            cells += [r.fit, r.enough]
-            lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
-        parts.append("\n".join(lines))
-    return "\n\n".join(parts) + "\n"
-
-
-def summary_csv(rows: list[SummaryRow]) -> str:
-    """CSV of the summary, SI: per quantity value, 90 % interval, unit, flag; the two verdicts."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    head = ["device", "sensor", "axis", "n", "fs_hz", "model", "estimator"]
-    for key, _, _ in SUMMARY_QUANTITIES:
-        head += [key, f"{key}_lo90", f"{key}_hi90", f"{key}_unit", f"{key}_flag"]
-    head += ["fit", "enough_data", "enough_data_reasons"]
-    w.writerow(head)
-    for r in rows:
-        line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model, r.estimator]
-        for key, _, dim in SUMMARY_QUANTITIES:
-            e = r.values[key]
-            value = "" if e.flag == NOT_FITTED else repr(float(e.value))
-            line += [value, repr(float(e.lo)), repr(float(e.hi)), display_units(r.sensor, dim)[0], e.flag]
-        line += [r.fit, r.enough, "; ".join(r.enough_reasons)]
-        w.writerow(line)
-    return buf.getvalue()
 
 
 # -- bias temperature coefficients ----------------------------------------------------------------

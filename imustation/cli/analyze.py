@@ -19,7 +19,7 @@ def _g(x: float, fmt: str = ".3e") -> str:
 
 
 #: sensor kind -> the heading of its block in the text table
-_KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "channels of unknown kind (plain arrays)"}
+_KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "plain arrays, in their own unit"}
 
 
 def results_table(results) -> str:
@@ -57,9 +57,11 @@ def results_table(results) -> str:
         dens, dens_d, kd = display_units(kind, "density")
         drift, drift_d, kb = display_units(kind, "drift")
         rate = display_units(kind, "rate")[0]
-        names = ("channel", "n", "fs Hz", "sigma_w", "sigma_w", "sigma_b", "sigma_b", "tau_b", "b_on", "ADEV(1s)")
-        names += ("model fit",)
-        units = ("", "", "", dens, dens_d, drift, drift_d, "s", rate, rate, "")
+        # a channel of unknown kind (a plain array) has no display unit: those columns stay empty
+        shown = kind is not None
+        w_d, b_d = ("sigma_w", "sigma_b") if shown else ("", "")
+        names = ("channel", "n", "fs Hz", "sigma_w", w_d, "sigma_b", b_d, "tau_b", "b_on", "ADEV(1s)", "model fit")
+        units = ("", "", "", dens, dens_d if shown else "", drift, drift_d if shown else "", "s", rate, rate, "")
         widths = (22, 9, 7, 10, 9, 11, 9, 10, 10, 10, 12)
         row = "{:<22} {:>9} {:>7} {:>10} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10} {:>12}  {}"
         pad = f"{'':<{width}} " if width else ""
@@ -75,7 +77,8 @@ def results_table(results) -> str:
                 flag = "ok" if m.converged else f"! {m.message}"
                 name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
                 sb = cell(m, "sigma_b", m.sigma_b, ".3e")
-                sb_d = cell(m, "sigma_b", m.sigma_b * kb, ".4g")
+                sb_d = cell(m, "sigma_b", m.sigma_b * kb, ".4g") if shown else ""
+                sw_d = _g(m.sigma_w * kd, ".4g") if shown else ""
                 tb = cell(m, "tau_b", m.tau_b, ".1f")
                 adq = r.adequacy_of(m)
                 flagged |= any(c in ("at bound", "not ident.") for c in (sb, tb))
@@ -83,7 +86,7 @@ def results_table(results) -> str:
                     where(r)
                     + row.format(
                         name[: widths[0]] if len(name) > widths[0] and m is not r.noise_model else name,
-                        r.channel.n, f"{r.channel.fs_hz:g}", _g(m.sigma_w), _g(m.sigma_w * kd, ".4g"),
+                        r.channel.n, f"{r.channel.fs_hz:g}", _g(m.sigma_w), sw_d,
                         sb, sb_d, tb, _g(m.b_on), _g(adev1), adq.verdict if adq else "-", f"{m.estimator} {flag}",
                     )
                 )  # fmt: skip

@@ -1,0 +1,170 @@
+"""The summary a run report opens with: one row per sensor and axis.
+
+N (the noise model's sigma_w), B and K (bias instability and rate random walk of the
+IEEE-952 Allan fit), the bias model's sigma_b and tau_b, each with its 90 % interval, the
+fit verdict and the "enough data?" verdict, in the display units of the axis's own
+sensor (:func:`imustation.units.display_units`). Values that are not estimates are
+flagged as in :mod:`.tables` ("—", "at bound", "not identified").
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+
+from imustation.analysis.pipeline.channel import ChannelAnalysis
+from imustation.analysis.reports.tables import (
+    DASH,
+    NOT_FITTED,
+    Z90,
+    by_sensor,
+    fmt_flagged,
+    fmt_number,
+    ieee_flag,
+    param_flag,
+    param_key,
+    split_channel_id,
+)
+from imustation.units import display_units
+
+#: summary quantities: (key, title, dimension)
+SUMMARY_QUANTITIES = (
+    ("N", "N", "density"),
+    ("B", "B", "rate"),
+    ("K", "K", "drift"),
+    ("sigma_b", "σ_b", "drift"),
+    ("tau_b", "τ_b", "time"),
+)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A value with its 90 % interval (SI; NaN where there is none) and its flag."""
+
+    value: float
+    lo: float = math.nan
+    hi: float = math.nan
+    flag: str = ""
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """One sensor axis: N (the noise model's sigma_w), B and K (IEEE-952 Allan fit), the bias model's
+    ``sigma_b`` and ``tau_b`` (:class:`Estimate` each, SI), the model's name, the fit verdict and
+    the "enough data?" verdict (with its reasons); ``"—"`` for a verdict the analysis did not give."""
+
+    device: str
+    sensor: str
+    axis: str
+    n: int
+    fs_hz: float
+    model: str
+    estimator: str
+    values: dict[str, Estimate]
+    fit: str
+    enough: str
+    enough_reasons: tuple[str, ...] = ()
+
+
+def fit_verdict(res: ChannelAnalysis) -> str:
+    """The model-adequacy verdict of the default fit ("fits", "does not fit: <where>"), or "—"
+    for a fit without one (docs/noise-model.md, "Model adequacy"). A fit that did not
+    converge says so.
+    """
+    fit = res.noise_model
+    adq = res.adequacy_of(fit)
+    text = DASH if adq is None else adq.verdict
+    if adq is not None and adq.misfit:
+        text += ": " + "; ".join(m.describe() for m in adq.misfit)
+    if not fit.converged and not fit.at_bound:
+        text += " (not converged)"
+    return text
+
+
+def _ieee_estimate(value: float, stderr: float) -> Estimate:
+    flag = ieee_flag(value)
+    if flag or not math.isfinite(stderr):
+        return Estimate(value, flag=flag)
+    return Estimate(value, max(0.0, value - Z90 * stderr), value + Z90 * stderr)
+
+
+def _model_estimate(fit, name: str) -> Estimate:
+    value = float(getattr(fit, name))
+    ci = fit.ci90.get(name) or fit.ci90.get(param_key(fit, name)) or (math.nan, math.nan)
+    return Estimate(value, float(ci[0]), float(ci[1]), param_flag(fit, name))
+
+
+def summary_rows(results: list[ChannelAnalysis]) -> list[SummaryRow]:
+    """One :class:`SummaryRow` per analysed channel, in the order given."""
+    rows = []
+    for r in results:
+        device, sensor, axis = split_channel_id(r.channel)
+        fit = r.noise_model
+        values = {
+            "N": _model_estimate(fit, "sigma_w"),
+            "B": _ieee_estimate(r.ieee.B, r.ieee.B_stderr),
+            "K": _ieee_estimate(r.ieee.K, r.ieee.K_stderr),
+            "sigma_b": _model_estimate(fit, "sigma_b"),
+            "tau_b": _model_estimate(fit, "tau_b"),
+        }
+        v = r.verdict
+        rows.append(
+            SummaryRow(
+                device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, fit.estimator, values,
+                fit_verdict(r), v.verdict if v is not None else DASH, tuple(v.reasons) if v is not None else (),
+            )
+        )  # fmt: skip
+    return rows
+
+
+def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
+    """``35.0 [34.8, 35.2]`` (times ``factor``); flags as :func:`fmt_flagged`."""
+    if e.flag or not math.isfinite(e.value):
+        return fmt_flagged(e.value * factor, e.flag, digits)
+    v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return fmt_number(v, digits)
+    # enough digits that a narrow interval does not print as [x, x]
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+        digits += 1
+    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
+
+
+def summary_markdown(rows: list[SummaryRow]) -> str:
+    """One Markdown table per sensor kind, display units, each value with its 90 % interval."""
+    parts = []
+    for sensor, rs in by_sensor(rows).items():
+        head = ["device", "axis", "model"]
+        head += [f"{title} [{display_units(sensor, dim)[1]}]" for _, title, dim in SUMMARY_QUANTITIES]
+        head += ["fit", "enough data?"]
+        lines = [f"**{sensor}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in rs:
+            cells = [r.device, f"{r.axis}-{sensor}", f"{r.model} ({r.estimator})"]
+            for key, _, dim in SUMMARY_QUANTITIES:
+                cells.append(fmt_estimate(r.values[key], display_units(sensor, dim)[2]))
+            cells += [r.fit, r.enough]
+            lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+        parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"
+
+
+def summary_csv(rows: list[SummaryRow]) -> str:
+    """CSV of the summary, SI: per quantity value, 90 % interval, unit, flag; the two verdicts."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    head = ["device", "sensor", "axis", "n", "fs_hz", "model", "estimator"]
+    for key, _, _ in SUMMARY_QUANTITIES:
+        head += [key, f"{key}_lo90", f"{key}_hi90", f"{key}_unit", f"{key}_flag"]
+    head += ["fit", "enough_data", "enough_data_reasons"]
+    w.writerow(head)
+    for r in rows:
+        line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model, r.estimator]
+        for key, _, dim in SUMMARY_QUANTITIES:
+            e = r.values[key]
+            value = "" if e.flag == NOT_FITTED else repr(float(e.value))
+            line += [value, repr(float(e.lo)), repr(float(e.hi)), display_units(r.sensor, dim)[0], e.flag]
+        line += [r.fit, r.enough, "; ".join(r.enough_reasons)]
+        w.writerow(line)
+    return buf.getvalue()
