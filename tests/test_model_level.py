@@ -84,7 +84,7 @@ def _run_one(cfg, seconds: float):
     finally:
         station.close()
     st = station.devices["d"]
-    due_at_start = int((station.t0 - st.driver._origin_ns) * st.info.rate_hz // 1e9)
+    due_at_start = st.driver.stream.due(station.t0 - st.driver._origin_ns)
     return st, sink, due_at_start
 
 
