@@ -109,11 +109,11 @@ class ModelStream:
         self.rate = exact_rate(spec.rate_hz)
         self._main = self.sources.get("gyro") or self.sources.get("accel")
 
-    def made_ns(self, idx: np.ndarray | int) -> np.ndarray | int:
+    def made_ns(self, idx: int) -> int:
         """When sample ``idx`` (0 the first) is made, ns after the stream's start: the first instant the
-        output period fits ``idx + 1`` times (integer arithmetic from the index, no accumulation)."""
+        output period fits ``idx + 1`` times (exact integer arithmetic from the index)."""
         num, den = self.rate.numerator, self.rate.denominator
-        return -(-(idx + 1) * (10**9 * den) // num)
+        return -(-(int(idx) + 1) * (10**9 * den) // num)
 
     def due(self, elapsed_ns: int) -> int:
         """Samples made ``elapsed_ns`` (ns) after the stream's start."""
@@ -123,7 +123,8 @@ class ModelStream:
         """The next ``n`` samples: (times since the stream's start, ns; channels in counts; counter or None)."""
         idx = np.arange(self.n, self.n + n, dtype=np.int64)
         self.n += n
-        t_ns = idx * (10**9 * self.rate.denominator) // self.rate.numerator
+        # from the index, not accumulated (exact in float64 for these periods up to ~100 days)
+        t_ns = np.rint(idx * (1e9 / float(self.rate))).astype(np.int64)
         out: dict[str, np.ndarray] = {}
         for ch in self.spec.channels:
             if ch.name in self.sources:
@@ -244,7 +245,7 @@ class ModelDevice:
         away, self._away = self._away, 0
         _, channels, counter = self.stream.block(n)
         assert self._origin_ns is not None
-        behind = self.clock.now_ns() - self._origin_ns - int(self.stream.made_ns(self.stream.n - 1))
+        behind = self.clock.now_ns() - self._origin_ns - self.stream.made_ns(self.stream.n - 1)
         bad = 0
         while n > 1 and self.plan is not None and self.plan.fire("checksum"):
             bad += 1
