@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -57,6 +58,13 @@ CHECKSUMMED = ("adis16448", "mti", "dsp3000")
 OWN_ACCEL_NOISE = {"adis16448": ACCEL_NOISE_G * G0, "mti": ACCEL_NOISE}
 #: what the chip simulators report on channels the noise model does not drive
 _CONSTANTS = {"diag": 0.0, "baro": 101325.0, "mag": np.array([2.0e-5, 0.0, 4.5e-5])}
+#: largest denominator of an output rate in Hz (409.6 = 2048/5): sample times are exact integers
+_RATE_DENOMINATOR = 1 << 16
+
+
+def exact_rate(rate_hz: float) -> Fraction:
+    """An output rate (Hz) as the exact fraction it stands for (819.2 / 2**D, 1000 / (1 + div), ...)."""
+    return Fraction(rate_hz).limit_denominator(_RATE_DENOMINATOR)
 
 
 def to_counts(values: np.ndarray, spec: Any) -> np.ndarray:
@@ -98,14 +106,25 @@ class ModelStream:
         self.n = 0
         self.modulus = int(spec.settings.get("counter_modulus", 0) or 0)
         self.driver = dev.driver
-        self.period_ns = 1e9 / spec.rate_hz
+        self.rate = exact_rate(spec.rate_hz)
         self._main = self.sources.get("gyro") or self.sources.get("accel")
+
+    def made_ns(self, idx: int) -> int:
+        """When sample ``idx`` (0 the first) is made, ns after the stream's start: the first instant the
+        output period fits ``idx + 1`` times (exact integer arithmetic from the index)."""
+        num, den = self.rate.numerator, self.rate.denominator
+        return -(-(int(idx) + 1) * (10**9 * den) // num)
+
+    def due(self, elapsed_ns: int) -> int:
+        """Samples made ``elapsed_ns`` (ns) after the stream's start."""
+        return int(elapsed_ns) * self.rate.numerator // (10**9 * self.rate.denominator)
 
     def block(self, n: int) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray | None]:
         """The next ``n`` samples: (times since the stream's start, ns; channels in counts; counter or None)."""
         idx = np.arange(self.n, self.n + n, dtype=np.int64)
         self.n += n
-        t_ns = np.rint(idx * self.period_ns).astype(np.int64)
+        # from the index, not accumulated (exact in float64 for these periods up to ~100 days)
+        t_ns = np.rint(idx * (1e9 / float(self.rate))).astype(np.int64)
         out: dict[str, np.ndarray] = {}
         for ch in self.spec.channels:
             if ch.name in self.sources:
@@ -170,20 +189,26 @@ class ModelDevice:
     station_seed : the config's ``station.seed``.
     config_path : the config file, for error messages.
 
-    Samples are produced at exact output periods from the first :meth:`open`; a read
-    returns those due by the clock, the newest at the read.
+    Samples are made at exact output periods from the first :meth:`open`; a read
+    returns those due by the clock and says when the newest was made (``Block.behind_ns``),
+    so the station dates them on the device's sample grid.
     """
 
     name = "model"
 
     def __init__(self, dev: Any, info: DriverInfo, clock: Clock, station_seed: int, config_path: str = "<config>"):
         self.dev = dev
-        self.info = replace(info, poll_interval_s=max(info.poll_interval_s, MODEL_POLL_S))
+        # nothing overflows at this level: every loss is one the device reports
+        self.info = replace(
+            info,
+            poll_interval_s=max(info.poll_interval_s, MODEL_POLL_S),
+            overflow="reported",
+            buffer_s=float("inf"),
+        )
         self.clock = clock
         self.stream = ModelStream(info, dev, station_seed)
         self.plan = model_fault_plan(dev, info, clock, station_device_seed(station_seed, dev.name), config_path)
         self._origin_ns: int | None = None
-        self._rate = float(info.rate_hz)
         #: samples produced while the device was away, reported with the next block
         self._away = 0
 
@@ -194,7 +219,7 @@ class ModelDevice:
 
     def _due(self) -> int:
         assert self._origin_ns is not None
-        return int((self.clock.now_ns() - self._origin_ns) * self._rate // 1e9)
+        return self.stream.due(self.clock.now_ns() - self._origin_ns)
 
     def _check_present(self) -> None:
         # fire: a disconnect shorter than a poll interval still happened (its samples are gone)
@@ -219,11 +244,13 @@ class ModelDevice:
             return Block({})
         away, self._away = self._away, 0
         _, channels, counter = self.stream.block(n)
+        assert self._origin_ns is not None
+        behind = self.clock.now_ns() - self._origin_ns - self.stream.made_ns(self.stream.n - 1)
         bad = 0
         while n > 1 and self.plan is not None and self.plan.fire("checksum"):
             bad += 1
         if not bad and not away:
-            return Block(channels, counter)
+            return Block(channels, counter, behind_ns=behind)
         notes = ["samples lost while the device was away"] if away else []
         if bad:
             # the oldest samples of the block go: the rest keep their times (newest at the read)
@@ -231,7 +258,7 @@ class ModelDevice:
             channels = {name: values[bad:] for name, values in channels.items()}
             counter = counter[bad:] if counter is not None else None
             notes.append(f"bad checksum: {bad} sample(s) dropped")
-        return Block(channels, counter, lost=away + bad, note="; ".join(notes))
+        return Block(channels, counter, lost=away + bad, note="; ".join(notes), behind_ns=behind)
 
     def close(self) -> None:
         pass

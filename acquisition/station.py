@@ -11,8 +11,8 @@ simulations and replays, a reader thread per bus on the real clock). Times are
 ns since the start of the run on the station clock. Each device's
 :class:`~imustation.acquisition.timeline.Timeline` dates its samples and
 accounts its losses, which are logged as events with their sample count (FIFO
-overruns and resyncs measured from time, counter jumps from the device
-counter); a device that stops answering is logged once as a fault and re-opened
+overruns, resyncs and what a device without a FIFO missed measured from time,
+counter jumps from the device counter); a device that stops answering is logged once as a fault and re-opened
 at its polls until it answers; missed thermometer readings are logged at the
 reconnect. With worker processes (:mod:`~imustation.acquisition.workers`) the
 bus groups of other processes are opened and polled there, and this station
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
@@ -104,7 +104,9 @@ class DeviceState:
 
 
 def _device_state(config: DeviceConfig, driver: Any, info: DriverInfo) -> DeviceState:
-    timeline = Timeline(1e9 / info.rate_hz, info.settings.get("counter_modulus"))
+    timeline = Timeline(
+        1e9 / info.rate_hz, info.settings.get("counter_modulus"), overflow=info.overflow, buffer_s=info.buffer_s
+    )
     return DeviceState(config, driver, info, int(info.poll_interval_s * 1e9), timeline)
 
 
@@ -248,6 +250,8 @@ class Station:
 
     def _open_device(self, dev: DeviceConfig) -> tuple[Any, DriverInfo]:
         driver = DRIVERS[dev.driver](self.buses.register_device(dev), dev.settings, sleep=self.clock.sleep)
+        if hasattr(driver, "clock_ns"):
+            driver.clock_ns = self.clock.now_ns  # it stamps its reads (a chip without a FIFO)
         info = driver.open()
         if self.sim_level == "model":
             # imported here: the noise sources load for a model-level simulation only
@@ -407,7 +411,7 @@ class Station:
                 except (BusError, DeviceError) as exc:
                     self._fault(sink, st, str(exc))
                     continue
-                self._store(sink, st, block, st.last_poll_ns)
+                self._store(sink, st, block, st.last_poll_ns, poll=False)
 
     # -- one poll ---------------------------------------------------------------------
     def _poll_device(self, sink: Sink, st: DeviceState) -> int:
@@ -428,22 +432,30 @@ class Station:
             )
             st.failed, st.failed_attempts = False, 0
             st.timeline.restart(clock.now_ns() - self.t0)
+        started = clock.now_ns() - self.t0
         try:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:
             self._fault(sink, st, str(exc))
             return st.poll_ns
         t_read = st.last_poll_ns = clock.now_ns() - self.t0
-        self._store(sink, st, block, t_read)
+        self._store(sink, st, block, t_read, started=started)
         return st.poll_ns
 
-    def _store(self, sink: Sink, st: DeviceState, block: Block, t_read: int) -> None:
-        """Log a block's loss and append its samples, dated by the device's timeline from ``t_read`` (ns)."""
+    def _store(
+        self, sink: Sink, st: DeviceState, block: Block, t_read: int, *, poll: bool = True, started: int | None = None
+    ) -> None:
+        """Log a block's losses and append its samples, dated by the device's timeline from ``t_read`` (ns).
+
+        ``poll``: the block comes from a read from ``started`` to ``t_read`` (False: what a driver held
+        at the end).
+        """
         name = st.config.name
-        placed = st.timeline.place(block, t_read)
-        ev = placed.event
-        if ev is not None:
-            sink.event(t_read, name, ev.kind, ev.detail, lost=ev.lost)
+        if block.read_ns is not None:  # the driver's stamps, on the station's clock: to station time
+            block = replace(block, read_ns=block.read_ns - self.t0, previous_read_ns=block.previous_read_ns - self.t0)
+        placed = st.timeline.place(block, t_read, poll=poll, started=started)
+        for ev in placed.events:
+            sink.event(ev.t_ns, name, ev.kind, ev.detail, lost=ev.lost)
         if placed.t_ns is None:
             return
         sink.append(name, placed.t_ns, block.channels, block.counter)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import struct
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -209,9 +209,15 @@ class ADIS16448:
         self._burst_tx = BURST_CMD + bytes(2 * BURST_WORDS + (CRC_WORD.size if self._crc else 0))
         self._last: bytes | None = None
         self._polls = 0
-        #: bursts read and not yet handed over; polls since the newest of them
+        #: bursts read and not yet handed over, the poll (count) each was read at, and when (clock ns, and
+        #: the burst before it)
         self._held: list[bytes] = []
-        self._age = 0
+        self._held_at: list[int] = []
+        self._held_read: list[int] = []
+        self._held_before: list[int] = []
+        #: the station's clock (ns), set by the station: each burst is stamped when its transfer returns
+        self.clock_ns: Callable[[], int] | None = None
+        self._last_read = self._burst_ns = 0
         self._batch = max(1, round(BATCH_S * self._rate))
         #: bursts dropped since the last hand-over; an error to raise at the next call
         self._lost = 0
@@ -243,8 +249,10 @@ class ADIS16448:
         self._sleep(self._stall_s)
 
     def _burst(self) -> bytes:
-        """One burst transfer, then the stall: the next chip select may follow at once (catching up)."""
+        """One burst transfer (stamped when it returns: ``_burst_ns``), then the stall: the next chip select may
+        follow at once (catching up)."""
         rx = self.spi.transfer(self._burst_tx)
+        self._burst_ns = self._now()
         self._sleep(self._stall_s)
         return rx
 
@@ -284,10 +292,12 @@ class ADIS16448:
         lot1, lot2, serial, diag = self.read_regs([REG_LOT_ID1, REG_LOT_ID2, REG_SERIAL_NUM, REG_DIAG_STAT])
         self._sleep(2.0 / self._rate)  # the first output period after configuration
         self._last = None
-        self._held.clear()
-        self._age, self._lost, self._error = 0, 0, None
+        self._clear_held()
+        self._lost, self._error = 0, None
+        self._last_read = self._now()
         if self._crc:
             rx = self._burst()
+            self._last_read = self._burst_ns
             if burst_crc(rx[4:26]) != CRC_WORD.unpack_from(rx, 26)[0]:
                 raise DeviceError(
                     f"{self.spi.where}: burst CRC does not match on the first read"
@@ -320,8 +330,10 @@ class ADIS16448:
                 ChannelSpec("diag", "uint16", "", 1.0),
             ),
             has_counter=False,
-            # no FIFO: one burst per output period
+            # no FIFO: one burst per output period; what it makes while nobody reads is gone
             poll_interval_s=1.0 / self._rate,
+            overflow="newest",
+            buffer_s=1.0 / self._rate,
         )
 
     # -- streaming ------------------------------------------------------------------------
@@ -329,13 +341,15 @@ class ADIS16448:
         """One burst (the newest sample); every ``BATCH_S`` the samples read so far.
 
         A sample read is kept, decoded with the others of its batch, and handed
-        over when the batch is full, before a dropped burst or a failed
-        transfer (``Block.age`` then counts the polls since the newest was
-        read, i.e. output periods on the station's schedule), and by
-        :meth:`drain` when the capture ends. A bus or device error is raised at
-        the call after the one that hands over the samples before it. A dropped
-        burst is reported (``lost``) with the next block, or at once when
-        nothing is held.
+        over when the batch is full or ``BATCH_S`` worth of polls after the
+        oldest was read, before a dropped burst or a failed transfer, and by
+        :meth:`drain` when the capture ends. Each burst is stamped when its
+        transfer returns (``Block.read_ns``, with the burst before it): the chip
+        has no FIFO, so what it made while the station was busy elsewhere is lost
+        and only these times tell the station how much. A bus or device error is
+        raised at the call after the one that hands over the samples before it.
+        A dropped burst is reported (``lost``) with the next block, or at once
+        when nothing is held.
         """
         self._raise_held()
         self._polls += 1
@@ -343,16 +357,18 @@ class ADIS16448:
             if self._polls % self._check_every == 0:
                 self._check_config()
             rx = self._burst()
+            read, before = self._burst_ns, self._last_read
+            self._last_read = read
         except (BusError, DeviceError) as exc:
             if not self._held:
                 raise
             self._error = exc
-            return self._release(age=self._age + 1)
+            return self._release()
         data = rx[2 : 2 + 2 * BURST_WORDS]
         if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
             self.crc_errors += 1
             self._last = None
-            before = self._release(age=self._age + 1) if self._held else None
+            before = self._release() if self._held else None
             self._lost += 1  # handed over with the next block: it comes after ``before``
             try:
                 self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
@@ -360,15 +376,17 @@ class ADIS16448:
                 if before is None:
                     raise
                 self._error = exc
-            return before if before is not None else self._release(age=0)
-        if data == self._last:
-            self._age += 1  # the same sample read twice: no new data yet
-            return Block(_EMPTY)
-        self._last = data
-        self._held.append(data)
-        self._age = 0
-        if len(self._held) >= self._batch or self._lost:
-            return self._release(age=0)
+            return before if before is not None else self._release()
+        if data != self._last:  # else the same sample read twice: no new data yet
+            self._last = data
+            self._held.append(data)
+            self._held_at.append(self._polls)
+            self._held_read.append(read)
+            self._held_before.append(before)
+        if self._held and (
+            len(self._held) >= self._batch or self._polls - self._held_at[0] + 1 >= self._batch or self._lost
+        ):
+            return self._release()
         return Block(_EMPTY)
 
     def drain(self) -> Block:
@@ -377,7 +395,7 @@ class ADIS16448:
         An error held back from the last poll is raised now, so it is logged.
         """
         self._raise_held()
-        return self._release(age=self._age)
+        return self._release()
 
     def _raise_held(self) -> None:
         """Raise the error of a transfer that failed after samples were held (they went first)."""
@@ -385,15 +403,26 @@ class ADIS16448:
             exc, self._error = self._error, None
             raise exc
 
-    def _release(self, age: int) -> Block:
-        """Decode the held bursts into one block; a dropped burst counts as lost before it."""
+    def _release(self) -> Block:
+        """Decode the held bursts into one block, with the polls since each was read; a dropped burst counts
+        as lost before it."""
         lost, self._lost = self._lost, 0
         note = "checksum: burst CRC mismatch, sample dropped" if lost else ""
         if not self._held:
             return Block(_EMPTY, lost=lost, note=note)
         words = np.frombuffer(b"".join(self._held), dtype=">u2").reshape(-1, BURST_WORDS)
-        self._held.clear()
-        return Block(_decode(words), lost=lost, note=note, age=age)
+        stamps = {}
+        if self.clock_ns is not None:
+            stamps = {"read_ns": np.array(self._held_read), "previous_read_ns": np.array(self._held_before)}
+        self._clear_held()
+        return Block(_decode(words), lost=lost, note=note, **stamps)
+
+    def _clear_held(self) -> None:
+        for held in (self._held, self._held_at, self._held_read, self._held_before):
+            held.clear()
+
+    def _now(self) -> int:
+        return self.clock_ns() if self.clock_ns is not None else 0
 
     def close(self) -> None:
         self.spi.close()

@@ -17,17 +17,30 @@ class Block:
 
     ``channels`` maps channel name to raw counts, shape ``(k, ...)``;
     ``lost`` is the number of samples the device dropped before this block
-    (FIFO overrun, counter jump), ``note`` says why. ``age``: the newest
-    sample was read this many output periods before the read that returns
-    the block (a driver that holds samples back, e.g. when a later transfer
-    failed); 0 means it is the newest at this read.
+    (a count the chip gives), -1 when it knows samples were lost but not how
+    many (a FIFO overrun: the station measures it from time), ``note`` says why.
+
+    When each sample was made, for the station's timeline
+    (:mod:`imustation.acquisition.timeline`), where the driver knows better than
+    "the newest at the read":
+
+    * ``read_ns``, ``previous_read_ns``: per sample, when the transfer that read it
+      returned, and when the chip was read before that (the read that still found
+      the sample before, or found nothing new), ns on the station's clock
+      (``Driver.clock_ns``): a chip without a FIFO holds only its newest sample, so
+      these date it and tell what it made while nobody read it (the ADIS16448,
+      which also hands its samples over in batches).
+    * ``behind_ns``: the newest sample was made this many ns before the read
+      (the noise-model level knows it exactly); None: taken as made at the read.
     """
 
     channels: dict[str, np.ndarray]
     counter: np.ndarray | None = None
     lost: int = 0
     note: str = ""
-    age: int = 0
+    read_ns: np.ndarray | None = None
+    previous_read_ns: np.ndarray | None = None
+    behind_ns: int | None = None
 
     @property
     def n(self) -> int:
@@ -59,9 +72,11 @@ class Driver(Protocol):
         """Return every sample produced since the last call (may be empty).
 
         A driver may hold samples it has read and hand them over later (then
-        ``Block.age`` dates them); such a driver also has ``drain() -> Block``,
+        ``Block.read_ns`` dates them); such a driver also has ``drain() -> Block``,
         which the station calls once when recording ends, and at the start to
-        drop what was read before it.
+        drop what was read before it. A driver that stamps its reads has an
+        attribute ``clock_ns`` (None until the station sets it to its clock's
+        ``now_ns``).
         """
         ...
 

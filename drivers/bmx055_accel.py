@@ -273,6 +273,9 @@ class BMX055Accel:
             # FIFO: at most 40 % full, a whole number of output periods (so every poll
             # finds the same number of frames); data_ready: twice per output period
             poll_interval_s=(math.floor(0.4 * FIFO_DEPTH_FRAMES) if self._fifo else 0.5) / self._bw.odr_hz,
+            # the FIFO reports its overruns; the data registers hold one sample, lost unread without a word
+            overflow="reported" if self._fifo else "newest",
+            buffer_s=float("inf") if self._fifo else 1.0 / self._bw.odr_hz,
         )
 
     # -- streaming --------------------------------------------------------------

@@ -27,7 +27,7 @@ import numpy as np
 
 from imustation.channels import ChannelSpec, DriverInfo
 from imustation.drivers.base import Block, Setting, Sleep, check_settings
-from imustation.drivers.bus.serial_port import FramedStreamReader, Scan, SerialPort
+from imustation.drivers.bus.serial_port import TTY_INPUT_BYTES, FramedStreamReader, Scan, SerialPort
 from imustation.errors import DeviceError, SettingError
 from imustation.units import DEG2RAD
 
@@ -45,6 +45,8 @@ MODE_SETTLE_S = 0.05  # lines already on the wire in the old mode are discarded
 OPEN_TIMEOUT_S = 3.0  # a valid line must arrive within this (start-up lines carry flag 0)
 OPEN_POLL_S = 0.05
 POLL_INTERVAL_S = 0.2  # 20 lines, ~400 bytes: far below any tty buffer
+#: the unit's rate may be this much above rate_hz (+-2-3 % unit to unit [KVH-M]): its lines fill a buffer sooner
+RATE_MARGIN = 1.03
 
 
 def parse_line(line: bytes) -> tuple[int, int] | None:
@@ -133,13 +135,14 @@ class KVHDSP3000:
         self._sleep(MODE_SETTLE_S)
         self.port.read_available()
         self.reader.reset()
-        bad = received = 0
+        bad = received = lines = 0
         for _ in range(int(OPEN_TIMEOUT_S / OPEN_POLL_S)):
             self._sleep(OPEN_POLL_S)
             data = self.port.read_available()
             received += len(data)
             scan = self.reader.feed(data)
             bad += scan.extra["bad_lines"]
+            lines += len(scan.frames[1]) + scan.extra["bad_lines"]
             if (scan.frames[1] == STATUS_VALID).any():
                 break
         else:
@@ -153,6 +156,9 @@ class KVHDSP3000:
                 f"{self.port.where}: DSP-3000 did not start streaming within {OPEN_TIMEOUT_S:g} s ({hint})"
             )
         mode = self.settings["mode"]
+        # a line count of the bytes received (the first, partial line is not counted: a longer line is safer)
+        line_bytes = received / lines if lines else float(len(EOL) + 24)
+        buffer_s = TTY_INPUT_BYTES / (line_bytes * self.settings["rate_hz"] * RATE_MARGIN)
         return DriverInfo(
             model="KVH DSP-3000 (100 Hz ASCII)",
             identity="no identity query in the 100 Hz ASCII protocol",
@@ -167,6 +173,9 @@ class KVHDSP3000:
             channels=(ChannelSpec("gyro", "int32", "rad/s", self.scale, 0.0, ("z",)),),
             has_counter=False,
             poll_interval_s=POLL_INTERVAL_S,
+            # no counter, and the tty drops the newest lines when its buffer is full: losses from read times
+            overflow="oldest",
+            buffer_s=buffer_s,
         )
 
     def read_block(self) -> Block:

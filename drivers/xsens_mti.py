@@ -14,7 +14,8 @@ Storage: the MTi's output *is* IEEE float32 in SI units, so gyro (rad/s),
 accel (m/s^2) and temperature (degC) are stored as float32 datasets with
 scale 1 - bit for bit what the device sent, no quantisation added. The
 PacketCounter (u16) is unwrapped into the run file's int64 ``counter``;
-a jump gives a lost-sample block with the exact number of missing packets.
+the station counts the packets a jump skipped, exactly (a message dropped
+for its checksum, packets a full tty buffer dropped).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 
 from imustation.channels import ChannelSpec, DriverInfo
 from imustation.drivers.base import Block, Setting, Sleep, check_settings
-from imustation.drivers.bus.serial_port import FramedStreamReader, Scan, SerialPort
+from imustation.drivers.bus.serial_port import TTY_INPUT_BYTES, FramedStreamReader, Scan, SerialPort
 from imustation.errors import DeviceError, SettingError
 
 # --- framing (docs/reference/sensors.md §5.1) ----------------------------------------
@@ -375,6 +376,9 @@ class XsensMTi:
             ),
             has_counter=True,
             poll_interval_s=0.1,
+            # the counter counts what the tty drops when its buffer is full (the newest messages)
+            overflow="oldest",
+            buffer_s=TTY_INPUT_BYTES / (self.reader.frame_len * rate),
         )
 
     # -- streaming -------------------------------------------------------------------------
@@ -392,19 +396,16 @@ class XsensMTi:
         frames = scan.frames
         r = self.reader
         counter16 = r.column(frames, ID_PACKET_COUNTER).astype(np.int64)
-        lost = 0
         if len(counter16):
+            # unwrapped; the station counts the packets a jump skipped (a dropped message, a full tty)
             prev = self._count if self._count is not None else int(counter16[0]) - 1
             steps = np.diff(np.concatenate(([prev & 0xFFFF], counter16))) % 65536
             steps[steps == 0] = 65536  # the same counter again = a full wrap
-            lost = int(steps.sum() - len(steps)) if self._count is not None else 0
             counter = prev + np.cumsum(steps)
             self._count = int(counter[-1])
         else:
             counter = counter16
         notes = []
-        if lost:
-            notes.append(f"packet counter jumped: {lost} lost")
         if scan.bad_checksums:
             notes.append(f"checksum: {scan.bad_checksums} bad message(s) dropped")
         if scan.garbage and not scan.bad_checksums:
@@ -417,8 +418,7 @@ class XsensMTi:
                 "sample_time_fine": r.column(frames, ID_SAMPLE_TIME_FINE),
             },
             counter=counter,
-            lost=lost,
-            note="; ".join(notes) if lost else "",
+            note="; ".join(notes),
         )
 
     def close(self) -> None:

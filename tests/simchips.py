@@ -49,3 +49,40 @@ def wire(driver_cls, chip, settings=None, address=None, clock=None):
 
 def new_clock():
     return VirtualClock()
+
+
+class BurstLog:
+    """Which samples an ADIS16448 simulator served, burst by burst (the truth a capture's holes are checked
+    against: the chip has no counter). Patches the simulator class through ``monkeypatch``; ``started``
+    records the station's start (clock ns) of every capture."""
+
+    def __init__(self, monkeypatch):
+        from imustation.acquisition.station import Station
+        from imustation.drivers.sim.adis16448 import ADIS16448Sim
+
+        self.served: list[tuple[int, int]] = []  # (clock ns, sample index since the chip's last restart)
+        self.started: list[int] = []
+        burst, start = ADIS16448Sim._burst, Station.start
+
+        def logged_burst(sim, n):
+            row = sim._newest()
+            self.served.append((sim.clock.now_ns(), row + sim._chunk_first if row >= 0 else -1))
+            return burst(sim, n)
+
+        def logged_start(station, sink):
+            start(station, sink)
+            self.started.append(station.t0)
+
+        monkeypatch.setattr(ADIS16448Sim, "_burst", logged_burst)
+        monkeypatch.setattr(Station, "start", logged_start)
+
+    def holes(self) -> list[int]:
+        """Samples made and never read, hole by hole, from the station's start (the sample its start
+        dropped counts as read) - for one chip, without restarts."""
+        (t0,) = self.started
+        served = np.array(self.served, dtype=np.int64)
+        first = max(int(np.searchsorted(served[:, 0], t0, side="right")) - 1, 0)
+        index = served[first:, 1]
+        distinct = index[np.concatenate(([True], np.diff(index) != 0))]
+        steps = np.diff(distinct)
+        return (steps[steps > 1] - 1).tolist()

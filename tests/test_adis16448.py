@@ -96,7 +96,9 @@ def rig(scheme="cp2130", settings=None, faults=(), mode=None, seed=4):
         f"{scheme}:", mode=adis.SPI_MODE if mode is None else mode, sleep=clock.sleep, backend=SimUSBBackend([fn])
     )
     rec = RecordingSPI(spi)
-    return adis.ADIS16448(rec, settings or {}, sleep=clock.sleep), rec, chip, clock
+    drv = adis.ADIS16448(rec, settings or {}, sleep=clock.sleep)
+    drv.clock_ns = clock.now_ns  # as the station sets it: every burst is stamped
+    return drv, rec, chip, clock
 
 
 def test_register_frames_match_worked_examples():
@@ -129,7 +131,9 @@ def test_open_and_stream(scheme):
         n += block.n
         rows.append(block.channels["accel"])
     held = drv.drain()
-    assert 0 < held.n < round(adis.BATCH_S * 204.8) and held.age == 0
+    # the newest was read at the last poll (stamped when its transfer returned, before the 9 us stall)
+    assert 0 < held.n < round(adis.BATCH_S * 204.8) and 0 <= clock.now_ns() - held.read_ns[-1] <= 9_000
+    assert np.all(np.diff(held.read_ns) > 0) and np.array_equal(held.previous_read_ns[1:], held.read_ns[:-1])
     n += held.n
     rows.append(held.channels["accel"])
     assert 410 <= n <= 415  # one sample per period; a poll that finds the same sample stores nothing
@@ -149,12 +153,14 @@ def test_bad_crc_drops_the_sample_and_says_so():
         n += b.n
         if b.lost:
             notes.append((b.n, b.lost, b.note))
-        if b.age:
-            aged.append((b.n, b.age))
-    # the samples held before the bad burst are handed over at once, dated one period back;
+            after = b.previous_read_ns[0]  # the bad burst: the read before the sample after it
+        if b.n and b.read_ns[-1] < clock.now_ns() - 9_000:
+            aged.append((b.n, b.read_ns[-1]))
+    # the samples held before the bad burst are handed over at once, the newest read one poll before;
     # the loss comes with the next sample, before which it happened
     assert notes == [(1, 1, "checksum: burst CRC mismatch, sample dropped")]
-    assert len(aged) == 1 and aged[0][1] == 1 and 0 < aged[0][0] < round(adis.BATCH_S * 409.6)
+    assert len(aged) == 1 and 0 < aged[0][0] < round(adis.BATCH_S * 409.6)
+    assert after - aged[0][1] == pytest.approx(info.poll_interval_s * 1e9, abs=20_000)  # + the driver's stalls
     assert n + drv.drain().n + 1 == 1000
 
 
@@ -193,10 +199,10 @@ def test_a_failed_transfer_hands_over_the_held_samples_first():
             clock.sleep(info.poll_interval_s)
             b = drv.read_block()
             n += b.n
-            blocks.append((b.n, b.age))
-    # the poll that failed returned what it held (its newest one period old); the next raised
-    k, age = blocks[-1]
-    assert 0 < k < round(adis.BATCH_S * 409.6) and age == 1
+            blocks.append((b.n, clock.now_ns() - b.read_ns[-1] if b.n else 0))
+    # the poll that failed returned what it held (its newest read one poll before); the next raised
+    k, age_ns = blocks[-1]
+    assert 0 < k < round(adis.BATCH_S * 409.6) and age_ns == pytest.approx(info.poll_interval_s * 1e9, rel=0.01)
     assert n == len(blocks) - 1  # every poll before the failure read one new sample
     assert drv.drain().n == 0
 

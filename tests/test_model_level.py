@@ -15,6 +15,7 @@ from imustation.configs import config_path
 from imustation.drivers.sim import device_sources, station_device_seed
 from imustation.errors import ConfigError, InputError
 from imustation.runfile import RunWriter, open_run
+from imustation.runfile.holes import check_run
 
 
 def _record(cfg, path, seconds: float, **kw):
@@ -65,6 +66,8 @@ def test_every_device_and_thermometer_of_the_lab_is_recorded_at_its_rate(lab_mod
             assert np.all(np.diff(t) > 0), name
             # the last poll is at most one poll interval before the end
             assert dev.n + lost == pytest.approx(120.0 * dev.rate_hz, abs=1.0 * dev.rate_hz + 1), name
+        # and the file alone shows it: every hole logged, every logged loss in a hole
+        assert all(c.consistent and c.holes.short == 0 for c in check_run(run).values())
         for th in cfg.thermometers:
             t, c = run.temperatures(th.name)
             assert len(t) == summary.readings[th.name] == 120
@@ -84,7 +87,7 @@ def _run_one(cfg, seconds: float):
     finally:
         station.close()
     st = station.devices["d"]
-    due_at_start = int((station.t0 - st.driver._origin_ns) * st.info.rate_hz // 1e9)
+    due_at_start = st.driver.stream.due(station.t0 - st.driver._origin_ns)
     return st, sink, due_at_start
 
 

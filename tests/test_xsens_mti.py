@@ -5,6 +5,7 @@ import struct
 import numpy as np
 import pytest
 
+from imustation.acquisition.timeline import Timeline
 from imustation.clock import VirtualClock
 from imustation.drivers import xsens_mti as xb
 from imustation.drivers.bus.serial_port import SerialPort
@@ -123,17 +124,19 @@ def test_driver_configures_and_counts_lost_packets_exactly():
         info = drv.open()
         assert info.model == "Xsens MTi-100-2A8G4" and info.rate_hz == 400 and info.has_counter
         assert sim.config == tuple(struct.unpack_from(">HH", xb.output_configuration(400), i) for i in range(0, 20, 4))
-        counters, lost, n = [], 0, 0
-        for _ in range(60):
+        # the driver unwraps the counter; the station's timeline counts what its jumps skipped
+        timeline = Timeline(1e9 / info.rate_hz, overflow=info.overflow, buffer_s=info.buffer_s)
+        counters, notes, n = [], [], 0
+        for i in range(60):
             clock.sleep(info.poll_interval_s)
             b = drv.read_block()
+            assert b.lost == 0
             counters.append(b.counter)
-            lost += b.lost
             n += b.n
-            if b.lost:
-                assert "lost" in b.note
+            notes += [(e.lost, e.detail) for e in timeline.place(b, (i + 1) * 100_000_000).events]
         c = np.concatenate(counters)
-        assert lost == 2 and n + lost == c[-1] - c[0] + 1  # checksum + short_read packets; garbage costs none
+        assert timeline.lost == 2 and n + timeline.lost == c[-1] - c[0] + 1  # checksum + short_read packets
+        assert [lost for lost, _ in notes] == [1, 1] and "checksum" in notes[0][1]  # garbage costs none
         assert (np.diff(c) >= 1).all()
     finally:
         unregister("mti-test")

@@ -16,6 +16,7 @@ import numpy as np
 from imustation.errors import InputError
 from imustation.runfile import join_parts, open_series, parts_of
 from imustation.runfile.breaks import locate_breaks
+from imustation.runfile.holes import find_holes, holes_in_run
 from imustation.sample_checks import refuse_impossible
 
 
@@ -37,8 +38,9 @@ class Channel:
     access of ``data`` and can be dropped again with :meth:`release`;
     :meth:`iter_raw` streams them without keeping them. ``gaps`` counts logged
     gap/overrun events of the device; ``segments`` are the ``[start, stop)``
-    sample ranges of contiguous data between the breaks those events locate
-    (:func:`locate_breaks`), default ``[(0, n)]``.
+    sample ranges of contiguous data between the holes (:func:`record_breaks`:
+    those the timestamps and counter show, and those the events locate),
+    default ``[(0, n)]``.
     """
 
     id: str
@@ -105,6 +107,19 @@ class Channel:
         return self.data.astype(np.float64) * self.scale
 
 
+def record_breaks(t_ns: np.ndarray, events, rate_hz: float, counter: np.ndarray | None = None) -> list[int]:
+    """Sample indices where a record breaks: every hole, logged or not.
+
+    The holes the timestamps show against the rate (or the counter, where given:
+    :func:`imustation.runfile.holes.find_holes`) and those the loss events locate
+    (:func:`locate_breaks`). Returns sorted unique indices ``j``: samples ``j-1``
+    and ``j`` are not neighbours.
+    """
+    found = find_holes(t_ns, 1e9 / rate_hz, counter).at.tolist() if len(t_ns) > 1 else []
+    logged = locate_breaks(t_ns, events, rate_hz) if events else []
+    return sorted(set(found) | set(logged))
+
+
 def segments_from_breaks(breaks: Sequence[int], n: int) -> list[tuple[int, int]]:
     """Contiguous ``[start, stop)`` ranges of ``n`` samples split at ``breaks``."""
     edges = [0, *sorted(set(breaks)), n]
@@ -124,7 +139,8 @@ def _check_values(path: str, label: str, data: np.ndarray) -> None:
 
 def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
     """Lazy channels of every selected rate axis of a run file or a rotated series
-    (:func:`~imustation.runfile.open_series`), with segments from its gap events."""
+    (:func:`~imustation.runfile.open_series`), split at every hole: those its timestamps or counter
+    show (:func:`imustation.runfile.holes.holes_in_run`) and those its loss events locate."""
     out = []
     with open_series(path) as run:
         events = [ev for ev in run.events() if ev.kind in ("gap", "overrun")]
@@ -142,8 +158,9 @@ def load_run(path: str, globs: Sequence[str] = ()) -> list[Channel]:
                         raise InputError(f"{path}: channel {cid} has no samples")
                     if segments is None:
                         t_ds = run.dataset(dev.name, "t")
-                        breaks = locate_breaks(t_ds, dev_events, dev.rate_hz) if dev_events else []
-                        segments = segments_from_breaks(breaks, ch.n)
+                        breaks = set(holes_in_run(run, dev.name).at.tolist())
+                        breaks |= set(locate_breaks(t_ds, dev_events, dev.rate_hz) if dev_events else [])
+                        segments = segments_from_breaks(sorted(breaks), ch.n)
                     out.append(
                         Channel(
                             cid,

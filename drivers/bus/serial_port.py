@@ -24,6 +24,9 @@ from imustation.errors import BusClosed, BusError
 
 #: pyserial read size cap per poll (a poll never needs more)
 MAX_READ = 1 << 20
+#: unread input a Linux tty keeps without flow control (n_tty's N_TTY_BUF_SIZE); what arrives beyond it is
+#: dropped without a word (a USB-serial adapter adds a few hundred bytes of its own FIFO, not counted)
+TTY_INPUT_BYTES = 4096
 BAUD_RATES = (
     1200, 2400, 4800, 9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200,
     230400, 460800, 921600, 2000000, 3686400, 4000000,

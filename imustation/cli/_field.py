@@ -153,7 +153,7 @@ def streamed_channels(path: str, globs: Sequence[str], *, quiet: bool, topic, ti
     (ids, rates, units, samples, gap count, segments, metadata), except ``source``: the recording.
     """
     from imustation.acquisition.importers import stream_recording
-    from imustation.analysis.pipeline.loaders import RATE_CHANNELS, Channel, locate_breaks, segments_from_breaks
+    from imustation.analysis.pipeline.loaders import RATE_CHANNELS, Channel, record_breaks, segments_from_breaks
 
     with progress_bar(f"importing {os.path.basename(path.rstrip('/'))}", quiet) as progress:
         rec = stream_recording(path, topic=topic, text=text, time_unit=time_unit, progress=progress)
@@ -173,7 +173,7 @@ def streamed_channels(path: str, globs: Sequence[str], *, quiet: bool, topic, ti
                 if globs and not any(fnmatch.fnmatchcase(cid, g) for g in globs):
                     continue
                 if segments is None:
-                    at = locate_breaks(dev.t_ns, breaks, spec.rate_hz) if breaks else []
+                    at = record_breaks(dev.t_ns, breaks, spec.rate_hz)
                     segments = segments_from_breaks(at, len(dev.t_ns))
                 meta = {
                     "device": name,

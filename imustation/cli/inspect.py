@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import click
 
 from imustation.cli import cli
 from imustation.units import format_duration
+
+if TYPE_CHECKING:
+    from imustation.runfile.holes import HoleCheck
 
 
 def _ended(rf) -> str:
@@ -46,6 +51,7 @@ def _inspect(run: str) -> None:
     import numpy as np
 
     from imustation.runfile import RunSeries, open_series
+    from imustation.runfile.holes import check_device
     from imustation.runfile.series import base_of_part, series_parts
     from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, thermometer_status
 
@@ -90,6 +96,7 @@ def _inspect(run: str) -> None:
         events = rf.events()
         tally = EventTally()
         tally.add(events)
+        unlogged = 0
         for dev in rf.devices.values():
             d = device_status_from_run(rf, dev, tally)
             click.echo(f"  device {dev.name}: {dev.model} ({dev.driver}) on {dev.bus}, {dev.identity}")
@@ -103,6 +110,9 @@ def _inspect(run: str) -> None:
                 f"    samples {d.samples}, duration {format_duration(d.duration_s)}, "
                 f"rate {rate:.3f} Hz (configured {d.rate_cfg_hz:g}), gaps {d.gaps} ({d.lost} samples lost)"
             )
+            check = check_device(rf, dev.name, events)
+            unlogged += len(check.unlogged)
+            click.echo(f"    {_holes_line(check)}")
             for ch in dev.channels.values():
                 axes = f" axes {','.join(ch.axes)}" if ch.axes else ""
                 click.echo(
@@ -119,6 +129,7 @@ def _inspect(run: str) -> None:
             th = thermometer_status(name, t * 1e-9, c, tally)
             span = f"{c.min():.3f} .. {c.max():.3f} degC" if len(c) else "no readings"
             click.echo(f"  thermometer {name}: {th.readings} readings, {span}, {th.lost} missed")
+        click.echo(f"  holes found: {unlogged} not logged")
         other = [e for e in events if e.kind not in LOSS_KINDS]
         click.echo(f"  events: {len(events)} ({len(events) - len(other)} gaps/overruns)")
         for e in events[:20]:
@@ -126,3 +137,24 @@ def _inspect(run: str) -> None:
             click.echo(f"    t={e.t_ns / 1e9:12.3f}s {e.source:>12} {e.kind:<9}{lost} {e.detail}")
         if len(events) > 20:
             click.echo(f"    ... {len(events) - 20} more")
+
+
+def _holes_line(check: HoleCheck) -> str:
+    """What the data show of a device's losses against what its events state (``imustation.runfile.holes``)."""
+    holes = check.holes
+    text = f"holes in the data: {len(holes)} ({holes.samples} samples)"
+    if check.unlogged:
+        first = check.unlogged[0]
+        text += (
+            f"; NOT LOGGED: {len(check.unlogged)} (first at t={first.t_ns / 1e9:.3f}s, row {first.row}:"
+            f" {first.lost} missing, {first.logged} logged)"
+        )
+    else:
+        text += ", every one logged"
+    if check.unlocated:
+        text += f"; {check.unlocated} samples logged lost where the data show no hole"
+    if check.edge:
+        text += f"; {check.edge} logged before the first or after the last sample"
+    if holes.short:
+        text += f"; {holes.short} steps of half a period or less"
+    return text

@@ -19,12 +19,12 @@ def locate_breaks(t_ns: Any, events: Iterable[Any], rate_hz: float, window: int 
     anything sliced like one, read only near each event); ``events``: its gap and
     overrun events (``t_ns``, ``lost``); ``rate_hz``: its configured rate (Hz).
 
-    A gap or overrun event is written at the host time ``t`` of the read that
-    found samples missing, before that read's samples are appended; the newest
-    of those samples carries time ``t`` (docs/runfile.md). So the break lies
-    just before the first sample of that block: among the samples up to the
-    first one after ``t`` (``window`` samples back), it is the largest jump of
-    the timestamps. An event whose block shows no jump above 1.5 sample
+    A loss event is dated at the first sample it says is missing, between the
+    samples around its hole; files of earlier versions (and some imports) dated
+    it at the read that found samples missing, whose newest sample carries that
+    time (docs/runfile.md). Either way the break lies at or before the first
+    sample after ``t``: among the samples up to it (``window`` samples back),
+    it is the largest jump of the timestamps. An event whose block shows no jump above 1.5 sample
     periods leaves the record contiguous (the timestamps show nothing missing,
     e.g. ``lost`` estimated as 0). Returns sorted unique indices ``j``: samples ``j-1`` and ``j``
     are not neighbours.

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
+from imustation.drivers.bus.serial_port import TTY_INPUT_BYTES
 from imustation.drivers.sim.serial_handlers import DEVICES, SCHEME
 
 BITS_PER_BYTE = 10  # 8N1: start + 8 data + stop
-#: unread input a Linux tty keeps (n_tty's N_TTY_BUF_SIZE); a USB-serial adapter adds a few
-#: hundred bytes of its own FIFO, not modelled
-TTY_BUFFER_BYTES = 4096
+#: unread input a Linux tty keeps (the host side the drivers count on)
+TTY_BUFFER_BYTES = TTY_INPUT_BYTES
 
 
 class Serial(SerialBase):
