@@ -17,6 +17,10 @@ at its polls until it answers; missed thermometer readings are logged at the
 reconnect. With worker processes (:mod:`~imustation.acquisition.workers`) the
 bus groups of other processes are opened and polled there, and this station
 writes what they send.
+
+Over 500 lines on purpose: opening a device and polling it share one piece of
+state per device (driver, bus, timeline, re-open policy); the schedulers, sample
+accounting, sinks and workers already live in their own modules.
 """
 
 from __future__ import annotations

@@ -21,6 +21,9 @@ marker (power-on value 0): a chip reset is detected on the next poll. INT_STATUS
 is read after the data, so an overflow during the poll is seen too.
 
 The AK8975 magnetometer of the MPU-9150 (§2.6) is not read.
+
+Over 500 lines on purpose: the register tables of both variants (each row with its
+register-map section) sit beside the one driver that reads them.
 """
 
 from __future__ import annotations

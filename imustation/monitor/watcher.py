@@ -13,6 +13,9 @@
   every ``fit_every_s`` seconds once a device holds ``model_after_s`` seconds
   of data. It never touches the file.
 
+(Over 500 lines on purpose: the two threads share the snapshot and its lock; the
+status itself comes from imustation/status.py, the curves from live_allan.py.)
+
 The server's handlers only read the latest snapshots (dicts swapped whole), so
 a slow computation never blocks a page. Times are s since ``started_utc``
 (station time: virtual in simulations), temperatures degC, rates Hz, Allan
