@@ -398,11 +398,16 @@ class Timeline:
         phase = self.phase if self.phase is not None else SamplingPhase(self.period_ns)
         start, end, start_before, end_before = reads
         waited = end - start_before
+        if (
+            not lost
+            and waited.min() >= _INFORMATIVE * self.period_ns
+            and waited.max() <= self.buffer_ns
+            and start_before[0] <= self._accounted[1]
+            and (len(end) == 1 or (start_before[1:] <= end[:-1]).all())
+        ):
+            return  # every read about a period after the one before, each a new sample: nothing to tell
         found = waited < _INFORMATIVE * self.period_ns
         late = waited > self.buffer_ns
-        if not lost and start_before[0] <= self._accounted[1] and not (start_before[1:] > end[:-1]).any():
-            if not (found | late).any():
-                return  # every read about a period after the one before, each a new sample: nothing to tell
         # the read of the sample before each (the first: the newest placed one)
         sample_start = np.concatenate(([self._accounted[0]], start[:-1]))
         sample_end = np.concatenate(([self._accounted[1]], end[:-1]))
