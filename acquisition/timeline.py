@@ -77,6 +77,21 @@ class Placed:
     events: tuple[TimelineEvent, ...] = ()
 
 
+#: what a read without samples and without news places
+_NOTHING = Placed(None)
+_COUNTS: dict[int, np.ndarray] = {}
+
+
+def _counts(k: int) -> np.ndarray:
+    """1 .. k as floats (one array per block length, reused)."""
+    counts = _COUNTS.get(k)
+    if counts is None:
+        counts = np.arange(1, k + 1, dtype=np.float64)
+        if len(_COUNTS) < 512:
+            _COUNTS[k] = counts
+    return counts
+
+
 def _kind(note: str) -> str:
     low = note.lower()
     return "overrun" if "overrun" in low else "resync" if "resync" in low else "gap"
@@ -235,10 +250,13 @@ class Timeline:
         ``Block.read_ns`` / ``previous_read_ns``, if given, are station times too.
         """
         if poll:
-            self._read_before, self._read = self._read, (min(t_read, t_read if started is None else started), t_read)
+            self._read_before = self._read
+            self._read = (started if started is not None and started < t_read else t_read, t_read)
         k = block.n
         lost, note = block.lost, block.note
         if k == 0:
+            if not lost and (self.stalled or t_read - self._data_ns < self.silence_ns):
+                return _NOTHING  # most reads of a driver that holds its samples
             return self._empty(block, t_read)
         if self.stalled:
             self.stalled = False
@@ -379,20 +397,35 @@ class Timeline:
         the sample before, and did not hand over is lost. Fills ``gaps`` and ``events``."""
         phase = self.phase if self.phase is not None else SamplingPhase(self.period_ns)
         start, end, start_before, end_before = reads
+        waited = end - start_before
+        if (
+            not lost
+            and waited.min() >= _INFORMATIVE * self.period_ns
+            and waited.max() <= self.buffer_ns
+            and start_before[0] <= self._accounted[1]
+            and (len(end) == 1 or (start_before[1:] <= end[:-1]).all())
+        ):
+            return  # every read about a period after the one before, each a new sample: nothing to tell
+        found = waited < _INFORMATIVE * self.period_ns
+        late = waited > self.buffer_ns
         # the read of the sample before each (the first: the newest placed one)
         sample_start = np.concatenate(([self._accounted[0]], start[:-1]))
         sample_end = np.concatenate(([self._accounted[1]], end[:-1]))
-        for j in range(len(end)):
+        # reads since the sample before found nothing new until the one before this one; that one found it
+        nothing_new = start_before > sample_end
+        # in order, only the samples whose reads tell something or that need counting
+        for j in np.flatnonzero(nothing_new | found | late | (np.arange(len(end)) == 0)).tolist():
             if j == 0 and lost:
                 # a loss the device reported, or cannot count (a re-opened device): since the sample before
                 made = self._made_between(phase, sample_start[0], sample_end[0], start[0], end[0])
                 gaps[0] = max(made, 1 + max(lost, 0))
                 events.append((0, _kind(note), note or "samples lost"))
                 continue
-            # the reads since the sample before found nothing new until the one before this one
-            phase.none_in(float(sample_end[j]), float(start_before[j]))
-            phase.made_in(float(start_before[j]), float(end[j]))
-            if end[j] - start_before[j] > self.buffer_ns:
+            if nothing_new[j]:
+                phase.none_in(float(sample_end[j]), float(start_before[j]))
+            if found[j]:
+                phase.made_in(float(start_before[j]), float(end[j]))
+            if late[j]:
                 made = self._made_between(phase, start_before[j], end_before[j], start[j], end[j])
                 if made > 1:
                     gaps[j] = made
@@ -423,10 +456,13 @@ class Timeline:
         if self.last_t_ns is None:
             end = newest if newest is not None else int(reads[-1]) if reads is not None else 0
             return end - self._grid(offsets[-1] - offsets)
+        low, high = (1 - SLEW) * self.period_ns, (1 + SLEW) * self.period_ns
+        if offsets[-1] == k and newest is not None:  # one run, no hole: the usual block
+            step = min(max((newest - self.last_t_ns) / k, low), high)
+            return self.last_t_ns + (_counts(k) * step).round().astype(np.int64)
         t = np.empty(k, dtype=np.int64)
         prev_t, prev_off = self.last_t_ns, 0
         bounds = [0, *(np.flatnonzero(gaps[1:] > 1) + 1).tolist(), k]
-        low, high = (1 - SLEW) * self.period_ns, (1 + SLEW) * self.period_ns
         for a, b in zip(bounds[:-1], bounds[1:], strict=True):
             base = prev_t + int(self._grid(int(offsets[a] - prev_off) - 1))  # past the hole before the run
             target = int(reads[b - 1]) if reads is not None else newest if b == k else None

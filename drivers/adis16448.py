@@ -209,12 +209,12 @@ class ADIS16448:
         self._burst_tx = BURST_CMD + bytes(2 * BURST_WORDS + (CRC_WORD.size if self._crc else 0))
         self._last: bytes | None = None
         self._polls = 0
-        #: bursts read and not yet handed over, the poll (count) each was read at, and when (clock ns, and
-        #: the burst before it)
+        #: bursts read and not yet handed over, when each was read (clock ns) and the burst before it; the
+        #: poll (count) the first was read at
         self._held: list[bytes] = []
-        self._held_at: list[int] = []
         self._held_read: list[int] = []
         self._held_before: list[int] = []
+        self._first_held = 0
         #: the station's clock (ns), set by the station: each burst is stamped when its transfer returns
         self.clock_ns: Callable[[], int] | None = None
         self._last_read = self._burst_ns = 0
@@ -252,7 +252,8 @@ class ADIS16448:
         """One burst transfer (stamped when it returns: ``_burst_ns``), then the stall: the next chip select may
         follow at once (catching up)."""
         rx = self.spi.transfer(self._burst_tx)
-        self._burst_ns = self._now()
+        clock = self.clock_ns
+        self._burst_ns = clock() if clock is not None else 0
         self._sleep(self._stall_s)
         return rx
 
@@ -377,17 +378,17 @@ class ADIS16448:
                     raise
                 self._error = exc
             return before if before is not None else self._release()
+        held = self._held
         if data != self._last:  # else the same sample read twice: no new data yet
             self._last = data
-            self._held.append(data)
-            self._held_at.append(self._polls)
+            if not held:
+                self._first_held = self._polls
+            held.append(data)
             self._held_read.append(read)
             self._held_before.append(before)
-        if self._held and (
-            len(self._held) >= self._batch or self._polls - self._held_at[0] + 1 >= self._batch or self._lost
-        ):
+        if held and (len(held) >= self._batch or self._polls - self._first_held + 1 >= self._batch or self._lost):
             return self._release()
-        return Block(_EMPTY)
+        return _NOTHING
 
     def drain(self) -> Block:
         """The samples read but not yet handed over (the capture is ending).
@@ -418,7 +419,7 @@ class ADIS16448:
         return Block(_decode(words), lost=lost, note=note, **stamps)
 
     def _clear_held(self) -> None:
-        for held in (self._held, self._held_at, self._held_read, self._held_before):
+        for held in (self._held, self._held_read, self._held_before):
             held.clear()
 
     def _now(self) -> int:
@@ -452,5 +453,6 @@ def _frozen_empty() -> dict[str, np.ndarray]:
     return out
 
 
-#: the channels of a poll that hands nothing over (shared: nobody writes into them)
+#: the channels of a poll that hands nothing over (shared: nobody writes into them), and such a poll
 _EMPTY = _frozen_empty()
+_NOTHING = Block(_EMPTY)
