@@ -16,3 +16,22 @@ def wait_for_file(path, proc: subprocess.Popen, timeout: float = 60.0, poll: flo
         if time.monotonic() > t_end:
             raise AssertionError("capture did not create its file")
         time.sleep(poll)
+
+
+def small_tmpfs(tmp_path, size: str):
+    """Mount a tmpfs of ``size`` (mount's syntax, e.g. ``2m``) under ``tmp_path/small``; a
+    generator for fixtures: yields the folder, unmounts after. Skips without root or mount."""
+    import os
+    import subprocess
+
+    import pytest
+
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode().strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from procs import small_tmpfs
 
 from imustation.acquisition.recorder import OutputLock, run_of_part
 from imustation.cli import cli
@@ -89,15 +90,7 @@ def test_the_whole_name_set_of_a_rotated_capture_is_locked(tmp_path, demo_config
 @pytest.fixture
 def small_filesystem(tmp_path):
     """An 8 MiB tmpfs (needs root and a kernel that lets us mount; skipped otherwise)."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small tmpfs needs root")
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True)
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode().strip()}")
-    yield mnt
-    subprocess.run(["umount", "-l", str(mnt)], check=False)
+    yield from small_tmpfs(tmp_path, "8m")
 
 
 def test_a_disk_smaller_than_reserve_and_ballast_is_refused_at_the_start(small_filesystem, demo_config):

@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from procs import wait_for_file
+from procs import small_tmpfs, wait_for_file
 
 from imustation.acquisition import capture, load_config
 from imustation.cli import cli
@@ -244,15 +244,7 @@ def test_bad_config_touches_nothing(tmp_path):
 @pytest.fixture
 def small_filesystem(tmp_path):
     """A 2 MiB tmpfs (needs root and a kernel that lets us mount; skipped otherwise)."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small tmpfs needs root")
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True)
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode().strip()}")
-    yield mnt
-    subprocess.run(["umount", "-l", str(mnt)], check=False)
+    yield from small_tmpfs(tmp_path, "2m")
 
 
 @pytest.mark.parametrize("reserve", [0, 2**18])
