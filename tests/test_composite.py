@@ -69,11 +69,11 @@ def test_composite_nll_is_ml_i_likelihood_plus_the_fine_term_at_the_profiled_sig
     problem = _CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
     theta = np.array([[math.log((2e-5 / 1e-3) ** 2), math.log(60.0)], [math.log(1e-6), math.log(500.0)]])
     prof = problem.profile(theta)
-    A = problem.unit_avar(theta)
+    A = problem.unit_avar(theta)  # (K, 1): one fine scale
     s = problem.sigma_w2(prof, A)
 
     def total(sw2):
-        return full_nll(prof, sw2) + (fine.avar - sw2 * A) ** 2 / (2 * fine.var)
+        return full_nll(prof, sw2) + (fine.avar - sw2 * A[:, 0]) ** 2 / (2 * fine.var)
 
     np.testing.assert_allclose(problem.nll(theta), total(s), rtol=1e-12)
     # s is the minimiser over sigma_w^2: nudging it either way costs

@@ -1,0 +1,314 @@
+"""Automatic choice of the noise model (``--model auto``): the simplest model of the family that fits.
+
+The family (codes of :data:`~.noise_models.TERM_CODES`): white rate noise ``wn``
+always; the angle term the fine scales show (:func:`~.finescale.fine_statistics`:
+a device filter ``lp``, white angle noise ``wa``, or none), carried by every
+candidate; and a bias structure, tried in stages of growing size:
+
+1. ``gm``, ``fl``, ``rw`` (one Gauss-Markov term; bias instability; rate random walk)
+2. ``fl+rw``, ``gm+rw``, ``gm+fl``, ``2gm``
+3. ``gm+fl+rw``, ``2gm+rw``
+
+Each candidate is fitted by ML_i-F with robust intervals (:mod:`.robust`) and
+checked against the measured Allan deviation (:func:`~.fit_check.allan_fit_check`,
+from the filter's memory on). The choice stops at the first stage with a model
+that fits and takes, among the models of that stage that fit, the smallest BIC
+(``2 nll + k ln M``): the simplest model that fits, sizes ordered by the stage,
+ties by the information criterion. When no candidate fits, the smallest BIC of
+all, with ``fits`` false and the reason. The paper's standard model ``wn+gm``
+(fine scale as in the paper's estimator, no angle term) is always fitted too,
+for comparison. Every candidate reuses one integration and one set of fine-scale
+Allan variances, and starts from the fits of the smaller candidates
+(:func:`family_starts`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from imustation.analysis.estimators.allan import AllanResult, oadev
+from imustation.analysis.estimators.composite import (
+    DEFAULT_M,
+    CompositeResult,
+    _CompositeProblem,
+    angle_scale,
+    fine_scale,
+    fit_composite_data,
+)
+from imustation.analysis.estimators.finescale import FilterHint, FineStatistic, fine_statistics
+from imustation.analysis.estimators.fit_check import FitCheck, allan_fit_check
+from imustation.analysis.estimators.fitting import Z90, MLiResult
+from imustation.analysis.estimators.paramspec import ParamSpec
+from imustation.analysis.estimators.pattern import check_rate, integrate
+from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
+from imustation.errors import InputError
+
+#: bias structures of the family, in stages of growing size
+STAGES = (("gm", "fl", "rw"), ("fl+rw", "gm+rw", "gm+fl", "2gm"), ("gm+fl+rw", "2gm+rw"))
+#: the paper's standard model, always fitted for comparison
+PAPER_MODEL = "wn+gm"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One fitted model of the family and its check against the measured Allan deviation."""
+
+    result: CompositeResult
+    check: FitCheck
+    stage: int
+
+    def as_dict(self) -> dict:
+        r = self.result
+        return {"model": r.model, "stage": self.stage, "k": r.k, "bic": r.bic, "converged": r.converged,
+                "fits": self.check.fits, "p_value": self.check.p_value, "where": self.check.where}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """Outcome of :func:`choose_model`.
+
+    ``chosen``: the selected fit; ``fits``: it passed the check (False: no candidate
+    did, ``reason`` says so); ``paper``: the standard model ``wn+gm`` as the paper
+    fits it; ``candidates``: every fitted candidate in fitting order; ``fine``: the
+    fine-scale statistic and filter test; ``time_s``: the whole choice, s.
+    """
+
+    chosen: CompositeResult
+    fits: bool
+    reason: str
+    paper: CompositeResult | None
+    candidates: tuple[Candidate, ...]
+    fine: FineStatistic
+    time_s: float
+
+    def selection_dict(self) -> dict:
+        """The ``selection`` object of the JSON document (docs/analysis-json.md)."""
+        f = self.fine
+        return {
+            "rule": "simplest model that fits (stages of growing size; smallest BIC among those that fit)",
+            "chosen": self.chosen.model,
+            "fits": self.fits,
+            "reason": self.reason,
+            "angle_term": f.term or None,
+            "tau_lp": f.tau_lp if f.term == "lp" else None,
+            "filter_source": f.source,
+            "memory_s": f.memory_s if f.term else 0.0,
+            "candidates": [c.as_dict() for c in self.candidates],
+        }
+
+
+def _with(bias: str, angle: str) -> str:
+    return "+".join(["wn", bias] + ([angle] if angle else []))
+
+
+# ---------------------------------------------------------------------------
+# start points
+
+
+def _levels(kind: str, T: float) -> list[float]:
+    """theta values of a new coordinate of kind ``kind`` for a record of ``T`` s: the term's
+    Allan variance meets the white level (sigma_w = 1) at T/300, T/30, T/3."""
+    out = []
+    for tx in (T / 300.0, T / 30.0, T / 3.0):
+        if kind == "r_fl":  # 0.44 B^2 = 1/tx
+            out.append(math.log(1.0 / (FLICKER_FLOOR**2 * tx)))
+        elif kind == "r_rw":  # K^2 tx/3 = 1/tx
+            out.append(math.log(3.0 / tx**2))
+    return out
+
+
+def family_starts(
+    problem: _CompositeProblem, fine: FineStatistic, fitted: list[MLiResult], n_best: int = 2
+) -> list[np.ndarray]:
+    """Start points (theta) of a candidate: every combination of the values its terms take in the
+    smaller fits (by name) and of default levels (:func:`_levels`; Gauss-Markov terms: correlation
+    times T/300, T/30, T/3 at the white level), scored in one likelihood batch; the ``n_best`` best."""
+    spec = problem.spec
+    T = problem.inc.duration
+    kinds = spec.theta_kinds()
+    names = spec.phi_names()[1:]
+    options: list[list[tuple[float, ...]]] = []
+    j = 0
+    ngm = spec.codes.count("gm")
+    for c in spec.others:
+        if c == "gm":
+            opts = []
+            for tx in (T / 300.0, T / 30.0, T / 3.0):
+                opts.append((math.log(2.8 / tx**2), math.log(tx / 2.0)))
+            for r in fitted:
+                keys = [k for k in r.params if k.startswith("tau_b")]
+                for k in keys:
+                    sfx = k[len("tau_b") :]
+                    opts.append((2.0 * math.log(r.params["sigma_b" + sfx] / r.sigma_w), math.log(r.params[k])))
+            options.append(opts)
+            j += 2
+            continue
+        kind = kinds[j]
+        name = names[j]
+        if c == "lp":
+            opts = [(math.log(max(fine.tau_lp, 1e-12)) / spec.angle_scale,)]
+        elif c == "wa":
+            opts = [(math.log(max(-fine.tau_lp / 2.0, 1e-12)) / spec.angle_scale,)]
+        else:
+            opts = [(v,) for v in _levels(kind, T)]
+            opts += [(2.0 * math.log(r.params[name] / r.sigma_w),) for r in fitted if name in r.params]
+        options.append(opts)
+        j += 1
+    combos = [np.concatenate(c) for c in itertools.product(*options)]
+    if ngm > 1:  # the likelihood is symmetric in the Gauss-Markov terms: keep one order
+        gm_cols = [i for i, k in enumerate(kinds) if k == "tau"]
+        combos = [x for x in combos if all(np.diff(x[gm_cols]) > 0.5)]
+    pts = np.clip(np.array(combos), problem.lo, problem.hi)
+    pts = np.unique(np.round(pts, 6), axis=0)
+    f = problem.nll(pts)
+    order = np.argsort(f)
+    chosen: list[np.ndarray] = []
+    for i in order:
+        if not np.isfinite(f[i]):
+            break
+        if all(np.abs(pts[i] - x).max() > 0.5 for x in chosen):
+            chosen.append(pts[i])
+        if len(chosen) == n_best:
+            break
+    return chosen
+
+
+# ---------------------------------------------------------------------------
+# the choice
+
+
+def choose_model(
+    rate: np.ndarray,
+    fs_hz: float,
+    *,
+    scale: float = 1.0,
+    segments: list[tuple[int, int]] | None = None,
+    hint: FilterHint | None = None,
+    allan: AllanResult | None = None,
+    m: int = DEFAULT_M,
+    check: Callable[[AllanResult, object, float, float], FitCheck] = allan_fit_check,
+    paper: bool = True,
+) -> ModelChoice:
+    """Fit the family's candidates to one channel and choose (module docstring).
+
+    ``rate``: (n,) rad/s (m/s^2), or integer counts with ``scale`` units per count;
+    ``fs_hz`` Hz; ``segments`` contiguous sample ranges; ``hint``: the device's filter
+    settings; ``allan``: the channel's overlapping Allan deviation (computed if not
+    given); ``check(allan, model, fs_hz, tau_min)``: the adequacy test.
+    """
+    t0 = time.perf_counter()
+    rate = check_rate(rate, fs_hz)
+    m_eff = int(min(m, max(8, len(rate) // 2)))
+    inc = integrate(rate, fs_hz, m=m_eff, pattern="uniform", scale=scale, segments=segments)
+    fine = fine_statistics(rate, fs_hz, scale=scale, segments=segments, hint=hint)
+    if allan is None:
+        allan = oadev(rate, fs_hz, scale=scale, segments=segments)
+    paper_fit = None
+    if paper:
+        paper_fine = fine_scale(rate, fs_hz, samples="auto", scale=scale, segments=segments, octaves=fine.octaves)
+        paper_fit = fit_composite_data(inc, paper_fine, PAPER_MODEL, robust=True)
+    fitted: list[MLiResult] = [paper_fit] if paper_fit is not None and paper_fit.converged else []
+    cands: list[Candidate] = []
+    tau_min = fine.memory_s if fine.term else 0.0
+    for stage, biases in enumerate(STAGES, start=1):
+        for bias in biases:
+            name = _with(bias, fine.term)
+            spec = ParamSpec.for_record(name, fs_hz, inc.duration)
+            if fine.term:
+                spec = replace(spec, angle_scale=angle_scale(fine))
+            problem = _CompositeProblem(inc, spec, fine)
+            starts = family_starts(problem, fine, fitted)
+            try:
+                res = fit_composite_data(inc, fine, name, extra_starts=starts, robust=True, starts_only=True)
+            except InputError:
+                continue
+            cands.append(Candidate(res, check(allan, res.noise_model, fs_hz, tau_min), stage))
+            fitted.append(res)
+        ok = [c for c in cands if c.stage == stage and c.check.fits and c.result.converged]
+        if ok:
+            best = min(ok, key=lambda c: c.result.bic)
+            reason = f"{best.result.model}: the smallest BIC of the stage-{stage} models that fit the Allan deviation"
+            return ModelChoice(best.result, True, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
+    if not cands:
+        raise InputError("no model of the family could be fitted")
+    usable = [c for c in cands if c.result.converged] or cands
+    best = min(usable, key=lambda c: c.result.bic)
+    reason = (
+        f"no model of the family fits the Allan deviation ({best.check.where or 'chi-square test'}); "
+        f"{best.result.model} has the smallest BIC"
+    )
+    return ModelChoice(best.result, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------------
+# IEEE-952 coefficients of a fitted model
+
+
+def ieee952_summary(res: MLiResult, duration_s: float) -> dict:
+    """N, B, K (with 90 % intervals) and the Gauss-Markov terms a fitted model implies.
+
+    ``N`` = sigma_w; ``K`` = sigma_k (``None`` without a rate random walk); ``B``:
+    the bias-instability parameter when the model has one (``B_from`` ``"fitted"``),
+    otherwise the model's Allan-deviation minimum over ``1/fs .. duration_s/2``
+    divided by 0.664 (``"model floor"``), its interval by the delta method from the
+    fit's covariance (``cov_log``). Units: rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz).
+    """
+    p, ci = res.params, res.ci90
+    out: dict = {"N": res.sigma_w, "N_ci90": list(ci.get("sigma_w", (math.nan, math.nan)))}
+    if "B" in p:
+        out |= {"B": p["B"], "B_ci90": list(ci["B"]), "B_from": "fitted"}
+    else:
+        B, lo, hi = _floor_b(res, duration_s)
+        out |= {"B": B, "B_ci90": [lo, hi], "B_from": "model floor"}
+    if "sigma_k" in p:
+        out |= {"K": p["sigma_k"], "K_ci90": list(ci["sigma_k"])}
+    else:
+        out |= {"K": None, "K_ci90": None}
+    gms = sorted(k for k in p if k.startswith("tau_b"))
+    out["gauss_markov"] = [
+        {
+            "sigma_b": p["sigma_b" + k[5:]],
+            "tau_b": p[k],
+            "sigma_b_ci90": list(ci["sigma_b" + k[5:]]),
+            "tau_b_ci90": list(ci[k]),
+        }  # fmt: skip
+        for k in gms
+    ]
+    return out
+
+
+def _floor_b(res: MLiResult, duration_s: float) -> tuple[float, float, float]:
+    """Model Allan-deviation minimum / 0.664 and its delta-method 90 % interval."""
+    tau = np.logspace(math.log10(1.0 / res.fs_hz), math.log10(max(duration_s / 2.0, 2.0 / res.fs_hz)), 200)
+
+    def floor(model) -> float:
+        return float(np.sqrt(np.min(model.avar(tau, res.fs_hz)))) / FLICKER_FLOOR
+
+    B = floor(res.noise_model)
+    if res.phi is None or res.cov_log is None or not np.all(np.isfinite(res.cov_log)):
+        return B, math.nan, math.nan
+    times = next((t.times for t in res.noise_model.terms if t.code == "fl"), ())
+    spec = ParamSpec(ParamSpec.for_record(res.model, res.fs_hz, duration_s).codes, times)
+    h = 1e-3
+    g = np.empty(len(res.phi))
+    for j in range(len(res.phi)):
+        d = np.zeros(len(res.phi))
+        d[j] = h
+        up = floor(spec.model(res.phi + d, res.b_on, res.memory_s))
+        dn = floor(spec.model(res.phi - d, res.b_on, res.memory_s))
+        g[j] = (math.log(up) - math.log(dn)) / (2 * h)
+    se = math.sqrt(max(float(g @ res.cov_log @ g), 0.0))
+    return B, B * math.exp(-Z90 * se), B * math.exp(Z90 * se)
+
+
+def as_choice_result(choice: ModelChoice) -> CompositeResult:
+    """The chosen fit with the choice named in its message."""
+    r = choice.chosen
+    note = f"auto: {choice.reason}"
+    return replace(r, message=f"{r.message}; {note}")
