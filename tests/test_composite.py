@@ -164,7 +164,8 @@ def test_analyze_json_has_a_noise_model_block_with_the_mli_keys_plus_method(tmp_
     res = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--json"])
     assert res.exit_code == 0, res.output
     ch = json.loads(res.output)["channels"][0]
-    assert set(ch["noise_model"]) == set(ch["mli"]) | {"method"}
+    # the mli keys plus method, the IEEE-952 summary and (model auto) the selection and robust intervals
+    assert set(ch["noise_model"]) == set(ch["mli"]) | {"method", "ieee952", "selection", "robust", "ci90_model"}
     assert ch["noise_model"]["method"] == "ML_i-F" and ch["mli"]["estimator"] == "ML_i"
     other = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--json", "--estimator", "gmwm"])
     assert json.loads(other.output)["channels"][0]["noise_model"]["method"] == "GMWM"

@@ -62,7 +62,10 @@ def fleet_runs(tmp_path_factory):
 def fleet_out(fleet_runs, tmp_path_factory):
     runs, bad, missing = fleet_runs
     out = tmp_path_factory.mktemp("fleet_out")
-    r = CliRunner().invoke(cli, ["fleet", runs[0], bad, runs[1], missing, "-o", str(out), "--channel", GLOB])
+    # the paper's model on every run: its sigma_b, tau_b are compared across runs (model auto may
+    # choose differently per run)
+    args = ["fleet", runs[0], bad, runs[1], missing, "-o", str(out), "--channel", GLOB, "--model", "wn+gm"]
+    r = CliRunner().invoke(cli, args)
     return r, out
 
 
@@ -170,7 +173,7 @@ def test_fleet_table_identity_and_intervals(fleet_runs, fleet_out):
 def test_repeatability_matches_numpy(fleet_runs, fleet_out):
     _, out = fleet_out
     rows = [x for x in _rows(out) if x["status"] != "failed"]
-    res, _ = run_tasks(plan_tasks(fleet_runs[0], [GLOB])[0], AnalysisOptions())
+    res, _ = run_tasks(plan_tasks(fleet_runs[0], [GLOB])[0], AnalysisOptions(model="wn+gm"))
     rep = {r.key: r for r in repeatability(flag_outliers(fleet_rows(res)))}
     assert set(rep) == {x["device_key"] for x in rows}
     for key, rr in rep.items():

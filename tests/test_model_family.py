@@ -167,9 +167,9 @@ def test_white_noise_has_no_angle_term_and_the_sample_scale():
     f = fine_statistics(x, 400.0)
     assert f.term == "" and f.samples == 1 and abs(f.angle_z) < 4
     assert f.taus.shape == (1,)
-    # the settings hint makes a filter the data do not show start later, not appear
+    # a filter the settings announce but the data do not show is not carried, and moves nothing
     g = fine_statistics(x, 400.0, hint=FilterHint(True, 0.02, "test"))
-    assert g.samples >= 8
+    assert g.term == "" and g.samples == 1 and "settings: test" in g.source
 
 
 def test_composite_with_lp_needs_the_two_scale_statistic():
@@ -226,3 +226,57 @@ def test_fit_check_passes_the_true_model_and_fails_a_wrong_one():
     wrong = standard(1e-3, 2e-5, 600.0)
     bad = allan_fit_check(allan, wrong, fs)
     assert not bad.fits and ("above" in bad.where or "below" in bad.where)
+
+
+# ---------------------------------------------------------------------------
+# IEEE-952 and GMWM on filtered devices
+
+
+@pytest.mark.parametrize("device", ["bmx055", "mpu9150", "adis16448"])
+def test_ieee_and_gmwm_beyond_the_filter_memory_get_sigma_w_within_one_percent(device):
+    from imustation.analysis.estimators.gmwm import fit_gmwm
+    from imustation.analysis.estimators.ieee import ieee_coefficients
+
+    x, fs = record(device, 2, SIGMA_W, B=1.5e-5, K=2e-7, seed=3)
+    allan = oadev(x, fs)
+    memory = fine_statistics(x, fs).memory_s
+    plain = ieee_coefficients(allan)
+    assert plain.N < 0.9 * SIGMA_W  # the bend below the white line read as a Gauss-Markov term
+    c = ieee_coefficients(allan, tau_min=memory)
+    assert c.N == pytest.approx(SIGMA_W, rel=0.01)
+    assert c.tau_lp == pytest.approx(2.2e-3, rel=0.2) and c.tau_min == memory
+    # no Gauss-Markov term at the shortest correlation time the fit allows
+    assert math.isnan(c.gm_T) or c.gm_T > 2 * memory
+    g = fit_gmwm(x, fs, "wn+fl+lp", tau_min=memory)
+    assert g.sigma_w == pytest.approx(SIGMA_W, rel=0.01)
+    assert "tau_lp" not in g.at_bound and "sigma_w" not in g.at_bound
+
+
+def test_filter_hints_from_device_settings():
+    from imustation.analysis.pipeline.devicefilter import filter_hint
+
+    h = filter_hint({"driver": "bmx055", "settings": {"bandwidth_hz": 47.0, "rate_hz": 400}}, 400.0)
+    assert h.on and h.memory_s == pytest.approx(0.5 / 47) and "47" in h.source
+    assert filter_hint({"driver": "mpu9150", "settings": {"bandwidth_hz": 42}}, 200.0).on
+    adis = filter_hint({"driver": "adis16448", "settings": {"filter_taps": 4, "decimation": 1}}, 409.6)
+    assert adis.on and adis.memory_s == pytest.approx(8 / 819.2)
+    assert not filter_hint({"driver": "adis16448", "settings": {"filter_taps": 1, "decimation": 1}}, 409.6).on
+    assert not filter_hint({"driver": "mti", "settings": {}}, 400.0).on
+    assert filter_hint({"driver": "somebody_else"}, 100.0) is None
+
+
+def test_model_help_names_every_term_code():
+    from imustation.analysis.estimators.noise_models import TERM_CODES
+    from imustation.analysis.pipeline.choices import MODEL_HELP
+
+    assert all(f"{code} " in MODEL_HELP for code in TERM_CODES)
+
+
+def test_export_turns_a_bias_instability_into_the_random_walk_meeting_its_floor():
+    from imustation.analysis.reports.export import random_walk_from_params
+
+    sw, B = 1e-4, 1e-5
+    K = random_walk_from_params({"sigma_w": sw, "B": B})
+    tau_x = sw**2 / (FLICKER_FLOOR * B) ** 2  # where the floor meets the white line
+    assert K * math.sqrt(tau_x / 3) == pytest.approx(FLICKER_FLOOR * B, rel=1e-12)
+    assert random_walk_from_params({"sigma_w": sw, "B": B, "sigma_k": 3 * K}) == pytest.approx(math.sqrt(10) * K)

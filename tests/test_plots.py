@@ -13,7 +13,7 @@ from imustation.analysis.reports import plots
 @pytest.fixture(scope="module")
 def analysed(sim_run):
     path, _ = sim_run
-    return [analyze_channel(ch) for ch in load_run(str(path))]
+    return [analyze_channel(ch, model="wn+gm") for ch in load_run(str(path))]
 
 
 def _files_ok(paths):

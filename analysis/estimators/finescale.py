@@ -244,8 +244,9 @@ def fine_statistics(
     """The fine-scale statistic of the model family and its device-filter test (module docstring).
 
     ``rate`` in rad/s (or integer counts with ``scale`` units per count); ``fs_hz`` Hz;
-    ``hint``: the device's filter settings (the test starts at their memory and an
-    ``on`` filter is carried whenever the data show a positive deficit).
+    ``hint``: the device's filter settings: when the data show a deficit, the scale
+    starts no earlier than the filter's memory (a short record lacks the power to see
+    its shape); the data alone decide whether there is an angle term.
     """
     n = len(rate)
     sizes = [k for k in FILTER_SCALES if 16 * k < n]
@@ -256,12 +257,36 @@ def fine_statistics(
     sizes = [k for k in sizes if k in got]
     if not sizes or got[sizes[0]] <= 0 or not math.isfinite(got[sizes[0]]):
         raise InputError("fine-scale Allan variance is zero or undefined: the channel is constant")
-    start = 1
     source = "data"
+    chosen = _first_linear(got, sizes, 1, n, fs_hz)
+    linear = chosen is not None
     if hint is not None and hint.on:
-        start = max(1, 2 ** math.ceil(math.log2(max(hint.memory_s * fs_hz, 1.0))))
-        source = f"settings ({hint.source}) and data"
-    chosen, linear = None, False
+        source = f"data; settings: {hint.source}"
+        hinted = max(1, 2 ** math.ceil(math.log2(max(hint.memory_s * fs_hz, 1.0))))
+        if (chosen is None or chosen < hinted) and (chosen is None or _angle(got, chosen, n, fs_hz)[1] > ANGLE_Z):
+            later = _first_linear(got, sizes, hinted, n, fs_hz)
+            if later is not None:
+                chosen, linear = later, True
+    if chosen is None:
+        cand = [k for k in sizes if 2 * k in got]
+        if not cand:
+            raise InputError(f"{n} samples: too short for a fine scale beyond the device filter's memory")
+        chosen = cand[-1]
+    pair = [chosen, 2 * chosen]
+    D = np.array([got[j] for j in pair])
+    C = _cov(D, pair, n)
+    tau1 = chosen / fs_hz
+    tau_lp, z = _angle(got, chosen, n, fs_hz)
+    term = "lp" if z > ANGLE_Z else ("wa" if z < -ANGLE_Z else "")
+    if term:
+        taus, avar, cov = np.array([tau1, 2 * tau1]), D, C
+    else:
+        taus, avar, cov = np.array([tau1]), D[:1], C[:1, :1]
+    return FineStatistic(taus, avar, cov, chosen, term, float(tau_lp), float(z), linear, source, octaves)
+
+
+def _first_linear(got: dict[int, float], sizes: list[int], start: int, n: int, fs_hz: float) -> int | None:
+    """The first cluster size from ``start`` on at which n, 2n, 4n lie on one line in 1/tau."""
     for k in sizes:
         if k < start or 4 * k not in got:
             continue
@@ -272,31 +297,17 @@ def fine_statistics(
         c = np.array([1.0, -3.0, 2.0])
         z = float(c @ u) / math.sqrt(float(c @ cu @ c))
         if abs(z) <= LINEAR_Z:
-            chosen, linear = k, True
-            break
-    if chosen is None:
-        cand = [k for k in sizes if k >= start and 2 * k in got]
-        if not cand:
-            raise InputError(f"{n} samples: too short for a fine scale beyond the device filter's memory")
-        chosen = cand[-1]
-    pair = [chosen, 2 * chosen]
+            return k
+    return None
+
+
+def _angle(got: dict[int, float], k: int, n: int, fs_hz: float) -> tuple[float, float]:
+    """``tau_lp`` (s) from the Allan variances at k and 2k samples, and its z-score."""
+    pair = [k, 2 * k]
     D = np.array([got[j] for j in pair])
     C = _cov(D, pair, n)
-    tau1 = chosen / fs_hz
-    u1, u2 = D[0] * tau1, D[1] * 2 * tau1
-    d = u2 - u1  # = s 1.5 tau_lp / (2 tau1)
-    var_d = C[0, 0] * tau1**2 + C[1, 1] * (2 * tau1) ** 2 - 2 * C[0, 1] * tau1 * 2 * tau1
-    s = 2.0 * u2 - u1
-    tau_lp = 2.0 * tau1 * d / (1.5 * s)
-    z = d / math.sqrt(var_d) if var_d > 0 else 0.0
-    if z > ANGLE_Z or (hint is not None and hint.on and tau_lp > 0):
-        term = "lp"
-    elif z < -ANGLE_Z:
-        term = "wa"
-    else:
-        term = ""
-    if term:
-        taus, avar, cov = np.array([tau1, 2 * tau1]), D, C
-    else:
-        taus, avar, cov = np.array([tau1]), D[:1], C[:1, :1]
-    return FineStatistic(taus, avar, cov, chosen, term, float(tau_lp), float(z), linear, source, octaves)
+    t1 = k / fs_hz
+    d = D[1] * 2 * t1 - D[0] * t1  # u_2k - u_k = s 1.5 tau_lp / (2 t1)
+    var_d = C[0, 0] * t1**2 + C[1, 1] * (2 * t1) ** 2 - 2 * C[0, 1] * t1 * 2 * t1
+    s = 2.0 * D[1] * 2 * t1 - D[0] * t1
+    return 2.0 * t1 * d / (1.5 * s), (d / math.sqrt(var_d) if var_d > 0 else 0.0)

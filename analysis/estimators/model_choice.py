@@ -204,9 +204,12 @@ def choose_model(
     """
     t0 = time.perf_counter()
     rate = check_rate(rate, fs_hz)
-    m_eff = int(min(m, max(8, len(rate) // 2)))
-    inc = integrate(rate, fs_hz, m=m_eff, pattern="uniform", scale=scale, segments=segments)
     fine = fine_statistics(rate, fs_hz, scale=scale, segments=segments, hint=hint)
+    # pattern intervals at least 10 filter memories long (the device-filter term needs them)
+    m_eff = int(min(m, max(8, len(rate) // 2)))
+    if fine.term:
+        m_eff = int(max(8, min(m_eff, len(rate) / (fs_hz * 10.0 * fine.memory_s))))
+    inc = integrate(rate, fs_hz, m=m_eff, pattern="uniform", scale=scale, segments=segments)
     if allan is None:
         allan = oadev(rate, fs_hz, scale=scale, segments=segments)
     paper_fit = None

@@ -13,8 +13,17 @@ from imustation.analysis.estimators.fitting import MLiResult
 from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.estimators.mli import compare_models, fit_integrated
+from imustation.analysis.estimators.model_choice import ModelChoice, as_choice_result, choose_model, ieee952_summary
 from imustation.analysis.estimators.pattern import integrate
-from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, ESTIMATORS, METHODS
+from imustation.analysis.pipeline.choices import (
+    DEFAULT_ESTIMATOR,
+    DEFAULT_METHOD,
+    DEFAULT_MODEL,
+    ESTIMATORS,
+    METHODS,
+    MODEL_AUTO,
+)
+from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
@@ -35,6 +44,8 @@ class ChannelAnalysis:
     #: the default estimator's result (``noise_model`` block); reports and exports use it
     noise_model: MLiResult | None = None
     noise_method: str = ""
+    #: ``--model auto``: the candidates, the check of each and the paper's wn+gm fit
+    choice: ModelChoice | None = None
 
 
 def analyze_channel(
@@ -53,29 +64,43 @@ def analyze_channel(
     the result reports and exports use. ``method``: the comparison blocks
     ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
     ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
+    ``model="auto"``: ML_i-F chooses the model (:func:`choose_model`, the device's
+    filter settings from the run file as a hint); ML_i and GMWM then fit the chosen
+    model (ML_i without the device filter, which its log pattern cannot carry) and the
+    IEEE-952 fit starts beyond the filter's memory.
     """
     if method not in METHODS:
         raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
-    ieee = ieee_coefficients(allan)
+    choice, tau_min = None, 0.0
+    if model == MODEL_AUTO:
+        hint = filter_hint(ch.meta, ch.fs_hz)
+        choice = choose_model(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments, hint=hint, allan=allan)
+        model = choice.chosen.model
+        tau_min = choice.fine.memory_s if choice.fine.term else 0.0
+    ieee = ieee_coefficients(allan, tau_min=tau_min)
     mli, models, gmwm = None, (), None
     if method in ("mli", "both") or estimator == "mli":
         inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
-        mli = fit_integrated(inc, model)
-        models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
+        mli_model = "+".join(c for c in model.split("+") if c != "lp")
+        mli = fit_integrated(inc, mli_model)
+        models = tuple(compare_models(inc, tuple(dict.fromkeys((mli_model, *compare))))) if compare else ()
     if method in ("gmwm", "both") or estimator == "gmwm":
-        gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+        gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments, tau_min=tau_min)
     if estimator == "mli-f":
-        best = fit_composite(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+        if choice is not None:
+            best = as_choice_result(choice)
+        else:
+            best = fit_composite(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
     else:
         best = mli if estimator == "mli" else gmwm
     # only the requested comparison blocks are reported
     mli_block = mli if method in ("mli", "both") else None
     gmwm_block = gmwm if method in ("gmwm", "both") else None
     verdict = channel_verdict(ch, allan, best)
-    return ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
+    return ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator, choice)
 
 
 def _num(x: float) -> float | None:
@@ -107,11 +132,7 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "duration_s": ch.n / ch.fs_hz,
             "source": ch.source,
             "gaps": ch.gaps,
-            **(
-                {"noise_model": {**res.noise_model.as_dict(), "method": res.noise_model.estimator}}
-                if res.noise_model is not None
-                else {}
-            ),
+            **(_noise_blocks(res) if res.noise_model is not None else {}),
             **({"mli": res.mli.as_dict()} if res.mli is not None else {}),
             **({"gmwm": res.gmwm.as_dict()} if res.gmwm is not None else {}),
             **({"models": [r.as_dict() for r in res.models]} if res.models else {}),
@@ -127,6 +148,21 @@ def channel_document(res: ChannelAnalysis) -> dict:
             **({"verdict": res.verdict.as_dict()} if res.verdict is not None else {}),
         }
     )
+
+
+def _noise_blocks(res: ChannelAnalysis) -> dict:
+    """``noise_model`` (with ``ieee952``, and ``selection`` for ``--model auto``) and ``paper_model``."""
+    duration = res.channel.n / res.channel.fs_hz
+    nm = res.noise_model
+    block = {**nm.as_dict(), "method": nm.estimator, "ieee952": ieee952_summary(nm, duration)}
+    out = {"noise_model": block}
+    if res.choice is not None:
+        block["selection"] = res.choice.selection_dict()
+        paper = res.choice.paper
+        if paper is not None:
+            summary = ieee952_summary(paper, duration)
+            out["paper_model"] = {**paper.as_dict(), "method": paper.estimator, "ieee952": summary}
+    return out
 
 
 def analysis_document(results: list[ChannelAnalysis]) -> dict:

@@ -6,9 +6,21 @@ numpy or scipy are loaded; the modules that act on them import them from here.
 
 from __future__ import annotations
 
-#: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet):
-#: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22)
-DEFAULT_MODEL = "wn+gm"
+#: ``--model auto``: the simplest model of the family that fits (analysis/estimators/model_choice.py)
+MODEL_AUTO = "auto"
+#: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet)
+DEFAULT_MODEL = MODEL_AUTO
+#: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22), always reported
+#: beside an automatic choice
+PAPER_MODEL = "wn+gm"
+#: ``--help`` text of the model option: the codes a model name joins with '+'
+MODEL_HELP = (
+    "Noise model: 'auto' (default: the simplest model of the family that fits, chosen by BIC and a check "
+    "against the Allan deviation; the paper's wn+gm is reported beside it) or terms joined by '+': "
+    "wn white rate noise (N, required), wa white angle noise / quantisation (Q), gm Gauss-Markov bias "
+    "(2gm, 3gm for several), fl bias instability (B), rw rate random walk (K), lp device low-pass filter; "
+    "e.g. wn+gm (the paper's), wn+fl+rw+lp."
+)
 #: noise-model methods of ``analyze --method`` (analysis/pipeline/channel.py) and the default
 METHODS = ("mli", "gmwm", "both")
 DEFAULT_METHOD = "mli"

@@ -88,7 +88,7 @@ def _interp_adev(allan, tau: float) -> float:
     "--model",
     default=choices.DEFAULT_MODEL,
     show_default=True,
-    help="Noise model fitted, e.g. wn+gm, wn+2gm, wa+wn+gm.",
+    help=choices.MODEL_HELP,
 )
 @click.option(
     "--compare-models",

@@ -46,7 +46,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
     show_default=True,
     help="Gauss-Markov bias -> random walk: sigma_b (conservative) or ADEV match at tau_b (docs/reports.md).",
 )
-@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
+@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP)
 @click.option("--topic", default="/imu0", show_default=True, help="IMU topic written for ROS-based tools.")
 def export(
     run: str,

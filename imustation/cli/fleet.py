@@ -16,7 +16,7 @@ from imustation.cli._parallel import cluster_options, report_failures, run_with_
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to include (default: every gyro/accel axis)."
 )
 @click.option(
-    "--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted (sigma_w, sigma_b, tau_b)."
+    "--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP
 )
 @cluster_options
 def fleet(

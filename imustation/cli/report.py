@@ -14,7 +14,7 @@ from imustation.cli import cli
 @click.option(
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to report (default: gyro/accel axes)."
 )
-@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help="Noise model fitted per axis.")
+@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP)
 @click.option(
     "--warmup",
     default="auto",
