@@ -87,3 +87,18 @@ def record(device: str, hours: float, sigma_w: float, B: float = 0.0, K: float =
     if K:
         x = x + np.cumsum(rng.normal(0.0, K / math.sqrt(fs), n))
     return x, fs
+
+
+def low_frequency_gain(device: str) -> float:
+    """Output PSD at 0 Hz over the white input density of ``device``'s chain: decimation folds the
+    filter's response at multiples of the output rate onto 0 Hz (MPU-9150 chain: 1.0022), so the
+    output's white-noise density, what any estimator measures, is ``sigma_w sqrt(gain)``."""
+    if device == "none":
+        return 1.0
+    if device == "adis16448":
+        return 1.0  # the mean over each output interval has zeros at every multiple of the output rate
+    fi, r, bw = {"bmx055": (2000.0, 5, 47.0), "mpu9150": (1000.0, 5, 42.0)}[device]
+    b, a = _butter2(bw, fi)
+    h = lfilter(b, a, np.r_[1.0, np.zeros(20000)])
+    g = np.correlate(h, h, "full")[len(h) - 1 :][::r]
+    return float(r * (g[0] + 2 * g[1:].sum()))

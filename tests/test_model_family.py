@@ -150,16 +150,16 @@ def test_allan_correlation_of_neighbouring_scales_matches_simulation():
 
 
 @pytest.mark.parametrize("device", ["bmx055", "mpu9150", "adis16448"])
-def test_filter_test_finds_the_filter_and_sigma_w_within_a_quarter_percent(device):
+def test_filter_test_finds_the_filter_and_sigma_w_within_one_percent(device):
     fs = {"bmx055": 400.0, "mpu9150": 200.0, "adis16448": 409.6}[device]
     x = filtered_white(int(2 * 3600 * fs), device, SIGMA_W, np.random.default_rng(3))
     f = fine_statistics(x, fs)
     assert f.term == "lp" and f.linear and f.angle_z > 10
-    assert 1 < f.samples <= 16
+    assert 1 < f.samples <= 32
     assert 1.5e-3 < f.tau_lp < 3e-3
     t1 = f.taus[0]
     s = 2 * f.avar[1] * 2 * t1 - f.avar[0] * t1
-    assert math.sqrt(s) == pytest.approx(SIGMA_W, rel=2.5e-3)
+    assert math.sqrt(s) == pytest.approx(SIGMA_W, rel=0.01)  # its standard error here: ~0.3 %
 
 
 def test_white_noise_has_no_angle_term_and_the_sample_scale():
@@ -179,7 +179,7 @@ def test_composite_with_lp_needs_the_two_scale_statistic():
         fit_composite_data(inc, fine_scale(x, fs), "wn+rw+lp")
     res = fit_composite(x, fs, "wn+rw+lp")
     assert res.sigma_w == pytest.approx(SIGMA_W, rel=0.01)
-    assert res.params["tau_lp"] == pytest.approx(fine_statistics(x, fs).tau_lp, rel=0.05)
+    assert res.params["tau_lp"] == pytest.approx(fine_statistics(x, fs).tau_lp, rel=0.25)  # z ~ 7 on 0.5 h
     assert res.memory_s > 0 and "device filter" in res.message
 
 
@@ -280,3 +280,30 @@ def test_export_turns_a_bias_instability_into_the_random_walk_meeting_its_floor(
     tau_x = sw**2 / (FLICKER_FLOOR * B) ** 2  # where the floor meets the white line
     assert K * math.sqrt(tau_x / 3) == pytest.approx(FLICKER_FLOOR * B, rel=1e-12)
     assert random_walk_from_params({"sigma_w": sw, "B": B, "sigma_k": 3 * K}) == pytest.approx(math.sqrt(10) * K)
+
+
+# ---------------------------------------------------------------------------
+# intervals on repeated recordings of one device
+
+
+def test_repeated_recordings_of_one_device_stay_inside_the_stated_intervals():
+    """Six 1 h recordings of one MPU-9150-like axis (DLPF, bias instability, a weak random walk):
+    the automatic choice's 90 % intervals cover the device's output white-noise density and B in
+    at least 5 and 4 of 6 (a binomial 90 % coverage gives fewer in 1.6 % and 11 % of such sets),
+    and the run-to-run scatter of N is no wider than twice its stated standard error."""
+    from tests.realistic_records import low_frequency_gain
+
+    B = 1.5e-5
+    n_true = SIGMA_W * math.sqrt(low_frequency_gain("mpu9150"))
+    est, se, cover_n, cover_b = [], [], 0, 0
+    for seed in range(300, 306):
+        x, fs = record("mpu9150", 1.0, SIGMA_W, B=B, K=2e-7, seed=seed)
+        choice = choose_model(x, fs)
+        s = ieee952_summary(choice.chosen, len(x) / fs, choice.close)
+        lo, hi = s["N_ci90"]
+        cover_n += lo <= n_true <= hi
+        cover_b += s["B_ci90"][0] <= B <= s["B_ci90"][1]
+        est.append(math.log(s["N"]))
+        se.append(math.log(hi / lo) / (2 * 1.6449))
+    assert cover_n >= 5 and cover_b >= 4
+    assert np.std(est, ddof=1) <= 2 * np.median(se)

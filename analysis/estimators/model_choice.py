@@ -11,11 +11,18 @@ candidate; and a bias structure, tried in stages of growing size:
 
 Each candidate is fitted by ML_i-F with robust intervals (:mod:`.robust`) and
 checked against the measured Allan deviation (:func:`~.fit_check.allan_fit_check`,
-from the filter's memory on). The choice stops at the first stage with a model
-that fits and takes, among the models of that stage that fit, the smallest BIC
-(``2 nll + k ln M``): the simplest model that fits, sizes ordered by the stage,
-ties by the information criterion. When no candidate fits, the smallest BIC of
-all, with ``fits`` false and the reason. The paper's standard model ``wn+gm``
+from the filter's memory on). The first stage with a model that fits gives the
+choice: among its models that fit, the smallest BIC (``2 nll + k ln M``). The
+extensions of that model in the next stage are then fitted, and one that fits
+replaces it when its BIC is lower by more than :data:`BIC_STRONG` (a check against
+an Allan deviation with few degrees of freedom at the longest taus cannot see, for
+example, a weak rate random walk beside a flicker floor; the likelihood can), and
+so on. When no candidate fits, the smallest BIC of all, with ``fits`` false and the
+reason. The chosen model's intervals are joined with those of the other models
+that fit and whose BIC is within :data:`BIC_STRONG` (``close``): which of them is
+"the" model is itself uncertain, and their spread belongs in the interval (on
+repeated 12 h records with flicker and a weak random walk the flicker-only choice
+alone covered B in 5 of 8; docs/noise-model.md, "Intervals"). The paper's standard model ``wn+gm``
 (fine scale as in the paper's estimator, no angle term) is always fitted too,
 for comparison. Every candidate reuses one integration and one set of fine-scale
 Allan variances, and starts from the fits of the smaller candidates
@@ -53,6 +60,9 @@ from imustation.errors import InputError
 STAGES = (("gm", "fl", "rw"), ("fl+rw", "gm+rw", "gm+fl", "2gm"), ("gm+fl+rw", "2gm+rw"))
 #: the paper's standard model, always fitted for comparison
 PAPER_MODEL = "wn+gm"
+#: a larger model replaces a smaller one that fits when its BIC is lower by more than this
+#: ("very strong" evidence, Kass & Raftery 1995, J. Am. Stat. Assoc. 90(430))
+BIC_STRONG = 10.0
 
 
 @dataclass(frozen=True)
@@ -77,6 +87,7 @@ class ModelChoice:
     did, ``reason`` says so); ``paper``: the standard model ``wn+gm`` as the paper
     fits it; ``candidates``: every fitted candidate in fitting order; ``fine``: the
     fine-scale statistic and filter test; ``time_s``: the whole choice, s.
+    ``chosen.ci90`` is already joined with the intervals of the ``close`` models.
     """
 
     chosen: CompositeResult
@@ -86,6 +97,9 @@ class ModelChoice:
     candidates: tuple[Candidate, ...]
     fine: FineStatistic
     time_s: float
+    #: the other models that fit and whose BIC is within BIC_STRONG of the chosen one's: the
+    #: chosen model's intervals are joined with theirs (:func:`_join_intervals`)
+    close: tuple[CompositeResult, ...] = ()
 
     def selection_dict(self) -> dict:
         """The ``selection`` object of the JSON document (docs/analysis-json.md)."""
@@ -99,6 +113,7 @@ class ModelChoice:
             "tau_lp": f.tau_lp if f.term == "lp" else None,
             "filter_source": f.source,
             "memory_s": f.memory_s if f.term else 0.0,
+            "close_models": [r.model for r in self.close],
             "candidates": [c.as_dict() for c in self.candidates],
         }
 
@@ -219,48 +234,102 @@ def choose_model(
     fitted: list[MLiResult] = [paper_fit] if paper_fit is not None and paper_fit.converged else []
     cands: list[Candidate] = []
     tau_min = fine.memory_s if fine.term else 0.0
+
+    def fit(bias: str, stage: int) -> None:
+        name = _with(bias, fine.term)
+        if any(c.result.model == ParamSpec.for_record(name, fs_hz, inc.duration).name for c in cands):
+            return
+        spec = ParamSpec.for_record(name, fs_hz, inc.duration)
+        if fine.term:
+            spec = replace(spec, angle_scale=angle_scale(fine))
+        problem = _CompositeProblem(inc, spec, fine)
+        starts = family_starts(problem, fine, fitted)
+        try:
+            res = fit_composite_data(inc, fine, name, extra_starts=starts, robust=True, starts_only=True)
+        except InputError:
+            return
+        cands.append(Candidate(res, check(allan, res.noise_model, fs_hz, tau_min), stage))
+        fitted.append(res)
+
+    def adequate(stage: int) -> list[Candidate]:
+        return [c for c in cands if c.stage == stage and c.check.fits and c.result.converged]
+
+    best = None
     for stage, biases in enumerate(STAGES, start=1):
-        for bias in biases:
-            name = _with(bias, fine.term)
-            spec = ParamSpec.for_record(name, fs_hz, inc.duration)
-            if fine.term:
-                spec = replace(spec, angle_scale=angle_scale(fine))
-            problem = _CompositeProblem(inc, spec, fine)
-            starts = family_starts(problem, fine, fitted)
-            try:
-                res = fit_composite_data(inc, fine, name, extra_starts=starts, robust=True, starts_only=True)
-            except InputError:
+        if best is None:
+            for bias in biases:
+                fit(bias, stage)
+        else:  # a larger model must earn its place: only the extensions of the choice so far
+            for bias in biases:
+                if set(_bias_of(best.result.model).split("+")) <= set(bias.replace("2gm", "gm+gm").split("+")):
+                    fit(bias, stage)
+        ok = adequate(stage)
+        if not ok:
+            if best is None:
                 continue
-            cands.append(Candidate(res, check(allan, res.noise_model, fs_hz, tau_min), stage))
-            fitted.append(res)
-        ok = [c for c in cands if c.stage == stage and c.check.fits and c.result.converged]
-        if ok:
-            best = min(ok, key=lambda c: c.result.bic)
-            reason = f"{best.result.model}: the smallest BIC of the stage-{stage} models that fit the Allan deviation"
-            return ModelChoice(best.result, True, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
+            break
+        top = min(ok, key=lambda c: c.result.bic)
+        if best is None or top.result.bic < best.result.bic - BIC_STRONG:
+            best = top
+        else:
+            break
+    if best is not None:
+        reason = (
+            f"{best.result.model}: the simplest model that fits the Allan deviation (stage {best.stage}, the "
+            f"smallest BIC there; a larger model needs a BIC {BIC_STRONG:g} lower)"
+        )
+        close = tuple(
+            c.result
+            for c in cands
+            if c is not best and c.check.fits and c.result.converged and c.result.bic <= best.result.bic + BIC_STRONG
+        )
+        chosen = _join_intervals(best.result, close)
+        return ModelChoice(chosen, True, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0, close)
     if not cands:
         raise InputError("no model of the family could be fitted")
     usable = [c for c in cands if c.result.converged] or cands
-    best = min(usable, key=lambda c: c.result.bic)
+    worst = min(usable, key=lambda c: c.result.bic)
     reason = (
-        f"no model of the family fits the Allan deviation ({best.check.where or 'chi-square test'}); "
-        f"{best.result.model} has the smallest BIC"
+        f"no model of the family fits the Allan deviation ({worst.check.where or 'chi-square test'}); "
+        f"{worst.result.model} has the smallest BIC"
     )
-    return ModelChoice(best.result, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
+    return ModelChoice(worst.result, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
+
+
+def _join_intervals(res: CompositeResult, close: tuple[CompositeResult, ...]) -> CompositeResult:
+    """``res`` with each parameter's 90 % interval joined with the same parameter's interval in the
+    ``close`` models (models that fit nearly as well: their spread is part of the uncertainty)."""
+    ci = dict(res.ci90)
+    for other in close:
+        for key, (lo, hi) in other.ci90.items():
+            if key in ci and key in res.params and math.isfinite(lo) and math.isfinite(hi):
+                ci[key] = (min(ci[key][0], lo), max(ci[key][1], hi))
+    return replace(res, ci90=ci)
+
+
+def _bias_of(model: str) -> str:
+    """The bias structure of a family model name (``"wn+gm+fl+lp"`` -> ``"gm+fl"``; two GMs as ``gm+gm``)."""
+    codes = [c for c in model.split("+") if c not in ("wn", "lp", "wa")]
+    out = []
+    for c in codes:
+        out += ["gm", "gm"] if c == "2gm" else [c]
+    return "+".join(out)
 
 
 # ---------------------------------------------------------------------------
 # IEEE-952 coefficients of a fitted model
 
 
-def ieee952_summary(res: MLiResult, duration_s: float) -> dict:
+def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, ...] = ()) -> dict:
     """N, B, K (with 90 % intervals) and the Gauss-Markov terms a fitted model implies.
 
     ``N`` = sigma_w; ``K`` = sigma_k (``None`` without a rate random walk); ``B``:
     the bias-instability parameter when the model has one (``B_from`` ``"fitted"``),
     otherwise the model's Allan-deviation minimum over ``1/fs .. duration_s/2``
     divided by 0.664 (``"model floor"``), its interval by the delta method from the
-    fit's covariance (``cov_log``). Units: rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz).
+    fit's covariance (``cov_log``). ``close``: models that fit nearly as well (the
+    choice's ``close``), whose B intervals the B interval is joined with. Units:
+    rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz).
     """
     p, ci = res.params, res.ci90
     out: dict = {"N": res.sigma_w, "N_ci90": list(ci.get("sigma_w", (math.nan, math.nan)))}
@@ -269,6 +338,10 @@ def ieee952_summary(res: MLiResult, duration_s: float) -> dict:
     else:
         B, lo, hi = _floor_b(res, duration_s)
         out |= {"B": B, "B_ci90": [lo, hi], "B_from": "model floor"}
+    for other in close:
+        lo, hi = ieee952_summary(other, duration_s)["B_ci90"]
+        if math.isfinite(lo) and math.isfinite(hi):
+            out["B_ci90"] = [min(out["B_ci90"][0], lo), max(out["B_ci90"][1], hi)]
     if "sigma_k" in p:
         out |= {"K": p["sigma_k"], "K_ci90": list(ci["sigma_k"])}
     else:

@@ -37,6 +37,8 @@ def results_table(results) -> str:
                 f"{_g(m.sigma_w / DEG2RAD * 3600, '.2f'):>10} {_g(m.sigma_b):>10} {_g(m.tau_b, '.1f'):>9} "
                 f"{_g(m.b_on):>10} {_g(adev1):>10}  {m.estimator} {flag}"
             )
+        if r.choice is not None:
+            lines += _choice_lines(r)
         for alt in r.models:
             lines.append(f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
     for r in results:
@@ -47,6 +49,30 @@ def results_table(results) -> str:
         "b_on, ADEV in the channel unit (rad/s or m/s^2)"
     )
     return "\n".join(lines)
+
+
+def _choice_lines(r) -> list[str]:
+    """The automatic choice of one channel: chosen model with N, B, K (90 % intervals), the paper's model."""
+    from imustation.analysis.estimators.model_choice import ieee952_summary
+
+    def nbk(fit) -> str:
+        s = ieee952_summary(fit, r.channel.n / r.channel.fs_hz)
+        parts = []
+        for q in ("N", "B", "K"):
+            if s[q] is not None:
+                lo, hi = s[f"{q}_ci90"]
+                parts.append(f"{q} {_g(s[q])} [{_g(lo)}, {_g(hi)}]")
+        return "  ".join(parts)
+
+    c = r.choice
+    head = f"    model {c.chosen.model} ({'fits' if c.fits else 'NO MODEL FITS'}): {nbk(r.noise_model)}"
+    out = [head]
+    if not c.fits:
+        out.append(f"      {c.reason}")
+    if c.paper is not None:
+        flag = "ok" if c.paper.converged else f"! {c.paper.message}"
+        out.append(f"    paper's wn+gm: sigma_w {_g(c.paper.sigma_w)}  {nbk(c.paper)}  {flag}")
+    return out
 
 
 def _interp_adev(allan, tau: float) -> float:

@@ -15,9 +15,7 @@ from imustation.cli._parallel import cluster_options, report_failures, run_with_
 @click.option(
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to include (default: every gyro/accel axis)."
 )
-@click.option(
-    "--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP
-)
+@click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP)
 @cluster_options
 def fleet(
     runs: tuple[str, ...],

@@ -1,0 +1,155 @@
+"""Model choice speed: the 12 h realistic lab (31 channels) analysed with ``--model auto``.
+
+Issue 22's budget: the whole lab with model choice and the fit checks in under 60 s on
+two cores, and under 2 s per axis. The channels are written here with numpy, values of
+the order of the datasheet profile of issue 21: white noise through each device's
+output filter (BMX055 gyro 47 Hz and accelerometer 62.5 Hz Butterworth at 2 kHz,
+InvenSense DLPF ~42 Hz at 1 kHz; ADIS16448 without FIR, MTi and DSP-3000 output
+means: white), bias instability (Gauss-Markov terms two per decade from 1 s, on a
+1/32 s grid) and rate random walk, stored as int16 counts. Each of two worker
+processes makes its channels and times ``analyze_channel`` on them (the filter
+settings in the channel's metadata, as a run file gives them); the wall time of the
+analysis is the larger of the two workers' sums. Printed against the same-run
+reference of one ``np.sum`` over each channel's counts.
+
+    python benchmarks/bench_model_choice.py [--hours 12] [--workers 2] [--channels 31]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+#: (device, driver, sensor, fs Hz, filter (internal Hz, ratio, bandwidth Hz) or None, sigma_w, B, K, settings)
+_DEG = math.pi / 180.0
+DEVICES = (
+    ("bmx055", "bmx055", "gyro", 400.0, (2000.0, 5, 47.0), 0.014 * _DEG, 2e-5, 1.1e-6, {"bandwidth_hz": 47.0}),
+    ("bmx055-accel", "bmx055_accel", "accel", 125.0, (2000.0, 16, 62.5), 1.5e-3, 3e-4, 1.6e-5, {"bandwidth_hz": 62.5}),
+    ("mpu9150", "mpu9150", "gyro", 200.0, (1000.0, 5, 42.0), 0.005 * _DEG, 2e-4, 1.1e-5, {"bandwidth_hz": 42.0}),
+    ("mpu9150", "mpu9150", "accel", 200.0, (1000.0, 5, 44.0), 3.9e-3, 4e-4, 2.2e-5, {"bandwidth_hz": 42.0}),
+    ("mpu6500", "mpu6500", "gyro", 200.0, (1000.0, 5, 41.0), 0.01 * _DEG, 1e-4, 5e-6, {"bandwidth_hz": 41.0}),
+    ("mpu6500", "mpu6500", "accel", 200.0, (1000.0, 5, 41.0), 2.9e-3, 3e-4, 1.6e-5, {"bandwidth_hz": 41.0}),
+    ("adis", "adis16448", "gyro", 409.6, None, 0.66 / 60 * _DEG, 1.1e-4, 4e-6, {"filter_taps": 1, "decimation": 1}),
+    ("adis", "adis16448", "accel", 409.6, None, 2.3e-3, 2e-4, 9e-6, {"filter_taps": 1, "decimation": 1}),
+    ("mti", "mti", "gyro", 400.0, None, 0.01 * _DEG, 7.3e-5, 2.6e-6, {}),
+    ("mti", "mti", "accel", 400.0, None, 8e-4, 1e-4, 3.6e-6, {}),
+)
+FOG = ("fog", "dsp3000", "gyro", 100.0, None, 0.0667 / 60 * _DEG, 7.3e-6, 8e-8, {})
+
+
+def lab_channels(n_channels: int) -> list[tuple]:
+    """The lab's channels (three axes per sensor, the fiber-optic gyro one), the first ``n_channels``."""
+    out = [(*d, axis) for d in DEVICES for axis in "xyz"] + [(*FOG, "z")]
+    return out[:n_channels]
+
+
+def _flicker_and_walk(n: int, fs: float, B: float, K: float, rng: np.random.Generator) -> np.ndarray:
+    """Bias instability B (two Gauss-Markov terms per decade from 1 s, weight 2 B^2 ln(sqrt 10)/(pi T)
+    each) and rate random walk K on a 1/32 s grid, interpolated to the samples."""
+    from scipy.signal import lfilter
+
+    h = 1.0 / 32.0
+    m = int(n / fs / h) + 2
+    grid = np.zeros(m)
+    for T in 10.0 ** (np.arange(15) / 2.0):
+        q = 2.0 * B * B * math.log(math.sqrt(10.0)) / (math.pi * T)  # sigma_b^2
+        var = q * T / 2.0
+        phi = math.exp(-h / T)
+        e = rng.normal(0.0, math.sqrt(var * (1 - phi * phi)), m)
+        grid += lfilter([1.0], [1.0, -phi], e, zi=[phi * rng.normal(0.0, math.sqrt(var))])[0]
+    grid += np.cumsum(rng.normal(0.0, K * math.sqrt(h), m))
+    return np.interp(np.arange(n) / fs, np.arange(m) * h, grid)
+
+
+def make_channel(spec: tuple, hours: float, seed: int):
+    """A :class:`Channel` of int16 counts for one lab axis."""
+    from scipy.signal import bilinear, lfilter
+
+    from imustation.analysis.pipeline.loaders import Channel
+
+    device, driver, sensor, fs, filt, sigma_w, B, K, settings, axis = spec
+    rng = np.random.default_rng(seed)
+    n = int(hours * 3600 * fs)
+    if filt is None:
+        x = rng.normal(0.0, sigma_w * math.sqrt(fs), n)
+    else:
+        fi, r, bw = filt
+        wc = 2 * fi * math.tan(math.pi * bw / fi)
+        b, a = bilinear([wc * wc], [1, math.sqrt(2) * wc, wc * wc], fi)
+        x = lfilter(b, a, rng.normal(0.0, sigma_w * math.sqrt(fi), n * r + 4000))[4000:][r - 1 :: r][:n]
+    x += _flicker_and_walk(n, fs, B, K, rng)
+    scale = sigma_w * math.sqrt(fs) / 8.0  # the white noise spans ~8 counts
+    counts = np.clip(np.rint(x / scale), -32768, 32767).astype(np.int16)
+    meta = {"device": device, "driver": driver, "settings": settings}
+    return Channel(f"{device}/{sensor}/{axis}", fs, "rad/s" if sensor == "gyro" else "m/s^2", counts, scale,
+                   source="bench", meta=meta)  # fmt: skip
+
+
+def run_one(args: tuple) -> dict:
+    """Make one channel (not timed), then time its analysis and the np.sum reference."""
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    from imustation.analysis.pipeline.channel import analyze_channel
+
+    spec, hours, seed = args
+    ch = make_channel(spec, hours, seed)
+    t0 = time.perf_counter()
+    np.sum(ch.data, dtype=np.int64)
+    t_ref = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = analyze_channel(ch)
+    t_an = time.perf_counter() - t0
+    ch_choice = res.choice
+    return {
+        "id": ch.id,
+        "pid": os.getpid(),
+        "n": ch.n,
+        "t": t_an,
+        "t_ref": t_ref,
+        "model": res.noise_model.model,
+        "fits": ch_choice.fits if ch_choice else None,
+        "candidates": len(ch_choice.candidates) if ch_choice else 0,
+        "sigma_w_err": res.noise_model.sigma_w / spec[5] - 1.0,
+        "ieee_N_err": res.ieee.N / spec[5] - 1.0,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=12.0)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--channels", type=int, default=31)
+    args = ap.parse_args()
+    os.environ["NUMBA_NUM_THREADS"] = "1"
+    specs = lab_channels(args.channels)
+    tasks = [(s, args.hours, 1000 + i) for i, s in enumerate(specs)]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as pool:
+        rows = list(pool.map(run_one, tasks))
+    wall = time.perf_counter() - t0
+    per_worker: dict[int, float] = {}
+    for r in rows:
+        per_worker[r["pid"]] = per_worker.get(r["pid"], 0.0) + r["t"]
+    total_samples = sum(r["n"] for r in rows)
+    print(f"{len(rows)} channels, {args.hours:g} h, {total_samples / 1e6:.0f} M samples, {args.workers} workers")
+    for r in rows:
+        print(
+            f"  {r['id']:22s} {r['n'] / 1e6:5.1f} M  {r['t']:5.2f} s (x{r['t'] / r['t_ref']:5.0f} np.sum)  "
+            f"{r['model']:14s} {'fits' if r['fits'] else 'NO FIT'} ({r['candidates']} fitted)  "
+            f"sigma_w {100 * r['sigma_w_err']:+.2f} %  IEEE N {100 * r['ieee_N_err']:+.2f} %"
+        )
+    analysis = max(per_worker.values())
+    worst = max(rows, key=lambda r: r["t"])
+    ref = sum(r["t_ref"] for r in rows)
+    print(f"analysis wall time (largest worker sum): {analysis:.1f} s; budget 60 s, ratio {analysis / 60:.2f}")
+    print(f"slowest axis: {worst['id']} {worst['t']:.2f} s; budget 2 s, ratio {worst['t'] / 2:.2f}")
+    print(f"all analyses / all np.sum references (same run): x{sum(r['t'] for r in rows) / ref:.0f}")
+    print(f"(whole run incl. making the data: {wall:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
