@@ -154,7 +154,7 @@ def test_filter_test_finds_the_filter_and_sigma_w_within_one_percent(device):
     fs = {"bmx055": 400.0, "mpu9150": 200.0, "adis16448": 409.6}[device]
     x = filtered_white(int(2 * 3600 * fs), device, SIGMA_W, np.random.default_rng(3))
     f = fine_statistics(x, fs)
-    assert f.term == "lp" and f.linear and f.angle_z > 10
+    assert f.term == "lp" and f.linear and f.angle_z > 4
     assert 1 < f.samples <= 32
     assert 1.5e-3 < f.tau_lp < 3e-3
     t1 = f.taus[0]
@@ -166,7 +166,7 @@ def test_white_noise_has_no_angle_term_and_the_sample_scale():
     x = filtered_white(1_000_000, "none", SIGMA_W, np.random.default_rng(4))
     f = fine_statistics(x, 400.0)
     assert f.term == "" and f.samples == 1 and abs(f.angle_z) < 4
-    assert f.taus.shape == (1,)
+    assert f.taus.shape == (1,) and f.nuisance.shape == (1, 0)
     # a filter the settings announce but the data do not show is not carried, and moves nothing
     g = fine_statistics(x, 400.0, hint=FilterHint(True, 0.02, "test"))
     assert g.term == "" and g.samples == 1 and "settings: test" in g.source

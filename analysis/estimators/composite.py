@@ -44,6 +44,7 @@ import numpy as np
 
 from imustation.analysis.estimators.finescale import (  # noqa: F401 - re-exported: the statistic's old home
     AUTO_SAMPLES,
+    SLOW_SHARE,
     WHITE_Z,
     FilterHint,
     FineScale,
@@ -79,19 +80,21 @@ FINE_SCALE_Z_LIMIT = 4.0
 class _CompositeProblem(Problem):
     """ML_i's batched likelihood plus the fine-scale term; sigma_w^2 profiled by a cubic.
 
-    The fine-scale term is ``(D - s A)^T C^-1 (D - s A) / 2`` for the Allan variances
-    ``D`` at one or two cluster times (covariance ``C``) and the model's ``A`` at
-    sigma_w = 1; with one scale it is ``(D - s A)^2 / (2 V)``.
+    The fine-scale term is ``(D - s A)^T W (D - s A) / 2`` for the Allan variances ``D``
+    at the fine cluster times and the model's ``A`` at sigma_w = 1: with one scale
+    ``(D - s A)^2 / (2 V)``; with the model family's statistic (five octaves) ``W`` is
+    their inverse covariance with a floor and a rising term projected out
+    (:meth:`~.finescale.FineStatistic.weight`).
     """
 
     def __init__(self, inc: Increments, spec: ParamSpec, fine: FineScale | FineStatistic, filt: str = "auto"):
         super().__init__(inc, spec, filt)
         self.fine = fine
         if isinstance(fine, FineScale):
-            self.taus, self.D, C = np.array([fine.tau]), np.array([fine.avar]), np.array([[fine.var]])
+            self.taus, self.D = np.array([fine.tau]), np.array([fine.avar])
+            self.Cinv = np.array([[1.0 / fine.var]])
         else:
-            self.taus, self.D, C = fine.taus, fine.avar, fine.cov
-        self.Cinv = np.linalg.inv(C)
+            self.taus, self.D, self.Cinv = fine.taus, fine.avar, fine.weight()
 
     def unit_avar(self, theta: np.ndarray) -> np.ndarray:
         """Model AVAR at the fine scales with sigma_w = 1, for theta (K, d): (K, J)."""
@@ -183,6 +186,7 @@ def fit_composite_data(
     extra_starts: list[np.ndarray] | None = None,
     starts_only: bool = False,
     robust: bool = False,
+    max_iter: int = 50,
 ) -> CompositeResult:
     """Fit ``model`` to a pattern-integrated record plus its fine-scale statistic.
 
@@ -191,7 +195,7 @@ def fit_composite_data(
     Allan start point alone (what a one-start fit would do; the Monte Carlo study
     counts how often that ends elsewhere). ``extra_starts``: more start points
     (theta); ``starts_only``: search from those alone. ``robust``: intervals that
-    account for model misfit (:mod:`.robust`).
+    account for model misfit (:mod:`.robust`). ``max_iter``: Newton steps per start.
     """
     t0 = time.perf_counter()
     spec = ParamSpec.for_record(model, inc.fs_hz, inc.duration)
@@ -218,7 +222,7 @@ def fit_composite_data(
     starts += [np.clip(x, problem.lo, problem.hi) for x in extra_starts or []]
     if not starts:
         raise InputError(f"model {spec.name!r}: no start point")
-    best, n_starts = optimise(problem, starts)
+    best, n_starts = optimise(problem, starts, max_iter)
     theta = best.x
     prof = problem.profile(theta[None, :])
     A = problem.unit_avar(theta[None, :])
@@ -288,6 +292,11 @@ def _fine_message(fine: FineScale | FineStatistic) -> str:
             return f"; fine scale raised to {fine.samples} samples: noise not white at the sample scale"
         return ""
     out = ""
+    if fine.slow_share > SLOW_SHARE:
+        out += (
+            f"; slow terms reach the fine scales ({100 * fine.slow_share:.0f} % of the white noise at "
+            f"{fine.taus[0]:.3g} s): sigma_w rests on their shape below that scale - check it"
+        )
     if not fine.linear:
         out += f"; noise not white up to an angle term at any fine scale up to {4 * fine.samples} samples"
     if fine.term == "lp":

@@ -2,7 +2,8 @@
 
 Used by the automatic model choice (:mod:`.model_choice`) to tell "fits" from "does
 not fit". Each measured overlapping Allan variance ``a`` at cluster time tau is,
-under the model, ``AVAR_model(tau) chi^2_edf / edf``; its chi-square probability is
+under the model, ``AVAR_model(tau) chi^2_edf / edf`` (``edf`` the identified noise
+type's, at most a rate random walk's); its chi-square probability is
 mapped to a standard normal score ``z`` ("whitened residual"). Points four octaves
 of tau apart (a factor 4, where neighbouring overlapping Allan variances are
 nearly uncorrelated) with at least :data:`MIN_EDF` degrees of freedom, at and
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2, norm
 
-from imustation.analysis.estimators.allan import AllanResult
+from imustation.analysis.estimators.allan import AllanResult, edf_oadev
 from imustation.analysis.estimators.noise_models import NoiseModel
 
 #: smallest equivalent degrees of freedom of a tau used by the check
@@ -76,7 +77,11 @@ def allan_fit_check(allan: AllanResult, model: NoiseModel, fs_hz: float, tau_min
     tau = allan.tau[idx]
     if len(tau) == 0:
         return FitCheck(True, 0.0, 0, 1.0, tau, np.zeros(0), "no cluster time with enough degrees of freedom")
-    edf = allan.edf[idx]
+    # the EDF of the noise type identified at each tau, but at most that of a rate random walk:
+    # the identification is unsure at the long taus, and an EDF too large rejects good models
+    m = np.maximum(np.rint(tau * fs_hz), 1.0)
+    edf_rw = edf_oadev(float(np.max(allan.n[idx] + 2 * m)), m, np.full(len(m), -2))
+    edf = np.minimum(allan.edf[idx], np.maximum(edf_rw, 1.0))
     with np.errstate(all="ignore"):
         ratio = allan.adev[idx] ** 2 / model.avar(tau, fs_hz)
     # chi-square probability of each measured AVAR under the model, as a normal score

@@ -98,9 +98,10 @@ class Problem:
 # optimisation
 
 
-def optimise(problem: Problem, starts: list[np.ndarray]) -> tuple[NewtonResult, int]:
-    """Newton from each distinct start; a start stops when it reaches an optimum already
-    found or is still far worse than the best (50 nats after 3 steps, 5 after 6)."""
+def optimise(problem: Problem, starts: list[np.ndarray], max_iter: int = 50) -> tuple[NewtonResult, int]:
+    """Newton from each distinct start (at most ``max_iter`` steps each); a start stops when it
+    reaches an optimum already found or is still far worse than the best (50 nats after 3 steps,
+    5 after 6)."""
     found: list[NewtonResult] = []
 
     def stop(x, f, it):
@@ -122,7 +123,8 @@ def optimise(problem: Problem, starts: list[np.ndarray]) -> tuple[NewtonResult, 
     if problem.spec.codes.count("gm") > 1:
         probe += tuple(j for j, k in enumerate(kinds) if k == "r")
     for x0 in unique:
-        found.append(newton(problem.nll, x0, problem.lo, problem.hi, stop=stop if found else None, probe=probe))
+        halt = stop if found else None
+        found.append(newton(problem.nll, x0, problem.lo, problem.hi, stop=halt, max_iter=max_iter, probe=probe))
     candidates = [r for r in found if not r.message.startswith("same optimum")]
     best = min(candidates, key=lambda r: r.fun)
     return best, len(unique)
@@ -292,7 +294,8 @@ def build_result(
             if math.isfinite(lo_r):
                 ci90[name] = (min(ci90[name][0], lo_r), max(ci90[name][1], hi_r))
         # the covariance behind the reported standard errors: the larger variance per coordinate
-        scale = np.sqrt(np.maximum(np.diag(cov_r), np.diag(cov)) / np.diag(cov))
+        with np.errstate(all="ignore"):  # NaN where either covariance is not usable
+            scale = np.sqrt(np.maximum(np.diag(cov_r), np.diag(cov)) / np.diag(cov))
         if np.all(np.isfinite(scale)):
             cov = cov * np.outer(scale, scale)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))

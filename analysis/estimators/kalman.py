@@ -142,6 +142,8 @@ def _filter(Y, X, dt, new_segment, gap, kind, q, tau, q_wn, R, nu, u, B):
     v = np.empty(s)
     w = np.empty(s + 1)
     for k in range(K):
+        last_dt = -1.0  # the transition is recomputed only when the interval length changes
+        qoo = 0.0
         P[:, :] = 0.0
         x[:, :] = 0.0
         for j in range(s):
@@ -151,6 +153,7 @@ def _filter(Y, X, dt, new_segment, gap, kind, q, tau, q_wn, R, nu, u, B):
             if new_segment[i]:
                 if gap[i] > 0.0:  # predict the term states over the gap, no update
                     _transition(kind, q[k], tau[k], gap[i], phi, c, qbb, qbo)
+                    last_dt = -1.0
                     for j in range(s):
                         x[j, 0] *= phi[j]
                         x[j, 1] *= phi[j]
@@ -163,7 +166,9 @@ def _filter(Y, X, dt, new_segment, gap, kind, q, tau, q_wn, R, nu, u, B):
                 x[a, 0] = 0.0
                 x[a, 1] = 0.0
                 P[a, a] = R[k]
-            qoo = _transition(kind, q[k], tau[k], dt[i], phi, c, qbb, qbo) + q_wn[k] * dt[i]
+            if dt[i] != last_dt:  # uniform patterns: once per parameter point
+                qoo = _transition(kind, q[k], tau[k], dt[i], phi, c, qbb, qbo) + q_wn[k] * dt[i]
+                last_dt = dt[i]
             # prediction with Phi = [[diag(phi), 0], [c^T, 1]] and the arrow-shaped Qd
             pa = P[a, a]
             for j in range(s):

@@ -63,6 +63,9 @@ PAPER_MODEL = "wn+gm"
 #: a larger model replaces a smaller one that fits when its BIC is lower by more than this
 #: ("very strong" evidence, Kass & Raftery 1995, J. Am. Stat. Assoc. 90(430))
 BIC_STRONG = 10.0
+#: Newton steps per start of a candidate: a model that needs more has more terms than the data
+#: support (its flat directions make Newton creep), it ends unconverged and is not chosen
+MAX_NEWTON = 20
 
 
 @dataclass(frozen=True)
@@ -245,7 +248,9 @@ def choose_model(
         problem = _CompositeProblem(inc, spec, fine)
         starts = family_starts(problem, fine, fitted)
         try:
-            res = fit_composite_data(inc, fine, name, extra_starts=starts, robust=True, starts_only=True)
+            res = fit_composite_data(
+                inc, fine, name, extra_starts=starts, robust=True, starts_only=True, max_iter=MAX_NEWTON
+            )
         except InputError:
             return
         cands.append(Candidate(res, check(allan, res.noise_model, fs_hz, tau_min), stage))
@@ -254,15 +259,22 @@ def choose_model(
     def adequate(stage: int) -> list[Candidate]:
         return [c for c in cands if c.stage == stage and c.check.fits and c.result.converged]
 
+    def extends(bias: str, base: Candidate) -> bool:
+        return set(_bias_of(base.result.model).split("+")) <= set(bias.replace("2gm", "gm+gm").split("+"))
+
     best = None
+    lead = None  # without a model that fits: the smallest BIC so far, whose extensions are tried next
     for stage, biases in enumerate(STAGES, start=1):
-        if best is None:
-            for bias in biases:
+        base = best or lead
+        for bias in biases:
+            if base is None or extends(bias, base):  # a larger model must earn its place
                 fit(bias, stage)
-        else:  # a larger model must earn its place: only the extensions of the choice so far
-            for bias in biases:
-                if set(_bias_of(best.result.model).split("+")) <= set(bias.replace("2gm", "gm+gm").split("+")):
-                    fit(bias, stage)
+        converged = [c for c in cands if c.stage == stage and c.result.converged]
+        if best is None and converged:
+            top_any = min(converged, key=lambda c: c.result.bic)
+            if lead is not None and top_any.result.bic >= lead.result.bic - BIC_STRONG:
+                break  # nothing fits and a larger model does not help either
+            lead = top_any
         ok = adequate(stage)
         if not ok:
             if best is None:

@@ -134,7 +134,8 @@ class ParamSpec:
             "r": (math.log(1e-6 / total**2), math.log(10.0 * inc.fs_hz**2)),
             "r_rw": (math.log(1e-6 / total**2), math.log(10.0 / dt_min**2)),
             "tau": (math.log(2.0 / inc.fs_hz), math.log(100.0 * total)),
-            "r_wa": (math.log(1e-4 * dt_min), math.log(10.0 * total)),
+            # white angle noise: from a ten-thousandth of a sample (the two fine scales see it) up
+            "r_wa": (math.log(1e-4 / inc.fs_hz), math.log(10.0 * total)),
             # flicker floor B^2 vs the white level sigma_w^2/tau: invisible at the record length .. dominant
             # at one sample
             "r_fl": (math.log(1e-4 / total), math.log(100.0 * inc.fs_hz)),
