@@ -307,3 +307,23 @@ def test_repeated_recordings_of_one_device_stay_inside_the_stated_intervals():
         se.append(math.log(hi / lo) / (2 * 1.6449))
     assert cover_n >= 5 and cover_b >= 4
     assert np.std(est, ddof=1) <= 2 * np.median(se)
+
+
+def test_block_allan_variances_equal_the_allan_variance_of_each_block():
+    from imustation.analysis.estimators.allan import block_oavar
+
+    x, fs = record("none", 0.1, 1e-3, seed=1)
+    n = len(x)
+    got = block_oavar(x, fs, [1, 4, 16], 4)
+    for i in range(4):
+        part = x[i * n // 4 : (i + 1) * n // 4]
+        np.testing.assert_allclose(got[i], oadev(part, fs, [1 / fs, 4 / fs, 16 / fs]).adev ** 2, rtol=1e-10)
+    # a gap: no term spans it, in any block
+    segs = [(0, n // 3), (n // 3 + 50, n)]
+    gapped = block_oavar(x, fs, [4], 2, segments=segs)
+    first = oadev(x[: n // 2], fs, [4 / fs], segments=[(0, n // 3), (n // 3 + 50, n // 2)]).adev[0] ** 2
+    assert gapped[0, 0] == pytest.approx(first, rel=1e-10)
+    counts = (np.arange(n) * 3).astype(np.int16)[: n // 2]  # integer counts take the same path
+    np.testing.assert_allclose(block_oavar(counts, fs, [2], 2, scale=0.5)[:, 0],
+                               [oadev(c, fs, [2 / fs], scale=0.5).adev[0] ** 2 for c in np.array_split(counts, 2)],
+                               rtol=1e-9)  # fmt: skip

@@ -31,7 +31,9 @@ covariance, which determines ``sigma_w`` and the angle term together.
 Variances are chi-square with the white-noise equivalent degrees of freedom
 (NIST SP 1065 Table 5); the correlation of two overlapping Allan variances of
 white noise follows from their Haar kernels (:func:`allan_corr`: 0.46 for 1 and
-2 samples, 0.53 for large n and 2n).
+2 samples, 0.53 for large n and 2n). Filtered noise just beyond its memory is less
+white than that: the covariance is scaled up by the scatter of the white-noise
+level between 16 blocks of the record when that is larger.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from functools import cache
 
 import numpy as np
 
-from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.allan import block_oavar, oadev
 from imustation.errors import InputError
 
 
@@ -208,6 +210,8 @@ class FineStatistic:
     #: the slow terms' share of the Allan variance at the first fine scale (the test's floor and
     #: rising term over its white noise); above :data:`SLOW_SHARE` sigma_w rests on their shape
     slow_share: float = 0.0
+    #: factor applied to the white-noise covariance of ``avar`` (the scatter between blocks)
+    inflation: float = 1.0
 
     @property
     def memory_s(self) -> float:
@@ -310,19 +314,57 @@ def fine_statistics(
     else:  # white up to the angle term: the one or two finest scales, as precise as it gets
         scales = [chosen, 2 * chosen] if term else [chosen]
     D = np.array([got[j] for j in scales])
-    C = _cov(D, scales, n)
     taus = np.array(scales) / fs_hz
     nuisance = np.column_stack([np.ones_like(taus), taus]) if slow else np.zeros((len(taus), 0))
+    C = _cov(D, scales, n)
+    inflation = _block_inflation(rate, fs_hz, scales, C, nuisance, term, scale, segments)
+    C = C * inflation
     share = 0.0
     fit = _gls(got, chosen, n, fs_hz)
     if slow and fit is not None:
         (a, _, c, d), t0 = fit[0], chosen / fs_hz
         share = float(abs(c + d * t0) / (a / t0)) if a > 0 else math.inf  # a <= 0: no white noise left
-    return FineStatistic(taus, D, C, nuisance, chosen, term, float(tau_lp), float(z), linear, source, octaves, share)
+    return FineStatistic(
+        taus, D, C, nuisance, chosen, term, float(tau_lp), float(z), linear, source, octaves, share, inflation
+    )
+
+
+def _block_inflation(
+    rate: np.ndarray,
+    fs_hz: float,
+    scales: list[int],
+    C: np.ndarray,
+    nuisance: np.ndarray,
+    term: str,
+    scale: float,
+    segments: list[tuple[int, int]] | None,
+) -> float:
+    """How much more the white-noise level from the fine scales scatters between :data:`BLOCKS`
+    blocks of the record than the white-noise covariance ``C`` says (at least 1).
+
+    Filtered noise just beyond its memory, or slow terms at the fine scales, make the Allan
+    variances there less precise than white noise's; the blocks' scatter measures it (ADIS16448
+    chain: the stated sigma_w interval was 0.6 x the scatter of repeated records without this)."""
+    t = np.array(scales) / fs_hz
+    cols = [1.0 / t] + ([-1.0 / t**2] if term else []) + list(nuisance.T)
+    X = np.column_stack(cols)
+    Ci = np.linalg.inv(C)
+    g = np.linalg.solve(X.T @ Ci @ X, X.T @ Ci)[0]  # GLS weights of the white-noise level
+    var_white = float(g @ C @ g)
+    per_block = block_oavar(rate, fs_hz, scales, BLOCKS, scale=scale, segments=segments)
+    est = [float(g @ row) for row in per_block if np.all(np.isfinite(row))]
+    if len(est) < BLOCKS // 2 or var_white <= 0:
+        return 1.0
+    var_block = float(np.var(est, ddof=1)) / len(est)
+    return float(np.clip(var_block / var_white, 1.0, MAX_INFLATION))
 
 
 #: cluster sizes of the test at each candidate n: n, 2n, 4n, 8n, 16n
 TEST_OCTAVES = 5
+#: blocks of the record whose scatter checks the fine-scale statistic's variance, and the largest
+#: factor it may apply
+BLOCKS = 16
+MAX_INFLATION = 25.0
 #: octaves of the statistic when the slow terms show at the fine scales
 STAT_OCTAVES = 5
 #: above this share of the slow terms at the first fine scale sigma_w is flagged (``message``):

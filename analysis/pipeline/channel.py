@@ -22,6 +22,7 @@ from imustation.analysis.pipeline.choices import (
     ESTIMATORS,
     METHODS,
     MODEL_AUTO,
+    PAPER_MODEL,
 )
 from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.analysis.pipeline.loaders import Channel
@@ -65,8 +66,8 @@ def analyze_channel(
     ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
     ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
     ``model="auto"``: ML_i-F chooses the model (:func:`choose_model`, the device's
-    filter settings from the run file as a hint); ML_i and GMWM then fit the chosen
-    model (ML_i without the device filter, which its log pattern cannot carry) and the
+    filter settings from the run file as a hint); GMWM then fits the chosen model from
+    the filter's memory on, ML_i (the paper's estimator) the paper's model, and the
     IEEE-952 fit starts beyond the filter's memory.
     """
     if method not in METHODS:
@@ -84,7 +85,7 @@ def analyze_channel(
     mli, models, gmwm = None, (), None
     if method in ("mli", "both") or estimator == "mli":
         inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
-        mli_model = "+".join(c for c in model.split("+") if c != "lp")
+        mli_model = PAPER_MODEL if choice is not None else model  # the paper's estimator with its model
         mli = fit_integrated(inc, mli_model)
         models = tuple(compare_models(inc, tuple(dict.fromkeys((mli_model, *compare))))) if compare else ()
     if method in ("gmwm", "both") or estimator == "gmwm":
