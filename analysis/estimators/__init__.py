@@ -5,8 +5,12 @@ AR(p)/Gauss-Markov (:mod:`.ar`), the rate noise-model library (:mod:`.noise_mode
 :mod:`.models` with the paper's standard model, :mod:`.reference` values), and the
 noise-model fits: ML_i (:mod:`.mli`), ML_i-F (:mod:`.composite`), classical ML on the rates
 (:mod:`.ml_rate`) and GMWM (:mod:`.gmwm`), which share the fitting engine of :mod:`.fitting`,
-the integrated-signal pattern of :mod:`.pattern`, the scan filter of :mod:`.scan` and the
-batched Kalman filter of :mod:`.kalman`.
+the integrated-signal pattern of :mod:`.pattern`, the parameter layout of :mod:`.paramspec`,
+the scan filter of :mod:`.scan` and the compiled Kalman filter of :mod:`.kalman`. Real
+sensors (issue 22): bias instability and device-filter terms (:mod:`.sensor_terms`), the
+filter-aware fine-scale statistics (:mod:`.finescale`), misfit-robust intervals
+(:mod:`.robust`), a simple Allan fit check (:mod:`.fit_check`) and the automatic model
+choice (:mod:`.model_choice`).
 
 Nothing here reads files, plots or imports :mod:`imustation.analysis.reports` or
 :mod:`imustation.analysis.pipeline` (an import-linter contract). This ``__init__`` imports

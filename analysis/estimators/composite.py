@@ -160,14 +160,9 @@ class CompositeResult(MLiResult):
     sigma_w at the optimum; ``fine_scale_z`` the standardised difference of the two
     (|z| > ``FINE_SCALE_Z_LIMIT``: the noise is not white at the fine scale).
     ``data_time_s``: the data passes (integration and fine-scale AVAR), s.
-    ``robust``: ``stderr``/``ci90`` account for model misfit (:mod:`.robust`; the wider
-    of the sandwich and the model-based interval), ``ci90_model`` then holds the
-    model-based ones; ``cov_log``: the covariance of the physical log-parameters
-    (``phi``, in the order of ``params``) behind ``stderr``; ``memory_s`` (s): the
-    cluster time from which the model holds (a device filter's memory, 0 without one).
-    ``as_dict`` keeps the keys of ML_i's block (the JSON contract) and adds
-    ``ci90_model`` and ``robust`` for robust fits; a fine-scale disagreement shows in
-    ``message`` and ``converged``.
+    The robust intervals, ``ci90_model``, ``cov_log`` and ``memory_s`` are
+    :class:`~.fitting.MLiResult`'s. ``as_dict`` keeps the keys of ML_i's block (the
+    JSON contract); a fine-scale disagreement shows in ``message`` and ``converged``.
     """
 
     fine_scale_tau: float = math.nan
