@@ -56,6 +56,8 @@ _SOURCES = {
     "estimators.pattern": ("integrate",),
     "estimators.models": ("StandardModel", "simulate_standard"),
     "estimators.noise_models": ("NoiseModel",),
+    "estimators.sensor_terms": ("BiasInstability", "LowPass"),
+    "estimators.model_choice": ("ModelChoice", "choose_model"),
     "estimators.psd": ("PSDResult", "log_average", "welch_psd"),
 }
 _ORIGIN = {name: module for module, names in _SOURCES.items() for name in names}
@@ -86,6 +88,10 @@ __all__ = [
     "GMWMResult",
     "fit_gmwm",
     "NoiseModel",
+    "BiasInstability",
+    "LowPass",
+    "ModelChoice",
+    "choose_model",
     "StandardModel",
     "simulate_standard",
 ]

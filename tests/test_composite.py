@@ -69,11 +69,11 @@ def test_composite_nll_is_ml_i_likelihood_plus_the_fine_term_at_the_profiled_sig
     problem = _CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
     theta = np.array([[math.log((2e-5 / 1e-3) ** 2), math.log(60.0)], [math.log(1e-6), math.log(500.0)]])
     prof = problem.profile(theta)
-    A = problem.unit_avar(theta)
+    A = problem.unit_avar(theta)  # (K, 1): one fine scale
     s = problem.sigma_w2(prof, A)
 
     def total(sw2):
-        return full_nll(prof, sw2) + (fine.avar - sw2 * A) ** 2 / (2 * fine.var)
+        return full_nll(prof, sw2) + (fine.avar - sw2 * A[:, 0]) ** 2 / (2 * fine.var)
 
     np.testing.assert_allclose(problem.nll(theta), total(s), rtol=1e-12)
     # s is the minimiser over sigma_w^2: nudging it either way costs
@@ -177,7 +177,8 @@ def test_analyze_json_has_a_noise_model_block_with_the_mli_keys_plus_method(tmp_
     res = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--json"])
     assert res.exit_code == 0, res.output
     ch = json.loads(res.output)["channels"][0]
-    assert set(ch["noise_model"]) == set(ch["mli"]) | {"method"}
+    # the mli keys plus method, the IEEE-952 summary and (model auto) the selection and robust intervals
+    assert set(ch["noise_model"]) == set(ch["mli"]) | {"method", "ieee952", "selection", "robust", "ci90_model"}
     assert ch["noise_model"]["method"] == "ML_i-F" and ch["mli"]["estimator"] == "ML_i"
     other = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--json", "--estimator", "gmwm"])
     assert json.loads(other.output)["channels"][0]["noise_model"]["method"] == "GMWM"

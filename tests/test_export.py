@@ -199,7 +199,7 @@ def test_cli_random_walk_conversions_differ_by_the_closed_form(sim_run):
     runner = CliRunner()
     vals = {}
     for rw in ("diffusion", "tau_b"):
-        args = ["export", str(path), "--format", "vins", "--gyro-only", "--random-walk", rw]
+        args = ["export", str(path), "--format", "vins", "--gyro-only", "--random-walk", rw, "--model", "wn+gm"]
         r = runner.invoke(cli, args)
         assert r.exit_code == 0, r.output
         x = next(ln for ln in r.output.splitlines() if ln.startswith("#   bmx055/gyro/x:"))

@@ -62,7 +62,10 @@ def fleet_runs(tmp_path_factory):
 def fleet_out(fleet_runs, tmp_path_factory):
     runs, bad, missing = fleet_runs
     out = tmp_path_factory.mktemp("fleet_out")
-    r = CliRunner().invoke(cli, ["fleet", runs[0], bad, runs[1], missing, "-o", str(out), "--channel", GLOB])
+    # the paper's model on every run: its sigma_b, tau_b are compared across runs (model auto may
+    # choose differently per run)
+    args = ["fleet", runs[0], bad, runs[1], missing, "-o", str(out), "--channel", GLOB, "--model", "wn+gm"]
+    r = CliRunner().invoke(cli, args)
     return r, out
 
 
@@ -170,7 +173,7 @@ def test_fleet_table_identity_and_intervals(fleet_runs, fleet_out):
 def test_repeatability_matches_numpy(fleet_runs, fleet_out):
     _, out = fleet_out
     rows = [x for x in _rows(out) if x["status"] != "failed"]
-    res, _ = run_tasks(plan_tasks(fleet_runs[0], [GLOB])[0], AnalysisOptions())
+    res, _ = run_tasks(plan_tasks(fleet_runs[0], [GLOB])[0], AnalysisOptions(model="wn+gm"))
     rep = {r.key: r for r in repeatability(flag_outliers(fleet_rows(res)))}
     assert set(rep) == {x["device_key"] for x in rows}
     for key, rr in rep.items():
@@ -279,3 +282,31 @@ def test_channels_in_memory_run_on_a_cluster_as_serially(fleet_runs, cluster):
     assert not fail_d and not fail_s
     docs = [[json.dumps(channel_document(r)) for r in res] for res in (res_d, res_s, res_f)]
     assert docs[0] == docs[1] == docs[2]
+
+
+def test_model_auto_gives_one_model_per_driver_sensor_and_axis():
+    """Repeats of one device where the automatic choice differs run by run: the fleet keeps, per
+    driver/sensor/axis, the candidate every run passes with the smallest summed BIC (issue 22)."""
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.fleet import common_models
+    from imustation.analysis.pipeline.loaders import Channel
+    from tests.realistic_records import record
+
+    results = []
+    for seed in range(4):
+        x, fs = record("mpu9150", 0.5, 2.44e-4, B=1.5e-5, K=2e-7, seed=seed)
+        ch = Channel("imu/gyro/x", fs, "rad/s", x, source=f"run{seed}.h5", meta={"driver": "mpu9150"})
+        results.append(analyze_channel(ch))
+    assert len({r.noise_model.model for r in results}) > 1  # the runs chose differently on their own
+    kept = common_models(results)
+    assert len({r.noise_model.model for r in kept}) == 1
+    model = kept[0].noise_model.model
+    cands = [{c.result.model: c for c in r.choice.candidates} for r in results]
+    shared = [m for m in set.intersection(*(set(c) for c in cands)) if all(c[m].passes for c in cands)]
+    assert model == min(shared, key=lambda m: sum(c[m].result.bic for c in cands))
+    for before, after, c in zip(results, kept, cands, strict=True):
+        assert after.noise_model is (before.noise_model if before.noise_model.model == model else c[model].result)
+        assert after.adequacy["noise_model"] is (
+            before.adequacy["noise_model"] if before.noise_model.model == model else c[model].check
+        )
+    assert common_models(results[:1])[0] is results[0]  # a group of one is left alone

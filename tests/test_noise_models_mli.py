@@ -423,7 +423,8 @@ def test_study_cli_writes_markdown(tmp_path):
 def test_analyze_json_models_block(tmp_path):
     x = standard(1e-4, 2e-6, 300.0, 0.01).simulate(200_000, FS, 3)
     np.save(tmp_path / "g.npy", x)
-    res = CliRunner().invoke(cli, ["analyze", str(tmp_path / "g.npy"), "--rate", "100", "--json", "--compare-models"])
+    args = ["analyze", str(tmp_path / "g.npy"), "--rate", "100", "--json", "--compare-models", "--model", "wn+gm"]
+    res = CliRunner().invoke(cli, args)
     assert res.exit_code == 0, res.output
     ch = json.loads(res.output)["channels"][0]
     assert ch["mli"]["model"] == "wn+gm"

@@ -13,7 +13,7 @@ from imustation.analysis.reports import plots
 @pytest.fixture(scope="module")
 def analysed(sim_run):
     path, _ = sim_run
-    return [analyze_channel(ch) for ch in load_run(str(path))]
+    return [analyze_channel(ch, model="wn+gm") for ch in load_run(str(path))]
 
 
 def _files_ok(paths):
@@ -94,7 +94,8 @@ def test_attitude_figure(analysed, tmp_path):
 def test_a_term_at_its_search_bound_says_so_in_the_legend():
     from imustation.analysis.pipeline.loaders import Channel
 
-    res = analyze_channel(Channel("fog/gyro/z", 100.0, "rad/s", np.random.default_rng(1).normal(0, 1e-3, 2000)))
+    x = np.random.default_rng(1).normal(0, 1e-3, 2000)
+    res = analyze_channel(Channel("fog/gyro/z", 100.0, "rad/s", x), model="wn+gm")  # the paper's model
     assert "tau_b" in res.noise_model.at_bound
     labels = [ln.get_label() for ln in plots.allan_figure(res).axes[0].get_lines()]
     gm = next(lb for lb in labels if lb.startswith("GaussMarkov"))

@@ -151,8 +151,13 @@ def test_spi_and_serial_drivers_through_stalls_a_slow_bus_and_a_nack_burst(tmp_p
     bursts = BurstLog(monkeypatch)
     devices = [
         {"name": "adis", "driver": "adis16448", "bus": "cp2130:", "sim": {"faults": stress(10.0)}},
-        {"name": "mti", "driver": "mti", "bus": "serial:/dev/ttyUSB1?baud=921600", "rate_hz": 400,
-         "sim": {"faults": stress(12.0)}},  # fmt: skip
+        {
+            "name": "mti",
+            "driver": "mti",
+            "bus": "serial:/dev/ttyUSB1?baud=921600",
+            "rate_hz": 400,
+            "sim": {"faults": stress(12.0)},
+        },  # fmt: skip
         {"name": "fog", "driver": "dsp3000", "bus": "serial:/dev/ttyUSB0", "sim": {"faults": stress(14.0)}},
     ]
     path = tmp_path / "stress.h5"

@@ -38,7 +38,8 @@ def test_need_selects_the_judged_parameters(tmp_path):
     np.save(path, x)
 
     def verdict(*extra):
-        out = CliRunner().invoke(cli, ["analyze", str(path), "--rate", str(FS), "--json", *extra])
+        args = ["analyze", str(path), "--rate", str(FS), "--json", "--model", "wn+gm", *extra]  # the paper's model
+        out = CliRunner().invoke(cli, args)
         assert out.exit_code == 0, out.output
         return json.loads(out.stdout)["channels"][0]["verdict"]
 

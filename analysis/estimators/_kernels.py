@@ -163,3 +163,32 @@ def angle(y, offset, out):
     for i in range(len(y)):
         acc += y[i] - offset
         out[i + 1] = acc
+
+
+@nb.njit(cache=True)
+def block_sums(x, ms, starts, stops, edges):
+    """Sums and counts of squared second differences of angle ``x`` per block of rate samples.
+
+    Blocks ``[edges[b], edges[b+1])``; a term ``x[i+2m] - 2 x[i+m] + x[i]`` belongs to the block
+    holding ``i`` and is counted only when it lies wholly inside that block and one segment.
+    Returns (sums, counts) of shape (blocks, len(ms)).
+    """
+    nb_ = len(edges) - 1
+    sums = np.zeros((nb_, len(ms)))
+    counts = np.zeros((nb_, len(ms)), dtype=np.int64)
+    for j in range(len(ms)):
+        m = ms[j]
+        for k in range(len(starts)):
+            for b in range(nb_):
+                lo = max(starts[k], edges[b])
+                hi = min(stops[k], edges[b + 1])
+                count = hi - lo + 1 - 2 * m
+                if count <= 0:
+                    continue
+                acc = 0.0
+                for i in range(lo, lo + count):
+                    d = x[i + 2 * m] - 2.0 * x[i + m] + x[i]
+                    acc += d * d
+                sums[b, j] += acc
+                counts[b, j] += count
+    return sums, counts

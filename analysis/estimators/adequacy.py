@@ -193,6 +193,7 @@ def model_adequacy(
     *,
     n_fitted: int = 0,
     alpha: float = ALPHA,
+    tau_min: float = 0.0,
 ) -> Adequacy:
     """Test ``model`` against the measured overlapping Allan variance ``allan``.
 
@@ -205,6 +206,9 @@ def model_adequacy(
         fitted wn+gm records: the statistic's mean is ``taus - 1.8`` on 2 h and
         ``taus - 3.1`` on 12 h records; docs/noise-model.md).
     alpha : significance level of the verdict.
+    tau_min : shortest cluster time tested, s (a device filter's memory: below it the
+        model's low-pass term is an approximation, ``sensor_terms.LowPass``); shorter
+        taus keep their ``z`` but are not tested.
 
     A model term without an angle covariance, or fewer than two testable taus,
     gives the verdict ``"not tested"`` with the reason in ``message``.
@@ -227,7 +231,7 @@ def model_adequacy(
         edf = np.where(var > 0, 2.0 * avar_model**2 / var, np.nan)
         ratio = np.asarray(allan.adev, dtype=float) ** 2 / avar_model
     z = normal_scores(ratio, edf)
-    ok = np.isfinite(z) & (edf >= MIN_EDF)
+    ok = np.isfinite(z) & (edf >= MIN_EDF) & (tau >= tau_min * (1.0 - 1e-9))
     idx = thin(tau, ok)
     if len(idx) < 2:
         return untested(f"fewer than two taus with {MIN_EDF:g} degrees of freedom", edf, z)

@@ -86,7 +86,9 @@ class AngleKernel:
         dt = 1.0 / float(fs_hz)
         lin = cub = delta = 0.0
         v, d = [], []
-        for t in model.terms:
+        # a bias instability is its fixed Gauss-Markov sum; a device filter beyond its memory is
+        # (negative) white angle noise (analysis/estimators/sensor_terms.py)
+        for t in (c for term in model.terms for c in term.components()):
             if isinstance(t, WhiteRate):
                 lin -= t.sigma_w**2 * dt / 2.0
             elif isinstance(t, GaussMarkov):
@@ -96,6 +98,8 @@ class AngleKernel:
                 cub += t.sigma_k**2 * dt**3 / 12.0
             elif isinstance(t, WhiteAngle):  # also Quantization: the same second-order statistics
                 delta += t.sigma_a**2
+            elif t.code == "lp":
+                delta += t.angle_variance()  # valid beyond the filter's memory only: test from there on
             else:
                 raise InputError(f"no angle covariance for the {type(t).__name__} term: adequacy not computed")
         return AngleKernel(lin, cub, delta, np.asarray(v, float), np.asarray(d, float))

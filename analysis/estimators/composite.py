@@ -42,7 +42,16 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.finescale import (  # noqa: F401 - re-exported: the statistic's old home
+    AUTO_SAMPLES,
+    SLOW_SHARE,
+    WHITE_Z,
+    FilterHint,
+    FineScale,
+    FineStatistic,
+    fine_scale,
+    fine_statistics,
+)
 from imustation.analysis.estimators.fitting import (
     Z90,
     MLiResult,
@@ -55,7 +64,8 @@ from imustation.analysis.estimators.fitting import (
 from imustation.analysis.estimators.kalman import Profile
 from imustation.analysis.estimators.mli import allan_start, grid_start
 from imustation.analysis.estimators.newton import fd_derivatives, stencil
-from imustation.analysis.estimators.noise_models import expm1_tail, parse_model
+from imustation.analysis.estimators.noise_models import gm_unit_avar as _gm_unit_avar
+from imustation.analysis.estimators.noise_models import parse_model
 from imustation.analysis.estimators.pattern import Increments, check_rate, integrate
 from imustation.errors import InputError
 
@@ -67,144 +77,63 @@ DEFAULT_M = 1000
 FINE_SCALE_Z_LIMIT = 4.0
 
 
-@dataclass(frozen=True)
-class FineScale:
-    """Overlapping Allan variance of all samples at ``tau`` (s) and its variance.
-
-    ``avar`` in (rate unit)^2, ``var`` = 2 avar^2 / edf, ``samples`` = cluster size,
-    ``edf`` equivalent degrees of freedom.
-    """
-
-    tau: float
-    avar: float
-    var: float
-    edf: float
-    samples: int
-    #: the noise passed the whiteness test at this scale (False: it failed at every scale tried)
-    white: bool = True
-
-
-#: cluster sizes tried by ``fine_samples="auto"`` (samples); each is compared with 4x itself
-AUTO_SAMPLES = (1, 2, 4, 8, 16, 32, 64, 128, 256)
-#: whiteness test: |tau AVAR(tau) / (4 tau AVAR(4 tau)) - 1| within this many standard deviations
-WHITE_Z = 4.0
-
-
-def _statistic(res, i: int, n: int, m: int) -> tuple[float, float]:
-    """AVAR and its EDF at index ``i`` (cluster size ``m``) of an oadev result (white-noise EDF if none)."""
-    avar = float(res.adev[i]) ** 2
-    edf = float(res.edf[i])
-    if not (np.isfinite(edf) and edf > 0):
-        # white rate noise at cluster size m (Riley, NIST SP 1065 Table 5)
-        edf = (3.0 * (n - 1) / (2.0 * m) - 2.0 * (n - 2) / n) * 4.0 * m * m / (4.0 * m * m + 5.0)
-    return avar, edf
-
-
-def fine_scale(
-    rate: np.ndarray,
-    fs_hz: float,
-    *,
-    samples: int | str = 1,
-    scale: float = 1.0,
-    segments: list[tuple[int, int]] | None = None,
-) -> FineScale:
-    """Fine-scale statistic of :mod:`.composite`: AVAR at ``samples / fs_hz`` s from every sample.
-
-    ``rate`` in rad/s (or integer counts with ``scale`` units per count, summed exactly).
-    ``samples="auto"``: the smallest cluster size of :data:`AUTO_SAMPLES` at which
-    the noise is white, i.e. ``tau AVAR(tau)`` equals ``4 tau AVAR(4 tau)`` within
-    :data:`WHITE_Z` standard deviations (a device low-pass filter lowers the first);
-    ``FineScale.white`` says whether any passed.
-    """
-    n = len(rate)
-    sizes = [k for k in AUTO_SAMPLES if 8 * k < n] if samples == "auto" else [int(samples)]
-    if not sizes:
-        raise InputError(f"{n} samples: too short for a fine-scale Allan variance")
-    chosen, white, stats = sizes[0], False, {}
-    for k in sizes:
-        # one oadev call per size tried: white data stop at the first (two taus, one pass each)
-        taus = [k / fs_hz, 4 * k / fs_hz] if samples == "auto" else [k / fs_hz]
-        res = oadev(rate, fs_hz, taus, scale=scale, segments=segments)
-        got = {int(round(t * fs_hz)): i for i, t in enumerate(res.tau)}
-        if k not in got:
-            break
-        stats[k] = _statistic(res, got[k], n, k)
-        if samples != "auto":
-            break
-        if 4 * k not in got:
-            break
-        a1, e1 = stats[k]
-        a4, e4 = _statistic(res, got[4 * k], n, 4 * k)
-        ratio = a1 / (4.0 * a4)
-        if abs(ratio - 1.0) <= WHITE_Z * ratio * math.sqrt(2.0 / e1 + 2.0 / e4):
-            chosen, white = k, True
-            break
-    if samples != "auto":
-        white = True  # the caller chose the scale
-    if chosen not in stats:
-        raise InputError(f"fine scale of {chosen} sample(s): record too short")
-    avar, edf = stats[chosen]
-    if not np.isfinite(avar) or avar <= 0:
-        raise InputError("fine-scale Allan variance is zero or undefined: the channel is constant")
-    return FineScale(chosen / fs_hz, avar, 2.0 * avar * avar / edf, edf, chosen, white)
-
-
-def _gm_unit_avar(tau_b: np.ndarray, tau: float, fs_hz: float) -> np.ndarray:
-    """AVAR at ``tau`` (s) of the sampled Gauss-Markov bias with sigma_b = 1, for an array of tau_b (s).
-
-    The exact sampled-AR(1) form of :meth:`~.noise_models.GaussMarkov.avar`
-    (Algorithm 1), vectorised over tau_b.
-    """
-    dt = 1.0 / fs_hz
-    n = tau / dt
-    d = dt / tau_b
-    phi = np.exp(-d)
-    om = -np.expm1(-d)
-    g = -np.expm1(-n * d) / om
-    n_minus_g = (expm1_tail(n * d) - n * expm1_tail(d)) / om  # n - g without cancellation
-    s2 = tau_b / 2.0
-    return s2 / n**2 * (n + 2.0 * phi * n_minus_g / om - phi * g * g)
-
-
 class _CompositeProblem(Problem):
-    """ML_i's batched likelihood plus the fine-scale term; sigma_w^2 profiled by a cubic."""
+    """ML_i's batched likelihood plus the fine-scale term; sigma_w^2 profiled by a cubic.
 
-    def __init__(self, inc: Increments, spec: ParamSpec, fine: FineScale, filt: str = "auto"):
+    The fine-scale term is ``(D - s A)^T W (D - s A) / 2`` for the Allan variances ``D``
+    at the fine cluster times and the model's ``A`` at sigma_w = 1: with one scale
+    ``(D - s A)^2 / (2 V)``; with the model family's statistic (five octaves) ``W`` is
+    their inverse covariance with a floor and a rising term projected out
+    (:meth:`~.finescale.FineStatistic.weight`).
+    """
+
+    def __init__(self, inc: Increments, spec: ParamSpec, fine: FineScale | FineStatistic, filt: str = "auto"):
         super().__init__(inc, spec, filt)
         self.fine = fine
+        if isinstance(fine, FineScale):
+            self.taus, self.D = np.array([fine.tau]), np.array([fine.avar])
+            self.Cinv = np.array([[1.0 / fine.var]])
+        else:
+            self.taus, self.D, self.Cinv = fine.taus, fine.avar, fine.weight()
 
     def unit_avar(self, theta: np.ndarray) -> np.ndarray:
-        """Model AVAR at the fine scale with sigma_w = 1, for theta (K, d)."""
-        tau_f, fs = self.fine.tau, self.inc.fs_hz
-        if self.spec.fast:
-            return 1.0 / tau_f + np.exp(theta[:, 0]) * _gm_unit_avar(np.exp(theta[:, 1]), tau_f, fs)
-        out = np.empty(theta.shape[0])
-        for i, th in enumerate(theta):
-            phi = self.spec.phi_of_theta(th, 1.0)
-            with np.errstate(all="ignore"):
-                v = float(self.spec.model(phi, 0.0).avar(np.array([tau_f]), fs)[0])
-            out[i] = v if np.isfinite(v) else np.inf
-        return out
+        """Model AVAR at the fine scales with sigma_w = 1, for theta (K, d): (K, J)."""
+        fs = self.inc.fs_hz
+        if self.spec.fast and len(self.taus) == 1:
+            tau_f = float(self.taus[0])
+            return (1.0 / tau_f + np.exp(theta[:, 0]) * _gm_unit_avar(np.exp(theta[:, 1]), tau_f, fs))[:, None]
+        out = self.spec.unit_avar(theta, self.taus, fs)
+        return np.where(np.isfinite(out), out, np.inf)
+
+    def _forms(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``A^T C^-1 A``, ``A^T C^-1 D`` (K,) and ``D^T C^-1 D``."""
+        AC = A @ self.Cinv
+        return np.sum(AC * A, axis=1), AC @ self.D, float(self.D @ self.Cinv @ self.D)
 
     def sigma_w2(self, prof: Profile, A: np.ndarray) -> np.ndarray:
         """Maximiser over s = sigma_w^2 of the composite likelihood: root of
-        (A^2/V) s^3 - (A D/V) s^2 + dof/2 s - S/2 = 0 (Newton from s = D/A, monotone)."""
-        D, V = self.fine.avar, self.fine.var
+        a s^3 - b s^2 + dof/2 s - S/2 = 0 with a = A^T C^-1 A, b = A^T C^-1 D
+        (Newton from s = b/a, monotone)."""
+        a, b, _ = self._forms(A)
         dof = prof.m - 1
         S = prof.s_tilde
-        s = D / A
+        s = b / a
         for _ in range(30):
-            f = (A * A / V) * s**3 - (A * D / V) * s**2 + 0.5 * dof * s - 0.5 * S
-            fp = 3.0 * (A * A / V) * s**2 - 2.0 * (A * D / V) * s + 0.5 * dof
+            f = a * s**3 - b * s**2 + 0.5 * dof * s - 0.5 * S
+            fp = 3.0 * a * s**2 - 2.0 * b * s + 0.5 * dof
             step = f / fp
             s = np.maximum(s - step, 0.5 * s)
             if np.all(np.abs(step) <= 1e-13 * s):
                 break
         return s
 
+    def fine_nll(self, A: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """The fine-scale term at sigma_w^2 = s (K,)."""
+        a, b, c = self._forms(A)
+        return 0.5 * (c - 2.0 * s * b + s * s * a)
+
     def _composite(self, prof: Profile, A: np.ndarray, s: np.ndarray) -> np.ndarray:
-        fine = (self.fine.avar - s * A) ** 2 / (2.0 * self.fine.var)
-        return full_nll(prof, s) + fine
+        return full_nll(prof, s) + self.fine_nll(A, s)
 
     def nll(self, theta: np.ndarray) -> np.ndarray:
         theta = np.atleast_2d(theta)
@@ -227,12 +156,13 @@ class CompositeResult(MLiResult):
     """:class:`~.mli.MLiResult` of the composite estimator plus its fine-scale diagnostics.
 
     ``fine_scale_tau`` (s) and ``fine_scale_avar`` ((rate unit)^2): the statistic
-    used; ``integrated_sigma_w`` the integrated likelihood's own sigma_w at the
-    optimum; ``fine_scale_z`` the standardised difference of the two (|z| >
-    ``FINE_SCALE_Z_LIMIT``: the noise is not white at the fine scale).
+    used (its first scale); ``integrated_sigma_w`` the integrated likelihood's own
+    sigma_w at the optimum; ``fine_scale_z`` the standardised difference of the two
+    (|z| > ``FINE_SCALE_Z_LIMIT``: the noise is not white at the fine scale).
     ``data_time_s``: the data passes (integration and fine-scale AVAR), s.
-    ``as_dict`` keeps the keys of ML_i's block (the JSON contract); a fine-scale
-    disagreement shows in ``message`` and ``converged``.
+    The robust intervals, ``ci90_model``, ``cov_log`` and ``memory_s`` are
+    :class:`~.fitting.MLiResult`'s. ``as_dict`` keeps the keys of ML_i's block (the
+    JSON contract); a fine-scale disagreement shows in ``message`` and ``converged``.
     """
 
     fine_scale_tau: float = math.nan
@@ -244,74 +174,134 @@ class CompositeResult(MLiResult):
 
 def fit_composite_data(
     inc: Increments,
-    fine: FineScale,
+    fine: FineScale | FineStatistic,
     model: str = "wn+gm",
     *,
     single_start: bool = False,
+    extra_starts: list[np.ndarray] | None = None,
+    starts_only: bool = False,
+    robust: bool = False,
+    max_iter: int = 50,
 ) -> CompositeResult:
     """Fit ``model`` to a pattern-integrated record plus its fine-scale statistic.
 
-    ``single_start``: search from the Allan start point alone (what a one-start
-    fit would do; the Monte Carlo study counts how often that ends elsewhere).
+    ``fine``: :func:`fine_scale` (one scale) or :func:`~.finescale.fine_statistics`
+    (needed by models with a device filter ``lp``). ``single_start``: search from the
+    Allan start point alone (what a one-start fit would do; the Monte Carlo study
+    counts how often that ends elsewhere). ``extra_starts``: more start points
+    (theta); ``starts_only``: search from those alone. ``robust``: intervals that
+    account for model misfit (:mod:`.robust`). ``max_iter``: Newton steps per start.
     """
     t0 = time.perf_counter()
-    spec = ParamSpec(parse_model(model))
+    spec = ParamSpec.for_record(model, inc.fs_hz, inc.duration)
     if len(inc.y) < 4 + 2 * spec.d:
         raise InputError(f"only {len(inc.y)} pattern intervals: too few for model {spec.name!r}")
+    multi = isinstance(fine, FineStatistic)
+    memory = fine.memory_s if multi and fine.term else 0.0
+    if "lp" in spec.codes:
+        if not (multi and len(fine.taus) > 1):
+            raise InputError(f"model {spec.name!r}: a device filter needs the two-scale statistic (fine_statistics)")
+        if float(inc.dt.min()) < 10.0 * memory:
+            raise InputError(f"pattern intervals of {inc.dt.min():.3g} s: too short against the filter's memory")
+    if multi and fine.term and ("lp" in spec.codes or "wa" in spec.codes):
+        spec = replace(spec, angle_scale=angle_scale(fine))
     problem = _CompositeProblem(inc, spec, fine)
-    allan = allan_start(inc, spec, quick=spec.fast)
-    if single_start:
-        starts = allan[:1]
+    spec = problem.spec
+    if starts_only:
+        starts = []
+    elif single_start:
+        starts = allan_start(inc, spec, quick=spec.fast)[:1]
     else:
+        allan = allan_start(inc, spec, quick=spec.fast)
         starts = (grid_start(problem) + allan) if spec.fast else allan
-    best, n_starts = optimise(problem, starts)
+    starts += [np.clip(x, problem.lo, problem.hi) for x in extra_starts or []]
+    if not starts:
+        raise InputError(f"model {spec.name!r}: no start point")
+    best, n_starts = optimise(problem, starts, max_iter)
     theta = best.x
     prof = problem.profile(theta[None, :])
     A = problem.unit_avar(theta[None, :])
     s = float(problem.sigma_w2(prof, A)[0])
-    res = build_result(problem, theta, best, n_starts, t0, ESTIMATOR, len(inc.y), inc.pattern, inc.n, inc.fs_hz, s)
-    ci90 = dict(res.ci90)
+    res = build_result(
+        problem, theta, best, n_starts, t0, ESTIMATOR, len(inc.y), inc.pattern, inc.n, inc.fs_hz, s,
+        robust=robust, memory_s=memory,
+    )  # fmt: skip
+    ci90, ci90_model = dict(res.ci90), dict(res.ci90_model)
     if spec.fast:
         # profile-likelihood intervals for the bias parameters: the likelihood in
-        # log tau_b is skewed, the symmetric (Wald) interval under-covers (docs/noise-model.md)
-        (lo_r, hi_r), (lo_t, hi_t) = _profile_intervals(problem, theta, best.fun)
-        if math.isfinite(lo_r) or math.isfinite(hi_r):
-            sw = math.sqrt(s)
-            ci90["sigma_b"] = (sw * math.exp(0.5 * lo_r), sw * math.exp(0.5 * hi_r))
-        if math.isfinite(lo_t) or math.isfinite(hi_t):
-            ci90["tau_b"] = (math.exp(lo_t), math.exp(hi_t))
+        # log tau_b is skewed, the symmetric (Wald) interval under-covers (docs/noise-model.md);
+        # a robust fit keeps the wider of the profile interval and its sandwich one
+        ends = _profile_intervals(problem, theta, best.fun)
+        sw = math.sqrt(s)
+        for key, (lo, hi), f in (("sigma_b", ends[0], lambda x: sw * math.exp(0.5 * x)), ("tau_b", ends[1], math.exp)):
+            if not (math.isfinite(lo) or math.isfinite(hi)):
+                continue
+            ci90_model[key] = (f(lo), f(hi))
+            ci90[key] = ci90_model[key]
+            if robust:
+                ci90[key] = (min(f(lo), res.ci90[key][0]), max(f(hi), res.ci90[key][1]))
     # the integrated likelihood's own sigma_w and its standard error (chi-square, M - 1 dof)
     s_int = float(prof.s_tilde[0] / (prof.m - 1))
     se_int = s_int * math.sqrt(2.0 / (prof.m - 1))
-    s_fine = fine.avar / float(A[0])
-    z = (s_fine - s_int) / math.hypot(se_int, math.sqrt(fine.var) / float(A[0]))
-    message = res.message
-    if not fine.white:
-        message += (
-            f"; noise not white at any fine scale up to {4 * fine.samples} samples (device filter?): "
-            "sigma_w is biased - give fine_samples"
-        )
-    elif fine.samples > 1:
-        message += f"; fine scale raised to {fine.samples} samples: noise not white at the sample scale"
+    a, b, _ = problem._forms(A)
+    s_fine = float(b[0] / a[0])
+    z = (s_fine - s_int) / math.hypot(se_int, 1.0 / math.sqrt(float(a[0])))
+    message = res.message + _fine_message(fine)
     if abs(z) > FINE_SCALE_Z_LIMIT:
         message += (
             f"; fine-scale AVAR disagrees with the integrated signal (z = {z:+.1f}): noise not white at "
-            f"{fine.tau:.3g} s (device low-pass filter?) - raise fine_samples"
+            f"{problem.taus[0]:.3g} s (device low-pass filter?) - raise fine_samples"
         )
+    white = fine.linear if multi else fine.white
     base = {f.name: getattr(res, f.name) for f in fields(MLiResult)}
     base |= {
         "ci90": ci90,
+        "ci90_model": ci90_model if robust else {},
         "message": message,
-        "converged": res.converged and abs(z) <= FINE_SCALE_Z_LIMIT and fine.white,
+        "converged": res.converged and abs(z) <= FINE_SCALE_Z_LIMIT and white,
         "fit_time_s": time.perf_counter() - t0,
     }
     return CompositeResult(
         **base,
-        fine_scale_tau=fine.tau,
-        fine_scale_avar=fine.avar,
+        fine_scale_tau=float(problem.taus[0]),
+        fine_scale_avar=float(problem.D[0]),
         integrated_sigma_w=math.sqrt(s_int),
         fine_scale_z=z,
     )
+
+
+def angle_scale(fine: FineStatistic) -> float:
+    """Stretch of the angle-noise search coordinate (:class:`~.paramspec.ParamSpec`): the Newton's
+    finite-difference step then moves it by a tenth of its standard error (~1/z in log)."""
+    return float(np.clip(5.0 / max(abs(fine.angle_z), 1.0), 1e-3, 1.0))
+
+
+def _fine_message(fine: FineScale | FineStatistic) -> str:
+    if isinstance(fine, FineScale):
+        if not fine.white:
+            return (
+                f"; noise not white at any fine scale up to {4 * fine.samples} samples (device filter?): "
+                "sigma_w is biased - give fine_samples"
+            )
+        if fine.samples > 1:
+            return f"; fine scale raised to {fine.samples} samples: noise not white at the sample scale"
+        return ""
+    out = ""
+    if fine.slow_share > SLOW_SHARE:
+        out += (
+            f"; slow terms reach the fine scales ({100 * fine.slow_share:.0f} % of the white noise at "
+            f"{fine.taus[0]:.3g} s): sigma_w rests on their shape below that scale - check it"
+        )
+    if not fine.linear:
+        out += f"; noise not white up to an angle term at any fine scale up to {4 * fine.samples} samples"
+    if fine.term == "lp":
+        out += (
+            f"; device filter: tau_lp {fine.tau_lp * 1e3:.3g} ms from the Allan variance at {fine.samples} and "
+            f"{2 * fine.samples} samples ({fine.source}); model exact from {fine.memory_s:.3g} s"
+        )
+    elif fine.samples > 1:
+        out += f"; fine scale at {fine.samples} samples: noise not white at the sample scale"
+    return out
 
 
 #: profile points, in observed-information standard errors of the fixed coordinate
@@ -414,6 +404,8 @@ def fit_composite(
     scale: float = 1.0,
     segments: list[tuple[int, int]] | None = None,
     single_start: bool = False,
+    robust: bool = False,
+    hint: FilterHint | None = None,
 ) -> CompositeResult:
     """ML_i-F fit of a rate noise model with turn-on bias.
 
@@ -429,21 +421,28 @@ def fit_composite(
         smallest of 1, 2, 4, ... 256 at which the noise passes a whiteness test
         (a device filter below Nyquist makes the sample scale non-white); a size
         above 1 is named in ``message``.
+        Models with a device filter (``lp``) or white angle noise (``wa``) use the
+        two-scale statistic of :func:`~.finescale.fine_statistics` instead, which
+        finds its scale itself (``hint``: the device's filter settings).
     segments : contiguous sample ranges ``[start, end)`` with data.
+    robust : intervals that account for model misfit (:mod:`.robust`).
 
     Returns
     -------
     CompositeResult: ``sigma_w`` (rad s^-1/sqrt(Hz)), ``sigma_b`` (rad s^-2/sqrt(Hz)),
     ``tau_b`` (s), ``b_on`` (rad/s), ``stderr``, ``ci90``, diagnostics.
     """
-    parse_model(model)
+    codes = parse_model(model)
     rate = check_rate(rate, fs_hz)
     if fine_samples != "auto" and not (isinstance(fine_samples, int) and fine_samples >= 1):
         raise InputError(f"fine_samples = {fine_samples!r}: use 'auto' or a whole number of samples >= 1")
     t0 = time.perf_counter()
     m_eff = int(min(m, max(8, len(rate) // 2)))
     inc = integrate(rate, fs_hz, m=m_eff, pattern=pattern, scale=scale, segments=segments)
-    fine = fine_scale(rate, fs_hz, samples=fine_samples, scale=scale, segments=segments)
+    if "lp" in codes or "wa" in codes:
+        fine = fine_statistics(rate, fs_hz, scale=scale, segments=segments, hint=hint)
+    else:
+        fine = fine_scale(rate, fs_hz, samples=fine_samples, scale=scale, segments=segments)
     data_time = time.perf_counter() - t0
-    res = fit_composite_data(inc, fine, model, single_start=single_start)
+    res = fit_composite_data(inc, fine, model, single_start=single_start, robust=robust)
     return replace(res, data_time_s=data_time)

@@ -1,9 +1,6 @@
 """The fitting engine shared by ML_i, ML_i-F, ML on rates and GMWM.
 
-* :class:`ParamSpec`: a model's parameter layout. The search runs over ``theta``:
-  every variance relative to ``sigma_w^2`` (which is profiled in closed form) and log
-  correlation times, so the standard model is searched in 2 dimensions; physical
-  log-parameters ``phi`` (``log sigma_w`` first) are what results report.
+* :class:`ParamSpec` (:mod:`.paramspec`, re-exported here): a model's parameter layout.
 * :class:`Problem`: the innovations likelihood (Nikolic et al. 2016, eq. 19) of one
   model on one integrated record, batched over parameter points. ``b_on`` is a
   diffuse initial state, handled exactly by the augmented (de Jong) filter (GLS
@@ -26,19 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imustation.analysis.estimators.kalman import Profile, kalman_profile
+from imustation.analysis.estimators.kalman import Innovations, Profile, kalman_innovations
 from imustation.analysis.estimators.newton import NewtonResult, fd_derivatives, newton, stencil
-from imustation.analysis.estimators.noise_models import (
-    GaussMarkov,
-    NoiseModel,
-    RandomWalk,
-    TermBlock,
-    WhiteAngle,
-    WhiteRate,
-    model_name,
-)
+from imustation.analysis.estimators.noise_models import NoiseModel
+from imustation.analysis.estimators.paramspec import FOLD_FRACTION, ParamSpec
 from imustation.analysis.estimators.pattern import Increments
-from imustation.analysis.estimators.scan import standard_profile
+from imustation.analysis.estimators.robust import sandwich
+from imustation.analysis.estimators.scan import standard_innovations
 from imustation.errors import InputError
 
 _LOG2PI = math.log(2.0 * math.pi)
@@ -59,151 +50,14 @@ def full_nll(prof: Profile, sigma_w2: np.ndarray) -> np.ndarray:
     return 0.5 * (dof * np.log(sigma_w2) + prof.logdet + prof.log_suu + prof.s_tilde / sigma_w2 + dof * _LOG2PI)
 
 
-# ---------------------------------------------------------------------------
-# model specification: search parameters theta <-> physical parameters
-
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """Parameter layout of a model.
-
-    Search vector ``theta``: for each Gauss-Markov term ``log(sigma_b^2/sigma_w^2)``
-    and ``log tau_b``; random walk ``log(sigma_k^2/sigma_w^2)``; white angle
-    ``log(sigma_a^2/sigma_w^2)``. Physical vector ``phi``: ``log sigma_w`` followed
-    by the logs of ``sigma_b, tau_b`` / ``sigma_k`` / ``sigma_a`` in the same order.
-    """
-
-    #: term codes as :func:`~.noise_models.parse_model` returns them, ``"wn"`` first
-    codes: tuple[str, ...]
-
-    @property
-    def name(self) -> str:
-        """Canonical model name (``"wn+gm"``, ...)."""
-        return model_name(self.codes)
-
-    @property
-    def fast(self) -> bool:
-        """The standard model, which the prefix-scan filter of :mod:`.scan` evaluates."""
-        return self.codes == ("wn", "gm")
-
-    @property
-    def others(self) -> tuple[str, ...]:
-        """Codes of the terms besides the white rate noise, in search order."""
-        return tuple(c for c in self.codes if c != "wn")
-
-    @property
-    def d(self) -> int:
-        """Dimension of the search vector theta."""
-        return sum(2 if c == "gm" else 1 for c in self.others)
-
-    def phi_names(self) -> list[str]:
-        """Names of the physical parameters, in the order of phi."""
-        names = ["sigma_w"]
-        k = 0
-        ngm = self.codes.count("gm")
-        for c in self.others:
-            if c == "gm":
-                k += 1
-                sfx = "" if ngm == 1 else str(k)
-                names += [f"sigma_b{sfx}", f"tau_b{sfx}"]
-            elif c == "rw":
-                names.append("sigma_k")
-            else:
-                names.append("sigma_a")
-        return names
-
-    def theta_kinds(self) -> list[str]:
-        """Kind of each search coordinate: ``r``/``tau`` (Gauss-Markov), ``r_rw``, ``r_wa``."""
-        out = []
-        for c in self.others:
-            out += ["r", "tau"] if c == "gm" else [f"r_{c}"]
-        return out
-
-    def bounds(self, inc: Increments) -> tuple[np.ndarray, np.ndarray]:
-        """Search box ``(lo, hi)`` of theta for the record ``inc``."""
-        total = inc.duration
-        dt_min = float(inc.dt.min())
-        box = {
-            # r = sigma^2/sigma_w^2 from "invisible over the record" to "dominates at one
-            # interval"; a Gauss-Markov term can hide the white noise even with long
-            # intervals (angle variance r tau^2 dt vs dt), so its bound uses tau >= 1/fs
-            "r": (math.log(1e-6 / total**2), math.log(10.0 * inc.fs_hz**2)),
-            "r_rw": (math.log(1e-6 / total**2), math.log(10.0 / dt_min**2)),
-            "tau": (math.log(2.0 / inc.fs_hz), math.log(100.0 * total)),
-            "r_wa": (math.log(1e-4 * dt_min), math.log(10.0 * total)),
-        }
-        lo, hi = zip(*(box[k] for k in self.theta_kinds()), strict=True)
-        return np.array(lo), np.array(hi)
-
-    def blocks(self, theta: np.ndarray) -> tuple[list[TermBlock], np.ndarray]:
-        """Term blocks (sigma_w = 1 units) and angle-noise ratio for theta (K, d)."""
-        K = theta.shape[0]
-        blocks = [TermBlock("wn", np.ones(K))]
-        r_angle = np.zeros(K)
-        j = 0
-        for c in self.others:
-            if c == "gm":
-                blocks.append(TermBlock("gm", np.exp(theta[:, j]), np.exp(theta[:, j + 1])))
-                j += 2
-            elif c == "rw":
-                blocks.append(TermBlock("rw", np.exp(theta[:, j])))
-                j += 1
-            else:
-                r_angle = np.exp(theta[:, j])
-                j += 1
-        return blocks, r_angle
-
-    def theta_of_phi(self, phi: np.ndarray) -> np.ndarray:
-        """phi (K, 1 + d) -> theta (K, d): variance ratios relative to sigma_w^2."""
-        out = np.empty((phi.shape[0], self.d))
-        j = 0
-        for c in self.others:
-            out[:, j] = 2.0 * (phi[:, j + 1] - phi[:, 0])
-            if c == "gm":
-                out[:, j + 1] = phi[:, j + 2]
-                j += 2
-            else:
-                j += 1
-        return out
-
-    def phi_of_theta(self, theta: np.ndarray, sigma_w: float) -> np.ndarray:
-        """theta (d,) and sigma_w (rate unit/sqrt(Hz)) -> phi (1 + d,)."""
-        phi = np.empty(1 + self.d)
-        phi[0] = math.log(sigma_w)
-        j = 0
-        for c in self.others:
-            phi[j + 1] = phi[0] + 0.5 * theta[j]
-            if c == "gm":
-                phi[j + 2] = theta[j + 1]
-                j += 2
-            else:
-                j += 1
-        return phi
-
-    def model(self, phi: np.ndarray, b_on: float) -> NoiseModel:
-        """The :class:`~.noise_models.NoiseModel` at phi (1 + d,) with turn-on bias ``b_on`` (rate unit)."""
-        v = np.exp(phi)
-        terms: list = [WhiteRate(float(v[0]))]
-        j = 1
-        for c in self.others:
-            if c == "gm":
-                terms.append(GaussMarkov(float(v[j]), float(v[j + 1])))
-                j += 2
-            elif c == "rw":
-                terms.append(RandomWalk(float(v[j])))
-                j += 1
-            else:
-                terms.append(WhiteAngle(float(v[j])))
-                j += 1
-        return NoiseModel(tuple(terms), b_on, name=self.name)
-
-
 class Problem:
     """Likelihood of one model on one integrated record, batched over parameter points."""
 
     def __init__(self, inc: Increments, spec: ParamSpec, filt: str = "auto"):
         self.inc = inc
-        self.spec = spec
+        self.spec = spec = spec.with_record(inc.fs_hz, inc.duration)
+        #: flicker components this much shorter than every interval are folded (paramspec.FOLD_FRACTION)
+        self.fold_below = FOLD_FRACTION * float(inc.dt.min())
         if filt == "auto":
             filt = "scan" if spec.fast else "kalman"
         if filt == "scan" and not spec.fast:
@@ -213,14 +67,18 @@ class Problem:
         self.lo, self.hi = spec.bounds(inc)
         self.n_eval = 0
 
-    def profile(self, theta: np.ndarray) -> Profile:
+    def innovations(self, theta: np.ndarray) -> Innovations:
+        """Per-interval innovations of the filter at theta (K, d) (sigma_w = 1 units)."""
         theta = np.atleast_2d(theta)
         self.n_eval += theta.shape[0]
         if self.filt == "scan":
             gap = self.inc.gap if np.any(self.inc.gap > 0) else None
-            return standard_profile(self.inc.y, self.inc.dt, np.exp(theta[:, 0]), np.exp(theta[:, 1]), gap)
-        blocks, r_angle = self.spec.blocks(theta)
-        return kalman_profile(blocks, r_angle, self.layout)
+            return standard_innovations(self.inc.y, self.inc.dt, np.exp(theta[:, 0]), np.exp(theta[:, 1]), gap)
+        blocks, r_angle = self.spec.blocks(theta, self.fold_below)
+        return kalman_innovations(blocks, r_angle, self.layout)
+
+    def profile(self, theta: np.ndarray) -> Profile:
+        return self.innovations(theta).profile()
 
     def nll(self, theta: np.ndarray) -> np.ndarray:
         """Profiled negative log-likelihood at theta (K, d)."""
@@ -240,9 +98,10 @@ class Problem:
 # optimisation
 
 
-def optimise(problem: Problem, starts: list[np.ndarray]) -> tuple[NewtonResult, int]:
-    """Newton from each distinct start; a start stops when it reaches an optimum already
-    found or is still far worse than the best (50 nats after 3 steps, 5 after 6)."""
+def optimise(problem: Problem, starts: list[np.ndarray], max_iter: int = 50) -> tuple[NewtonResult, int]:
+    """Newton from each distinct start (at most ``max_iter`` steps each); a start stops when it
+    reaches an optimum already found or is still far worse than the best (50 nats after 3 steps,
+    5 after 6)."""
     found: list[NewtonResult] = []
 
     def stop(x, f, it):
@@ -260,11 +119,12 @@ def optimise(problem: Problem, starts: list[np.ndarray]) -> tuple[NewtonResult, 
             unique.append(x0)
     kinds = problem.spec.theta_kinds()
     # only extra terms may vanish: the standard model's own bias is kept (its search box decides)
-    probe = tuple(j for j, k in enumerate(kinds) if k == "r_rw" or k == "r_wa") if problem.spec.d > 2 else ()
+    probe = tuple(j for j, k in enumerate(kinds) if k in ("r_rw", "r_wa", "r_fl")) if problem.spec.d > 2 else ()
     if problem.spec.codes.count("gm") > 1:
         probe += tuple(j for j, k in enumerate(kinds) if k == "r")
     for x0 in unique:
-        found.append(newton(problem.nll, x0, problem.lo, problem.hi, stop=stop if found else None, probe=probe))
+        halt = stop if found else None
+        found.append(newton(problem.nll, x0, problem.lo, problem.hi, stop=halt, max_iter=max_iter, probe=probe))
     candidates = [r for r in found if not r.message.startswith("same optimum")]
     best = min(candidates, key=lambda r: r.fun)
     return best, len(unique)
@@ -281,17 +141,22 @@ def observed_information(problem: Problem, phi: np.ndarray, h: float = 1e-2) -> 
     return fd_derivatives(f, D, h)[2]
 
 
-def intervals(
-    names: list[str], phi: np.ndarray, H: np.ndarray
-) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
-    """Delta-method standard errors and 90 % intervals symmetric in log-parameters."""
+def information_cov(H: np.ndarray) -> np.ndarray:
+    """``H^-1``, or NaN where the information ``H`` is not positive definite."""
     try:
-        cov = np.linalg.inv(H)
-        var = np.diag(cov)
-        if not np.all(np.linalg.eigvalsh(H) > 0):
-            var = np.full(len(phi), np.nan)
+        if np.all(np.linalg.eigvalsh(H) > 0):
+            return np.linalg.inv(H)
     except np.linalg.LinAlgError:
-        var = np.full(len(phi), np.nan)
+        pass
+    return np.full(H.shape, np.nan)
+
+
+def intervals(
+    names: list[str], phi: np.ndarray, H: np.ndarray, cov: np.ndarray | None = None
+) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+    """Delta-method standard errors and 90 % intervals symmetric in log-parameters, from the
+    information ``H`` (or, if given, the covariance ``cov`` of the log-parameters)."""
+    var = np.diag(information_cov(H) if cov is None else cov)
     stderr, ci90 = {}, {}
     for name, p, v in zip(names, phi, var, strict=True):
         value = math.exp(p)
@@ -346,6 +211,15 @@ class MLiResult:
     bic: float = math.nan
     estimator: str = "ML_i"
     noise_model: NoiseModel | None = field(default=None, compare=False, repr=False)
+    #: intervals account for model misfit (the wider of sandwich and model-based); ``ci90_model``
+    #: then holds the model-based ones
+    robust: bool = False
+    ci90_model: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: physical log-parameters (order of ``ParamSpec.phi_names``) and the covariance behind ``stderr``
+    phi: np.ndarray | None = field(default=None, compare=False, repr=False)
+    cov_log: np.ndarray | None = field(default=None, compare=False, repr=False)
+    #: cluster time (s) from which the model holds: a device filter's memory (0: from the sample time)
+    memory_s: float = 0.0
 
     def as_dict(self) -> dict:
         return {
@@ -366,6 +240,7 @@ class MLiResult:
             "bic": self.bic,
             "converged": self.converged,
             "message": self.message,
+            **({"robust": True, "ci90_model": {k: list(v) for k, v in self.ci90_model.items()}} if self.robust else {}),
         }
 
 
@@ -381,11 +256,17 @@ def build_result(
     n: int,
     fs_hz: float,
     sigma_w2: float | None = None,
+    *,
+    robust: bool = False,
+    memory_s: float = 0.0,
 ) -> MLiResult:
     """The result at search point ``theta``: physical parameters, intervals, criteria.
 
     ``sigma_w2`` (rate unit^2/Hz): given by estimators whose likelihood does not
     profile it in closed form (ML_i-F); the nll is then ``problem.full_nll``'s.
+    ``robust``: intervals that hold under model misfit, the wider of the model-based
+    and the sandwich interval (:mod:`.robust`). ``memory_s`` (s): a device filter's
+    memory, for the model's ``lp`` term.
     """
     spec = problem.spec
     prof = problem.profile(theta[None, :])
@@ -400,7 +281,23 @@ def build_result(
     b_on = float(prof.b_on[0])
     names = spec.phi_names()
     H = observed_information(problem, phi)
-    stderr, ci90 = intervals(names, phi, H)
+    cov = information_cov(H)
+    stderr, ci90 = intervals(names, phi, H, cov)
+    ci90_model = dict(ci90)
+    if robust:
+        cov_r = sandwich(problem, phi, H)
+        se_r, ci_r = intervals(names, phi, H, cov_r)
+        for name in names:
+            if math.isfinite(se_r[name]) and se_r[name] > stderr[name]:
+                stderr[name] = se_r[name]
+            lo_r, hi_r = ci_r[name]
+            if math.isfinite(lo_r):
+                ci90[name] = (min(ci90[name][0], lo_r), max(ci90[name][1], hi_r))
+        # the covariance behind the reported standard errors: the larger variance per coordinate
+        with np.errstate(all="ignore"):  # NaN where either covariance is not usable
+            scale = np.sqrt(np.maximum(np.diag(cov_r), np.diag(cov)) / np.diag(cov))
+        if np.all(np.isfinite(scale)):
+            cov = cov * np.outer(scale, scale)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))
     lo, hi = problem.lo, problem.hi
     at_bound = {names[1 + j] for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3}
@@ -408,7 +305,7 @@ def build_result(
     ngm = spec.codes.count("gm")
     if ngm > 1:
         order = sorted(range(1, ngm + 1), key=lambda i: params[f"tau_b{i}"])
-        for dct in (params, stderr, ci90):
+        for dct in (params, stderr, ci90, ci90_model):
             old = dict(dct)
             for new_i, old_i in enumerate(order, start=1):
                 for key in ("sigma_b", "tau_b"):
@@ -422,6 +319,7 @@ def build_result(
         if ngm > 1:
             stderr["sigma_b"], stderr["tau_b"] = stderr[f"sigma_b{sfx}"], stderr[f"tau_b{sfx}"]
             ci90["sigma_b"], ci90["tau_b"] = ci90[f"sigma_b{sfx}"], ci90[f"tau_b{sfx}"]
+            ci90_model["sigma_b"], ci90_model["tau_b"] = ci90_model[f"sigma_b{sfx}"], ci90_model[f"tau_b{sfx}"]
     elif "rw" in spec.codes:
         sigma_b, tau_b = params["sigma_k"], math.inf
     else:
@@ -454,5 +352,10 @@ def build_result(
         aic=2.0 * nll + 2.0 * k,
         bic=2.0 * nll + k * math.log(M),
         estimator=estimator,
-        noise_model=spec.model(phi, b_on),
+        noise_model=spec.model(phi, b_on, memory_s),
+        robust=robust,
+        ci90_model=ci90_model if robust else {},
+        phi=phi,
+        cov_log=cov,
+        memory_s=memory_s,
     )

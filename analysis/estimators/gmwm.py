@@ -50,7 +50,7 @@ import itertools
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares, nnls
@@ -65,6 +65,7 @@ from imustation.analysis.estimators.noise_models import (
     WhiteRate,
     parse_model,
 )
+from imustation.analysis.estimators.sensor_terms import BiasInstability, LowPass
 from imustation.errors import InputError
 
 #: default probability mass inside [wv_lo, wv_hi]
@@ -152,7 +153,11 @@ def model_wv(model: NoiseModel, scale: np.ndarray, fs_hz: float) -> np.ndarray:
 
 
 def _unit_terms(spec: ParamSpec, taus: Sequence[float]) -> list:
-    """Terms of unit variance (sigma = 1) in the layout of ``spec``; ``taus`` for the GM terms."""
+    """Terms of unit variance (sigma = 1) in the layout of ``spec``; ``taus`` for the GM terms.
+
+    Bias instability: ``q = B^2``; device filter: ``q = sigma_w^2 tau_lp``, its
+    Allan variance ``-1.5 q / tau^2`` beyond the filter's memory (a negative column).
+    """
     out: list = [WhiteRate(1.0)]
     k = 0
     for c in spec.others:
@@ -161,6 +166,10 @@ def _unit_terms(spec: ParamSpec, taus: Sequence[float]) -> list:
             k += 1
         elif c == "rw":
             out.append(RandomWalk(1.0))
+        elif c == "fl":
+            out.append(BiasInstability(1.0, spec.flicker_times))
+        elif c == "lp":
+            out.append(LowPass(1.0, 1.0, memory_s=1e-300))  # beyond the memory at every scale fitted
         else:
             out.append(WhiteAngle(1.0))
     return out
@@ -177,8 +186,13 @@ class _WVProblem:
         self.tau_lo = 2.0 / wv.fs_hz
         self.tau_hi = 100.0 * duration_s
         # variance at which each term alone reaches the largest WV (scale of the search box)
-        A = self.design([math.sqrt(self.tau_lo * duration_s)] * self.n_gm)
-        self.q_ref = np.array([np.max(wv.wv / np.maximum(A[:, i], 1e-300)) for i in range(A.shape[1])])
+        A = np.abs(self.design([math.sqrt(self.tau_lo * duration_s)] * self.n_gm))
+        ratio = wv.wv[:, None] / np.maximum(A, 1e-300)
+        self.q_ref = ratio.max(axis=0)
+        # lower end: 1e-10 of the level at which the term alone explains the largest WV, or, if
+        # lower, of the level at which it explains the smallest one (a term like the random walk,
+        # negligible at the short scales, otherwise gets a floor near its real value)
+        self.q_lo = np.minimum(self.q_ref, ratio.min(axis=0)) * _Q_BOX[0]
         self.n_eval = 0
 
     def design(self, taus: Sequence[float]) -> np.ndarray:
@@ -207,7 +221,7 @@ class _WVProblem:
         return np.array(x)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = self.join(self.q_ref * _Q_BOX[0], [self.tau_lo] * self.n_gm)
+        lo = self.join(self.q_lo, [self.tau_lo] * self.n_gm)
         hi = self.join(self.q_ref * _Q_BOX[1], [self.tau_hi] * self.n_gm)
         return lo, hi
 
@@ -220,7 +234,7 @@ class _WVProblem:
         """Weighted NNLS variances for fixed correlation times: (objective, x clipped into the box)."""
         A = self.design(taus)
         q, rnorm = nnls(A * w[:, None], self.wv.wv * w)
-        q = np.clip(q, self.q_ref * _Q_BOX[0] * 10.0, self.q_ref * _Q_BOX[1] / 10.0)
+        q = np.clip(q, self.q_lo * 10.0, self.q_ref * _Q_BOX[1] / 10.0)
         self.n_eval += 1
         return rnorm**2, self.join(q, taus)
 
@@ -281,6 +295,7 @@ def fit_gmwm(
     segments: Sequence[tuple[int, int]] | None = None,
     starts: str = "grid",
     reweight: int = 2,
+    tau_min: float = 0.0,
 ) -> GMWMResult:
     """GMWM fit of a rate noise model (Guerrier et al. 2013) to rate samples.
 
@@ -293,6 +308,8 @@ def fit_gmwm(
     segments : contiguous sample ranges with data (gaps between them).
     starts : ``"grid"`` (correlation-time grid + NNLS, default) or ``"single"``.
     reweight : refits with weights from the fitted model's WV (0 = weights from nu_hat only).
+    tau_min : a device filter's memory, s: scales whose Allan cluster time (half the
+        scale) is shorter are left out (the model, with ``lp``, holds from there on).
 
     Returns
     -------
@@ -300,20 +317,24 @@ def fit_gmwm(
     ``tau_b`` (s), ``params``, ``stderr``, ``ci90`` as for ML_i.
     """
     t0 = time.perf_counter()
-    spec = ParamSpec(parse_model(model))
+    rate = np.asarray(rate)
+    kept = len(rate) if segments is None else int(sum(b - a for a, b in segments))
+    spec = ParamSpec.for_record(parse_model(model), float(fs_hz), kept / float(fs_hz))
     if starts not in START_KINDS:
         raise InputError(f"starts {starts!r}: use one of {', '.join(START_KINDS)}")
     if int(reweight) < 0:
         raise InputError(f"reweight = {reweight}: must be 0 or more")
     wv = wavelet_variance(rate, fs_hz, scale=scale, segments=segments)
+    if tau_min > 0:
+        keep = 0.5 * wv.tau >= tau_min * (1.0 - 1e-9)
+        wv = replace(
+            wv, **{f: getattr(wv, f)[keep] for f in ("level", "scale", "tau", "wv", "wv_lo", "wv_hi", "edf", "n")}
+        )
     k = 1 + spec.d
     if len(wv.wv) <= k:
         raise InputError(f"only {len(wv.wv)} wavelet scales: too few for model {spec.name!r} ({k} parameters)")
     if not np.all(wv.wv > 0):
         raise InputError("the wavelet variance is zero at some scale (constant record?): nothing to fit")
-    rate = np.asarray(rate)
-    n = len(rate)
-    kept = n if segments is None else int(sum(b - a for a, b in segments))
     problem = _WVProblem(wv, spec, kept / float(fs_hz))
     eta = wv.edf
     w = np.sqrt(eta / 2.0) / wv.wv  # 1/sd of nu_hat_j (chi-square), from nu_hat first
@@ -335,11 +356,14 @@ def _gmwm_result(
     spec = problem.spec
     names = spec.phi_names()
     x = sol.x
-    is_var = np.array([not nm.startswith("tau_b") for nm in names])
-    phi = np.where(is_var, 0.5 * x, x)  # log sigma = log q / 2
+    # x = log q (variances; the filter's q = sigma_w^2 tau_lp) or log tau_b; dx/dphi
+    T = np.diag([1.0 if nm.startswith("tau_b") else 2.0 for nm in names])
+    if "tau_lp" in names:
+        j = names.index("tau_lp")
+        T[j, j], T[j, 0] = 1.0, 2.0
+    phi = np.linalg.solve(T, x)
     Jr = sol.jac  # d resid / dx = -w d nu/dx
-    D = np.where(is_var, 2.0, 1.0)  # dx/dphi
-    H = (Jr * D[None, :]).T @ (Jr * D[None, :])  # J^T Omega J in phi
+    H = (Jr @ T).T @ (Jr @ T)  # J^T Omega J in phi
     stderr, ci90 = intervals(names, phi, H)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))
     lo, hi = problem.bounds()

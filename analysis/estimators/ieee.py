@@ -14,7 +14,9 @@ quantisation ``Q`` (unit*s, e.g. rad), angle/velocity random walk ``N``
 squared coefficients, so the terms are fitted together by non-negative weighted
 least squares on the AVAR, weights ``edf/(2 model^2)`` (the chi-square variance
 of each AVAR estimate), iterated with the weights taken from the fitted model;
-terms the curve does not need are dropped by a Schwarz criterion over subsets;
+terms the curve does not need are dropped by a Schwarz criterion over subsets
+(counting one independent point per factor 4 in tau: neighbouring overlapping
+Allan variances are correlated);
 taus with fewer than 10 equivalent degrees of freedom are not fitted.
 Each line's read-off (``N = sigma(1 s)`` on the -1/2 line, ``K = sigma(3 s)`` on
 the +1/2 line, ``Q = sigma(sqrt 3)``, ``R = sigma(sqrt 2)``) is exactly its
@@ -23,6 +25,14 @@ coefficient in this model.
 Also given, as IEEE 952 and Kalibr users read them off the measured curve:
 ``B_min`` = minimum ADEV / 0.664 at ``tau_B``, and the measured ADEV at
 tau = 1 s and 3 s (log-log interpolation), each with a standard error from its EDF.
+
+A device low-pass filter bends the curve below the white-noise line at the shortest
+taus. Given the filter's memory ``tau_min`` (s; the model choice finds it,
+:mod:`.finescale`), the fit uses the taus from there on only, where the filter adds
+exactly ``-1.5 N^2 tau_lp / tau^2`` (:mod:`.sensor_terms`): a sixth column
+``-3 / tau^2`` whose coefficient ``N^2 tau_lp / 2`` the fit reports as ``tau_lp`` (s),
+exclusive with quantisation (same shape, other sign). Without it the filter's bend is
+read as a Gauss-Markov term at the shortest correlation time and N comes out low.
 
 Standard errors of the fitted coefficients come from the weighted least-squares
 covariance treating the taus as independent; neighbouring overlapping-ADEV
@@ -80,6 +90,9 @@ class IEEECoefficients:
     adev_1s_stderr: float = math.nan
     adev_3s: float = math.nan
     adev_3s_stderr: float = math.nan
+    #: device filter: equivalent time constant (s) when fitted; the shortest tau fitted (s)
+    tau_lp: float = math.nan
+    tau_min: float = math.nan
 
     def as_dict(self) -> dict[str, float]:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -97,7 +110,7 @@ def _irls(A: np.ndarray, avar: np.ndarray, edf: np.ndarray) -> tuple[np.ndarray,
     for _ in range(_IRLS_STEPS):
         w = np.sqrt(edf / 2.0) / model  # 1/sd of each AVAR estimate (chi-square with edf dof)
         theta, _ = nnls(A * w[:, None], avar * w)
-        model = np.maximum(A @ theta, 1e-300)
+        model = np.maximum(A @ theta, 1e-6 * avar)  # a filter deficit can take the model to 0
     w = np.sqrt(edf / 2.0) / model
     return theta, w, float(np.sum((w * (avar - model)) ** 2))
 
@@ -115,20 +128,25 @@ def gm_avar(tau: np.ndarray, T: float) -> np.ndarray:
     return T**2 / tau * bracket
 
 
-def fit_terms(res: AllanResult) -> tuple[np.ndarray, np.ndarray, float]:
-    """Squared coefficients (Q^2, N^2, B^2, K^2, R^2, q_c) with standard errors, and the GM time T.
+def fit_terms(res: AllanResult, tau_min: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
+    """Squared coefficients (Q^2, N^2, B^2, K^2, R^2, q_c, c_lp) with standard errors, and the GM time T.
 
     Every subset of the five IEEE terms, with and without a Gauss-Markov term
     (correlation time on a log grid over the fitted taus), is fitted; the one
-    with the smallest Schwarz criterion ``chi2 + k ln(n_tau)`` is kept, so a
+    with the smallest Schwarz criterion ``chi2 n_eff / n_tau + k ln(n_eff)`` (``n_eff``
+    one point per factor 4 in tau) is kept, so a
     term the curve does not need stays 0 and a correlated-noise bump is not
     mistaken for a bias-instability floor. ``T`` is NaN without a GM term.
+    ``tau_min`` (s) > 0: a device filter's memory; taus below it are left out and
+    the filter's deficit ``c_lp`` (coefficient of ``-3/tau^2``) joins the subsets.
     """
     tau, avar = res.tau, res.adev**2
     edf = np.where(np.isfinite(res.edf) & (res.edf > 0), res.edf, 1.0)
     # points with few degrees of freedom (the last ~decade of a record) only add
     # realisation scatter that a ramp or a spurious floor would chase
-    ok = (avar > 0) & (edf >= _MIN_EDF)
+    ok = (avar > 0) & (edf >= _MIN_EDF) & (tau >= tau_min * (1.0 - 1e-9))
+    if np.count_nonzero(ok) < 3:
+        ok = (avar > 0) & (tau >= tau_min * (1.0 - 1e-9))
     if np.count_nonzero(ok) < 3:
         ok = avar > 0
     tau, avar, edf = tau[ok], avar[ok], edf[ok]
@@ -136,33 +154,43 @@ def fit_terms(res: AllanResult) -> tuple[np.ndarray, np.ndarray, float]:
         raise InputError(
             "the Allan variance is zero or undefined at every tau (a constant or non-finite signal): nothing to fit"
         )
-    A = _basis(tau)
+    A = np.column_stack([_basis(tau), -3.0 / tau**2])
+    n_terms = 6 if tau_min > 0 else 5
     grid = [math.nan] + list(np.logspace(np.log10(tau[0]), np.log10(tau[-1]), _GM_GRID))
+    # neighbouring overlapping Allan variances are strongly correlated: the criterion counts
+    # one independent point per factor 4 in tau, scaling chi2 to that many (a chi2 over all
+    # the correlated points adds spurious terms, e.g. a Gauss-Markov term to white noise)
+    n_eff = max(2.0, math.log(tau[-1] / tau[0]) / math.log(4.0) + 1.0)
+    shrink = min(1.0, n_eff / len(tau))
     best = None
     for T in grid:
         G = A if math.isnan(T) else np.column_stack([A, gm_avar(tau, T)])
-        for mask in range(1, 1 << 5):
-            cols = [j for j in range(5) if mask >> j & 1] + ([] if math.isnan(T) else [5])
+        for mask in range(1, 1 << n_terms):
+            if mask & 1 and mask >> 5 & 1:
+                continue  # quantisation and the filter deficit: one angle term
+            cols = [j for j in range(n_terms) if mask >> j & 1] + ([] if math.isnan(T) else [6])
             try:
                 theta_s, w, chi2 = _irls(G[:, cols], avar, edf)
             except RuntimeError:  # scipy's nnls gave up (e.g. a pure ramp's exact tau^2 curve): not a candidate
                 continue
             k = int(np.count_nonzero(theta_s)) + (0 if math.isnan(T) else 1)  # T is a parameter too
-            crit = chi2 + k * math.log(len(tau))
+            crit = chi2 * shrink + k * math.log(n_eff)
             if best is None or crit < best[0] - 1e-9:
-                theta = np.zeros(6)
+                theta = np.zeros(7)
                 theta[cols] = theta_s
                 best = (crit, theta, w, T, G)
     if best is None:
         raise InputError("the IEEE-952 fit found no solution for any set of terms (non-negative least squares failed)")
     _, theta, w, T, G = best
     active = theta[: G.shape[1]] > 0
-    se = np.full(6, np.nan)
+    se = np.full(7, np.nan)
     if active.any():
         Aw = G[:, active] * w[:, None]
         cov = np.linalg.pinv(Aw.T @ Aw)
         se[np.flatnonzero(active)] = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    return theta, se, (T if theta[5] > 0 else math.nan)
+    # report in the order (Q^2, N^2, B^2, K^2, R^2, q_c, c_lp)
+    order = [0, 1, 2, 3, 4, 6, 5]
+    return theta[order], se[order], (T if theta[6] > 0 else math.nan)
 
 
 def _reading(res: AllanResult, tau: float) -> tuple[float, float]:
@@ -175,9 +203,12 @@ def _reading(res: AllanResult, tau: float) -> tuple[float, float]:
     return adev, adev / math.sqrt(2.0 * edf) if np.isfinite(edf) and edf > 0 else math.nan
 
 
-def ieee_coefficients(res: AllanResult) -> IEEECoefficients:
-    """Fit Q, N, B, K, R (+ a Gauss-Markov term) to an Allan deviation curve; read B_min, ADEV(1 s), ADEV(3 s)."""
-    theta, se_all, T = fit_terms(res)
+def ieee_coefficients(res: AllanResult, tau_min: float = 0.0) -> IEEECoefficients:
+    """Fit Q, N, B, K, R (+ a Gauss-Markov term) to an Allan deviation curve; read B_min, ADEV(1 s), ADEV(3 s).
+
+    ``tau_min`` (s): a device filter's memory (module docstring); 0 fits every tau.
+    """
+    theta, se_all, T = fit_terms(res, tau_min)
     coef = np.sqrt(theta[:5])
     with np.errstate(divide="ignore", invalid="ignore"):
         se = np.where(coef > 0, se_all[:5] / (2.0 * coef), np.nan)  # delta method: se(c) = se(c^2) / (2c)
@@ -214,4 +245,6 @@ def ieee_coefficients(res: AllanResult) -> IEEECoefficients:
         adev_1s_stderr=a1_se,
         adev_3s=a3,
         adev_3s_stderr=a3_se,
+        tau_lp=2.0 * theta[6] / theta[1] if theta[6] > 0 and theta[1] > 0 else math.nan,
+        tau_min=float(tau_min) if tau_min > 0 else math.nan,
     )

@@ -62,6 +62,11 @@ def allan_start(inc: Increments, spec: ParamSpec, quick: bool = False) -> list[n
                 phi0 += [0.5 * math.log(sw2 / tb**2), math.log(tb)]
             elif c == "rw":
                 phi0.append(0.5 * math.log(sw2 * 3.0 / T**2))
+            elif c == "fl":
+                # the floor 0.44 B^2 meets the white level sw2/tau at tau ~ T/30
+                phi0.append(0.5 * math.log(sw2 / (0.44 * T / 30.0)))
+            elif c == "lp":
+                phi0.append(math.log(0.5 / inc.fs_hz))
             else:
                 phi0.append(0.5 * math.log(0.1 * sw2 * tau[0] / 3.0))
 
@@ -117,9 +122,11 @@ def fit_integrated(
     initialisation; the Monte Carlo study counts how often that ends elsewhere).
     """
     t0 = time.perf_counter()
-    spec = ParamSpec(parse_model(model))
+    spec = ParamSpec.for_record(model, inc.fs_hz, inc.duration)
     if len(inc.y) < 4 + 2 * spec.d:
         raise InputError(f"only {len(inc.y)} pattern intervals: too few for model {spec.name!r}")
+    if "lp" in spec.codes and inc.pattern != "uniform":
+        raise InputError(f"model {spec.name!r}: a device filter needs intervals beyond its memory (uniform pattern)")
     problem = Problem(inc, spec, filt)
     if single_start:
         starts = allan_start(inc, spec, quick=True)[:1]

@@ -71,14 +71,15 @@ def f3(a: np.ndarray) -> np.ndarray:
     c = -np.expm1(-a[big])
     out[big] = a[big] - c - 0.5 * c * c
     s = a[small]
-    acc = np.full_like(s, _F3_COEF[-1])
-    for coef in _F3_COEF[-2::-1]:
+    acc = np.full_like(s, F3_COEF[-1])
+    for coef in F3_COEF[-2::-1]:
         acc = acc * s + coef
     out[small] = acc * s**3
     return out
 
 
-_F3_COEF = tuple((-1) ** k * (2**k - 2) / ((k + 1) * math.factorial(k)) for k in range(2, 13))
+#: series coefficients of :func:`f3` (a^3, a^4, ...), shared with the compiled filter
+F3_COEF = tuple((-1) ** k * (2**k - 2) / ((k + 1) * math.factorial(k)) for k in range(2, 13))
 
 
 def expm1_tail(x: np.ndarray) -> np.ndarray:
@@ -100,6 +101,23 @@ def _gm_avar_bracket(a: np.ndarray) -> np.ndarray:
     direct = 1.0 - (3.0 - 4.0 * np.exp(-safe) + np.exp(-2.0 * safe)) / (2.0 * safe)
     series = a**2 / 3.0 - a**3 / 4.0 + 7.0 * a**4 / 60.0
     return np.where(a > 1e-3, direct, series)
+
+
+def gm_unit_avar(tau_b: np.ndarray, tau: float, fs_hz: float) -> np.ndarray:
+    """AVAR at ``tau`` (s) of the sampled Gauss-Markov bias with sigma_b = 1, for an array of tau_b (s).
+
+    The exact sampled-AR(1) form of :meth:`GaussMarkov.avar` (Algorithm 1), vectorised over tau_b.
+    """
+    tau_b = np.asarray(tau_b, dtype=float)
+    dt = 1.0 / fs_hz
+    n = tau / dt
+    d = dt / tau_b
+    phi = np.exp(-d)
+    om = -np.expm1(-d)
+    g = -np.expm1(-n * d) / om
+    n_minus_g = (expm1_tail(n * d) - n * expm1_tail(d)) / om  # n - g without cancellation
+    s2 = tau_b / 2.0
+    return s2 / n**2 * (n + 2.0 * phi * n_minus_g / om - phi * g * g)
 
 
 def _dt_of(fs_hz: float | None, what: str) -> float:
@@ -147,6 +165,15 @@ class Term:
 
     def params(self) -> dict[str, float]:
         return {k: float(v) for k, v in self.__dict__.items()}
+
+    def components(self) -> tuple[Term, ...]:
+        """The state-space terms this term stands for (itself; a bias instability: its Gauss-Markov sum)."""
+        return (self,)
+
+    def angle_variance(self) -> float:
+        """Variance this term adds to every angle sample (rad^2): white angle noise; negative for the
+        angle deficit of a device low-pass filter (:mod:`.sensor_terms`)."""
+        return 0.0
 
 
 @dataclass(frozen=True)
@@ -269,6 +296,9 @@ class WhiteAngle(Term):
     def simulate(self, n: int, dt: float, rng: np.random.Generator) -> np.ndarray:
         return np.diff(rng.normal(0.0, self.sigma_a, n + 1)) / dt
 
+    def angle_variance(self) -> float:
+        return self.sigma_a**2
+
 
 @dataclass(frozen=True)
 class Quantization(WhiteAngle):
@@ -309,26 +339,41 @@ class RateRamp(Term):
 # composite model
 
 
-_TERM_ORDER = {"wa": 0, "wn": 1, "gm": 2, "rw": 3}
+_TERM_ORDER = {"wa": 0, "wn": 1, "gm": 2, "fl": 3, "rw": 4, "lp": 5}
+#: what each code of a model name stands for (``analyze --help``, docs/mli.md)
+TERM_CODES = {
+    "wn": "white rate noise (angle random walk, IEEE-952 N)",
+    "wa": "white angle noise / angle quantisation (IEEE-952 Q)",
+    "gm": "first-order Gauss-Markov bias (sigma_b, tau_b; '2gm', '3gm' for several)",
+    "fl": "bias instability (flicker, IEEE-952 B) as a fixed Gauss-Markov sum",
+    "rw": "rate random walk (IEEE-952 K)",
+    "lp": "device low-pass filter (its equivalent time constant tau_lp)",
+}
 
 
 def parse_model(name: str) -> tuple[str, ...]:
-    """Term codes of a model name such as ``"wn+gm"``, ``"wn+2gm"``, ``"wa+wn+gm+rw"``.
+    """Term codes of a model name such as ``"wn+gm"``, ``"wn+2gm"``, ``"wa+wn+gm+rw"``, ``"wn+fl+rw+lp"``.
 
-    Codes: ``wn`` white rate (required), ``gm`` Gauss-Markov (repeatable, ``2gm``),
-    ``rw`` rate random walk, ``wa`` white angle. Returned in canonical order.
+    Codes (:data:`TERM_CODES`): ``wn`` white rate (required), ``gm`` Gauss-Markov
+    (repeatable, ``2gm``), ``fl`` bias instability, ``rw`` rate random walk, ``wa``
+    white angle, ``lp`` device low-pass filter. Returned in canonical order.
     """
     codes: list[str] = []
     for part in name.replace(" ", "").lower().split("+"):
-        m = re.fullmatch(r"(\d*)(wn|gm|rw|wa)", part)
+        m = re.fullmatch(r"(\d*)(wn|gm|rw|wa|fl|lp)", part)
         if not m:
-            raise InputError(f"model {name!r}: unknown term {part!r}; use wn, gm, 2gm, rw, wa joined by '+'")
+            raise InputError(
+                f"model {name!r}: unknown term {part!r}; use {', '.join(TERM_CODES)} (2gm, 3gm) joined by '+'"
+            )
         codes += [m.group(2)] * int(m.group(1) or 1)
     if codes.count("wn") != 1:
         raise InputError(f"model {name!r}: needs exactly one 'wn' (white rate noise) term")
-    for c in ("rw", "wa"):
+    for c in ("rw", "wa", "fl", "lp"):
         if codes.count(c) > 1:
             raise InputError(f"model {name!r}: '{c}' may appear once")
+    if "wa" in codes and "lp" in codes:
+        # both add to the variance of every angle sample: beyond the filter's memory only their sum is seen
+        raise InputError(f"model {name!r}: 'wa' and 'lp' cannot be told apart; use one of them")
     if codes.count("gm") > 3:
         raise InputError(f"model {name!r}: at most 3 Gauss-Markov terms")
     return tuple(sorted(codes, key=_TERM_ORDER.__getitem__))
@@ -373,7 +418,7 @@ class NoiseModel:
         bad = [type(t).__name__ for t in self.terms if not t.state_space]
         if bad:
             raise InputError(f"{', '.join(bad)}: overlay-only terms have no state-space form")
-        return self.terms
+        return tuple(c for t in self.terms for c in t.components())
 
     @property
     def n_states(self) -> int:
@@ -407,7 +452,7 @@ class NoiseModel:
         F[p - 1, ns] = 1.0  # so does b_on
         H = np.zeros((1, p))
         H[0, p - 1] = 1.0
-        R = np.array([[sum(t.sigma_a**2 for t in terms if isinstance(t, WhiteAngle))]])
+        R = np.array([[sum(t.angle_variance() for t in terms)]])
         return {"F": F, "G": G, "Q": Q, "H": H, "R": R}
 
     def discretize(self, dt: np.ndarray, method: str = "analytic") -> tuple[np.ndarray, np.ndarray]:
@@ -436,8 +481,13 @@ class NoiseModel:
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         dt = _dt_of(fs_hz, "simulation")
         out = np.full(n, float(self.b_on))
+        shaping = [t for t in self.terms if hasattr(t, "filter_white")]
         for t in self.terms:
-            out += t.simulate(n, dt, rng)
+            x = t.simulate(n, dt, rng)
+            if isinstance(t, WhiteRate):
+                for f in shaping:  # a device filter acts on the white noise (sensor_terms.LowPass)
+                    x = f.filter_white(x, dt)
+            out += x
         return out
 
     def params(self) -> dict[str, float]:
@@ -507,8 +557,8 @@ class TermBlock:
             return TermBlock("gm", t.sigma_b**2, t.tau_b)
         if isinstance(t, RandomWalk):
             return TermBlock("rw", t.sigma_k**2)
-        if isinstance(t, WhiteAngle):
-            return TermBlock("wa", t.sigma_a**2)
+        if isinstance(t, WhiteAngle) or (t.n_states == 0 and t.state_space and t.angle_variance()):
+            return TermBlock("wa", t.angle_variance())  # no state: angle noise only (sensor_terms.LowPass)
         raise InputError(f"{type(t).__name__}: no state-space form")
 
 

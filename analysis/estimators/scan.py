@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imustation.analysis.estimators.kalman import Profile
+from imustation.analysis.estimators.kalman import Innovations, Profile
 from imustation.analysis.estimators.noise_models import f3
 
 
@@ -60,7 +60,19 @@ def standard_profile(
     tau: np.ndarray,
     gap: np.ndarray | None = None,
 ) -> Profile:
-    """Reduced diffuse filter of the standard model for K points ``(r_k, tau_k)`` at once.
+    """Reduced diffuse filter of the standard model for K points ``(r_k, tau_k)`` at once
+    (:func:`standard_innovations` summed)."""
+    return standard_innovations(y, dt, r, tau, gap).profile()
+
+
+def standard_innovations(
+    y: np.ndarray,
+    dt: np.ndarray,
+    r: np.ndarray,
+    tau: np.ndarray,
+    gap: np.ndarray | None = None,
+) -> Innovations:
+    """Per-interval innovations of the reduced diffuse filter of the standard model, K points at once.
 
     ``y``, ``dt``: (M,) increments and interval lengths (s); ``r = sigma_b^2/sigma_w^2``
     and ``tau`` (s): (K,); ``gap`` (M,): unobserved time before each interval (s),
@@ -111,8 +123,4 @@ def standard_profile(
     uhat = scan_affine(g, gain * dt[:, None])
     uprev = np.vstack([np.zeros_like(r)[None, :], uhat[:-1]])
     u = dt[:, None] - hh * uprev
-    s_ee = np.sum(nu * nu / B, axis=0)
-    s_eu = np.sum(nu * u / B, axis=0)
-    s_uu = np.sum(u * u / B, axis=0)
-    b_on = s_eu / s_uu
-    return Profile(s_ee - s_eu * b_on, np.sum(np.log(B), axis=0), np.log(s_uu), b_on, len(y))
+    return Innovations(nu, u, B)

@@ -14,9 +14,19 @@ from imustation.analysis.estimators.fitting import MLiResult
 from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.estimators.mli import compare_models, fit_integrated
+from imustation.analysis.estimators.model_choice import ModelChoice, as_choice_result, choose_model, ieee952_summary
 from imustation.analysis.estimators.pattern import integrate
 from imustation.analysis.estimators.screen import screen
-from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, ESTIMATORS, METHODS
+from imustation.analysis.pipeline.choices import (
+    DEFAULT_ESTIMATOR,
+    DEFAULT_METHOD,
+    DEFAULT_MODEL,
+    ESTIMATORS,
+    METHODS,
+    MODEL_AUTO,
+    PAPER_MODEL,
+)
+from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
@@ -39,6 +49,8 @@ class ChannelAnalysis:
     noise_method: str = ""
     #: model adequacy of every fitted block, by block key ("noise_model", "mli", "gmwm", "models/<model>")
     adequacy: dict[str, Adequacy] = field(default_factory=dict)
+    #: ``--model auto``: the candidates, the check of each and the paper's wn+gm fit
+    choice: ModelChoice | None = None
 
     def adequacy_of(self, fit: MLiResult | None) -> Adequacy | None:
         """The adequacy of one of this channel's fits (None for a fit without one)."""
@@ -49,10 +61,18 @@ class ChannelAnalysis:
                 return self.adequacy.get(key)
         return None
 
+    def ieee952(self, fit: MLiResult) -> dict:
+        """N, B, K and the Gauss-Markov terms of ``fit`` (:func:`ieee952_summary`); for the automatic
+        choice's own fit, B's interval mixed with the models that fit nearly as well."""
+        chosen = self.choice is not None and fit is self.noise_model and self.noise_method == "mli-f"
+        return ieee952_summary(fit, self.channel.n / self.channel.fs_hz, self.choice.close if chosen else ())
+
     def blocks(self) -> dict[str, MLiResult]:
         """Every fitted model block by its key (the JSON's block names; compared models as ``models/<name>``)."""
         out = {k: f for k, f in (("noise_model", self.noise_model), ("mli", self.mli), ("gmwm", self.gmwm)) if f}
         out.update({f"models/{r.model}": r for r in self.models})
+        if self.choice is not None and self.choice.paper is not None:
+            out["paper_model"] = self.choice.paper
         return out
 
 
@@ -80,7 +100,8 @@ def fit_adequacy(ch: Channel, allan: AllanResult, fit: MLiResult) -> Adequacy | 
     if fit.noise_model is None:
         return None
     n_fitted = sum(1 for k in fit.params if k != "b_on")
-    return model_adequacy(allan, fit.noise_model, ch.fs_hz, [b - a for a, b in ch.segments], n_fitted=n_fitted)
+    lengths = [b - a for a, b in ch.segments]
+    return model_adequacy(allan, fit.noise_model, ch.fs_hz, lengths, n_fitted=n_fitted, tau_min=fit.memory_s)
 
 
 def analyze_channel(
@@ -104,6 +125,10 @@ def analyze_channel(
     ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
     ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
     ``need``: the parameters the "enough data?" verdict judges (:func:`.verdict.channel_verdict`).
+    ``model="auto"``: ML_i-F chooses the model (:func:`choose_model`, the device's
+    filter settings from the run file as a hint); GMWM then fits the chosen model from
+    the filter's memory on, ML_i (the paper's estimator) the paper's model, and the
+    IEEE-952 fit starts beyond the filter's memory.
     """
     if method not in METHODS:
         raise InputError(f"method {method!r}: use one of {', '.join(METHODS)}")
@@ -111,23 +136,33 @@ def analyze_channel(
         raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
     check_channel(ch)
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
-    ieee = ieee_coefficients(allan)
+    choice, tau_min = None, 0.0
+    if model == MODEL_AUTO:
+        hint = filter_hint(ch.meta, ch.fs_hz)
+        choice = choose_model(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments, hint=hint, allan=allan)
+        model = choice.chosen.model
+        tau_min = choice.fine.memory_s if choice.fine.term else 0.0
+    ieee = ieee_coefficients(allan, tau_min=tau_min)
     mli, models, gmwm = None, (), None
     if method in ("mli", "both") or estimator == "mli":
         inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
-        mli = fit_integrated(inc, model)
-        models = tuple(compare_models(inc, tuple(dict.fromkeys((model, *compare))))) if compare else ()
+        mli_model = PAPER_MODEL if choice is not None else model  # the paper's estimator with its model
+        mli = fit_integrated(inc, mli_model)
+        models = tuple(compare_models(inc, tuple(dict.fromkeys((mli_model, *compare))))) if compare else ()
     if method in ("gmwm", "both") or estimator == "gmwm":
-        gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+        gmwm = fit_gmwm(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments, tau_min=tau_min)
     if estimator == "mli-f":
-        best = fit_composite(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+        if choice is not None:
+            best = as_choice_result(choice)
+        else:
+            best = fit_composite(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
     else:
         best = mli if estimator == "mli" else gmwm
     # only the requested comparison blocks are reported
     mli_block = mli if method in ("mli", "both") else None
     gmwm_block = gmwm if method in ("gmwm", "both") else None
     verdict = channel_verdict(ch, allan, best, need)
-    res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator)
+    res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator, choice=choice)
     done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
     for key, fit in res.blocks().items():
         if id(fit) not in done:
@@ -176,11 +211,7 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "duration_s": ch.n / ch.fs_hz,
             "source": ch.source,
             "gaps": ch.gaps,
-            **(
-                {"noise_model": _block(res, "noise_model", res.noise_model, {"method": res.noise_model.estimator})}
-                if res.noise_model is not None
-                else {}
-            ),
+            **(_noise_blocks(res) if res.noise_model is not None else {}),
             **({"mli": _block(res, "mli", res.mli)} if res.mli is not None else {}),
             **({"gmwm": _block(res, "gmwm", res.gmwm)} if res.gmwm is not None else {}),
             **({"models": [_block(res, f"models/{r.model}", r) for r in res.models]} if res.models else {}),
@@ -196,6 +227,20 @@ def channel_document(res: ChannelAnalysis) -> dict:
             **({"verdict": res.verdict.as_dict()} if res.verdict is not None else {}),
         }
     )
+
+
+def _noise_blocks(res: ChannelAnalysis) -> dict:
+    """``noise_model`` (with ``ieee952``, and ``selection`` for ``--model auto``) and ``paper_model``."""
+    nm = res.noise_model
+    extra = {"method": nm.estimator, "ieee952": res.ieee952(nm)}
+    if res.choice is not None:
+        extra["selection"] = res.choice.selection_dict()
+    out = {"noise_model": _block(res, "noise_model", nm, extra)}
+    paper = res.choice.paper if res.choice is not None else None
+    if paper is not None:
+        extra = {"method": paper.estimator, "ieee952": res.ieee952(paper)}
+        out["paper_model"] = _block(res, "paper_model", paper, extra)
+    return out
 
 
 def analysis_document(results: list[ChannelAnalysis]) -> dict:

@@ -6,21 +6,28 @@ numpy or scipy are loaded; the modules that act on them import them from here.
 
 from __future__ import annotations
 
-#: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet):
-#: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22)
-DEFAULT_MODEL = "wn+gm"
+#: ``--model auto``: the simplest model of the family that fits (analysis/estimators/model_choice.py)
+MODEL_AUTO = "auto"
+#: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet)
+DEFAULT_MODEL = MODEL_AUTO
+#: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22), always reported
+#: beside an automatic choice
+PAPER_MODEL = "wn+gm"
 #: the term codes of a model name (analysis/estimators/noise_models.py parse_model), spelled out
 MODEL_TERMS = {
-    "wn": "white rate noise (angle random walk, N = sigma_w)",
+    "wn": "white rate noise (angle random walk, N = sigma_w; required)",
+    "wa": "white angle noise (quantisation, Q = sigma_a)",
     "gm": "first-order Gauss-Markov bias (sigma_b, tau_b); 2gm, 3gm: two or three of them",
+    "fl": "bias instability (flicker floor B, a fixed sum of Gauss-Markov terms)",
     "rw": "rate random walk (K = sigma_k)",
-    "wa": "white angle noise (sigma_a, e.g. ring-laser gyros)",
+    "lp": "device low-pass filter (its memory, from the run file's settings or estimated)",
 }
 #: the ``--model`` help of every command that fits a model (analyze, report, export, fleet)
 MODEL_HELP = (
-    "Noise model fitted: terms joined by '+', exactly one wn - "
+    "Noise model: 'auto' (default: the simplest model of the family that fits, chosen by BIC and a check "
+    "against the Allan deviation; the paper's wn+gm is reported beside it) or terms joined by '+' - "
     + "; ".join(f"{code} {text}" for code, text in MODEL_TERMS.items())
-    + ". E.g. wn+gm (the paper's standard model), wn+2gm, wn+gm+rw, wa+wn+gm (docs/mli.md)."
+    + ". E.g. wn+gm (the paper's standard model), wn+2gm, wn+fl+rw+lp (docs/noise-model.md)."
 )
 #: noise-model methods of ``analyze --method`` (analysis/pipeline/channel.py) and the default
 METHODS = ("mli", "gmwm", "both")

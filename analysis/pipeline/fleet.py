@@ -3,6 +3,9 @@
 * :func:`fleet_rows` — one :class:`FleetRow` per analysed axis of every run: device
   identity, ML_i ``sigma_w``, ``sigma_b``, ``tau_b`` and IEEE-952 ``N``, ``B``, ``K`` (SI),
   each with its standard error and a 90 % interval.
+* :func:`common_models` — with ``--model auto``, one model for every run of the same
+  driver, sensor and axis (each run chooses on its own; a table of sigma_b over runs
+  that chose different models would compare different parameters).
 * :func:`device_key` — which physical device a run's device is: its serial number
   where the chip reports one (ADIS16448 ``serial=``, Xsens ``device_id=``, or a
   ``serial`` device setting in the config), otherwise ``station/device name`` (chips
@@ -99,6 +102,43 @@ class FleetRow:
 
 def _f(x) -> float:
     return float("nan") if x is None else float(x)
+
+
+def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
+    """``results`` with one noise model per (driver, sensor, axis) where ``--model auto`` chose.
+
+    Every run's choice fitted the same candidates (:mod:`imustation.analysis.estimators.model_choice`);
+    per group the model kept is, among the candidates every run fitted and converged, the one
+    the adequacy test passes on every run with the smallest BIC summed over the runs (the
+    likelihood of the group); when none passes everywhere, the smallest summed BIC. Each run
+    then reports its own fit of that model (its intervals, adequacy). Results without an
+    automatic choice, and groups of one run, are returned unchanged.
+    """
+    groups: dict[tuple[str, str, str], list[int]] = {}
+    for i, r in enumerate(results):
+        if r.choice is not None and r.noise_method == "mli-f":
+            meta = r.channel.meta
+            sensor, axis = (r.channel.id.split("/") + ["", ""])[1:3]
+            groups.setdefault((str(meta.get("driver", "")), sensor, axis), []).append(i)
+    out = list(results)
+    for members in groups.values():
+        if len(members) < 2:
+            continue
+        cands = [{c.result.model: c for c in results[i].choice.candidates if c.result.converged} for i in members]
+        shared = set.intersection(*(set(c) for c in cands))
+        if not shared:
+            continue
+        everywhere = [m for m in shared if all(c[m].passes for c in cands)]
+        pool = everywhere or sorted(shared)
+        model = min(pool, key=lambda m: (sum(c[m].result.bic for c in cands), m))
+        for i, c in zip(members, cands, strict=True):
+            res = results[i]
+            if res.noise_model.model == model:
+                continue
+            fit = c[model]
+            adequacy = {**res.adequacy, "noise_model": fit.check}
+            out[i] = replace(res, noise_model=fit.result, adequacy=adequacy)
+    return out
 
 
 def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:

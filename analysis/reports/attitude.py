@@ -59,7 +59,7 @@ def angle_error_std(
         p = Phi.shape[-1]
         P0 = np.zeros((p, p))
         j = 0
-        for term in model.terms:
+        for term in (c for t in model.terms for c in t.components()):  # a bias instability: its GM sum
             if term.n_states and term.state_space:
                 if isinstance(term, GaussMarkov):
                     s2 = term.sigma_b**2 * term.tau_b / 2.0

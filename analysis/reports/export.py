@@ -25,6 +25,12 @@ Two documented conversions to a random-walk figure (``rw``):
     (``K_i = 0.710 sigma_b``). Matches the drift at the bias time scale, still
     over-states it beyond; under-states nothing by more than 1/0.71 below tau_b.
 
+A bias instability ``B`` (flicker, Allan floor ``0.664 B``; the automatic model choice
+fits it) enters both as the random walk whose Allan deviation meets the floor where
+the floor meets the white-noise line (``tau_x = sigma_w^2 / (0.664 B)^2``):
+``K_B = 0.664 B sqrt(3 / tau_x) = sqrt(3) (0.664 B)^2 / sigma_w``. Below ``tau_x`` the white
+noise dominates anyway; beyond it the random walk over-states the floor.
+
 With ``source="ieee"`` the densities come from the IEEE-952 fit of the Allan
 curve instead: ``sigma_g = N``, ``sigma_bg = K``.
 
@@ -66,6 +72,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 from imustation.analysis.estimators.noise_models import GaussMarkov
+from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
@@ -89,11 +96,15 @@ def gm_to_rw_at_tau_b(sigma_b: float, tau_b: float) -> float:
 def random_walk_from_params(params: dict[str, float], rw: str = "diffusion") -> float:
     """Random-walk figure (unit/s/sqrt(Hz)) from an ML_i parameter dict (see module docstring).
 
-    ``params``: ``sigma_k`` and/or ``sigma_b``/``tau_b`` (or ``sigma_b1, tau_b1, ...``), SI.
+    ``params``: ``sigma_k`` and/or ``sigma_b``/``tau_b`` (or ``sigma_b1, tau_b1, ...``) and/or
+    ``B`` with ``sigma_w``, SI.
     """
     if rw not in RW_CONVERSIONS:
         raise InputError(f"random-walk conversion {rw!r}: use one of {', '.join(RW_CONVERSIONS)}")
     total = params.get("sigma_k", 0.0) ** 2
+    B, sigma_w = params.get("B", 0.0), params.get("sigma_w", 0.0)
+    if B > 0 and sigma_w > 0:
+        total += 3.0 * (FLICKER_FLOOR * B) ** 4 / sigma_w**2
     gms = [(params[k], params["tau_b" + k[len("sigma_b") :]]) for k in params if k.startswith("sigma_b")]
     for sigma_b, tau_b in gms:
         if not (math.isfinite(sigma_b) and sigma_b > 0):
@@ -176,6 +187,21 @@ def inflate_sensors(
     return inflate(gyro, noise, walk), None if accel is None else inflate(accel, noise, walk)
 
 
+#: a bias parameter whose 90 % interval spans more than this factor is "poorly determined"
+WIDE_INTERVAL = 10.0
+
+
+def _poorly_determined(fit) -> str:
+    """The first bias parameter (random walk, bias instability, Gauss-Markov sigma_b) whose 90 %
+    interval spans more than :data:`WIDE_INTERVAL`, as text ("" if none)."""
+    for key in fit.params:
+        if key == "sigma_k" or key == "B" or key.startswith("sigma_b"):
+            lo, hi = fit.ci90.get(key, (math.nan, math.nan))
+            if not (lo > 0 and math.isfinite(hi)) or hi / lo > WIDE_INTERVAL:
+                return f"{key}: 90 % interval {lo:.2g} .. {hi:.2g}"
+    return ""
+
+
 def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion") -> AxisNoise:
     """White-noise and random-walk densities of one analysed channel (SI)."""
     cid = res.channel.id
@@ -191,6 +217,10 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
             warning = f"fit not converged or at a bound ({', '.join(fit.at_bound) or fit.message})"
         elif taus and min(taus) < WHITE_LIKE_TAU_B_S:
             warning = f"tau_b = {min(taus):.3g} s < {WHITE_LIKE_TAU_B_S:g} s: that bias acts as white noise"
+        else:
+            wide = _poorly_determined(fit)
+            if wide:
+                warning = f"bias term poorly determined by this record ({wide})"
     elif source == "ieee":
         nd, rwv = res.ieee.N, res.ieee.K
     else:

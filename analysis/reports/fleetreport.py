@@ -19,6 +19,7 @@ from imustation.analysis.pipeline.fleet import (
     MIN_GROUP,
     Z_LIMIT,
     FleetRow,
+    common_models,
     flag_outliers,
     fleet_csv,
     fleet_markdown,
@@ -95,6 +96,7 @@ def write_fleet_report(
     if not done:
         first = failures[0].error if failures else "no channels"
         raise InputError(f"every run failed ({len(failures)} failures; first: {first})")
+    done = common_models(done)  # with --model auto: one model per driver, sensor and axis
     rows = flag_outliers(fleet_rows(done))
     rep = repeatability(rows)
     os.makedirs(out_dir, exist_ok=True)

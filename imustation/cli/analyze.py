@@ -90,6 +90,8 @@ def results_table(results) -> str:
                         sb, sb_d, tb, _g(m.b_on), _g(adev1), adq.verdict if adq else "-", f"{m.estimator} {flag}",
                     )
                 )  # fmt: skip
+            if r.choice is not None:
+                lines += [where(r) + line for line in _choice_lines(r)]
             for alt in r.models:
                 lines.append(where(r) + f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
     for r in results:
@@ -120,6 +122,29 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
     if not names or bad:
         raise InputError(f"--need {text!r}: use model parameter names (sigma_w, sigma_b, tau_b, ...) or B")
     return names
+
+
+def _choice_lines(r) -> list[str]:
+    """The automatic choice of one channel: chosen model with N, B, K (90 % intervals), the paper's model."""
+
+    def nbk(fit) -> str:
+        s = r.ieee952(fit)
+        parts = []
+        for q in ("N", "B", "K"):
+            if s[q] is not None:
+                lo, hi = s[f"{q}_ci90"]
+                parts.append(f"{q} {_g(s[q])} [{_g(lo)}, {_g(hi)}]")
+        return "  ".join(parts)
+
+    c = r.choice
+    head = f"    model {c.chosen.model} ({'fits' if c.fits else 'NO MODEL FITS'}): {nbk(r.noise_model)}"
+    out = [head]
+    if not c.fits:
+        out.append(f"      {c.reason}")
+    if c.paper is not None:
+        flag = "ok" if c.paper.converged else f"! {c.paper.message}"
+        out.append(f"    paper's wn+gm: sigma_w {_g(c.paper.sigma_w)}  {nbk(c.paper)}  {flag}")
+    return out
 
 
 def _interp_adev(allan, tau: float) -> float:

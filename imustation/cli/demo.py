@@ -10,6 +10,7 @@ import time
 
 import click
 
+from imustation.analysis.pipeline import choices
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.errors import InputError
@@ -145,7 +146,7 @@ def demo(
             truth = truths.get(ch.id)
             if truth is None:
                 continue  # replayed or unknown source: nothing to compare with
-            res = analyze_channel(ch)
+            res = analyze_channel(ch, model=choices.PAPER_MODEL)  # the simulated truth is the paper's model
             ch.release()
             for name in PARAMS:
                 sim_v, fit_v = getattr(truth, name), getattr(res.noise_model, name)
