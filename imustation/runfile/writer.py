@@ -39,8 +39,11 @@ from imustation.runfile.schema import (
 )
 
 #: HDF5 storage options for every appendable dataset; gzip-1 + shuffle packs
-#: int16 sensor counts about 2-3x at a small CPU cost.
-H5_OPTS: dict[str, Any] = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: int16 sensor counts about 2-3x at a small CPU cost. fletcher32 stores a
+#: checksum with every chunk: a flipped byte inside compressed data that still
+#: decompresses would otherwise read as wrong numbers without a word (a storage
+#: filter, invisible to readers: the format version stays 1).
+H5_OPTS: dict[str, Any] = {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
 CHUNK_ROWS = 8192
 #: free space a flush leaves on the filesystem (room to close the file cleanly)
 DEFAULT_MIN_FREE_BYTES = 16 * 2**20
@@ -181,7 +184,9 @@ class RunWriter:
             ds = self._create(g, THERMOMETERS + "/" + name, CELSIUS, "<f8", ())
             ds.attrs["units"] = "degC"
             self._create(g, THERMOMETERS + "/" + name, TIME, "<i8", ())
-        self._events = f.create_dataset(EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
+        self._events = f.create_dataset(
+            EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,), fletcher32=True
+        )
         self._event_buffer: list[tuple] = []
         f.swmr_mode = True
         f.flush()
