@@ -32,6 +32,7 @@ from imustation.runfile import (
     utc_now_iso,
 )
 from imustation.runfile.checks import damaged_file
+from imustation.runfile.disk import release_tail
 
 #: suffixes of the new file while it is written, and of the original kept after a recovery
 RECOVERING_SUFFIX = ".recovering"
@@ -94,6 +95,7 @@ def recover_run(path: str | os.PathLike) -> Recovery | None:
         pass
     os.link(p, original)
     os.replace(new, p)
+    release_tail(original)  # the room the killed capture kept past the file's end
     fd = os.open(os.path.dirname(os.path.abspath(p)), os.O_RDONLY)
     try:
         os.fsync(fd)
