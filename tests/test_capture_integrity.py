@@ -186,3 +186,141 @@ def test_sigterm_during_start_up_still_leaves_a_finished_file(tmp_path, demo_con
         assert any(e.kind == "note" and "stopped by signal SIGTERM" in e.detail for e in run.events())
         assert run.devices["bmx055"].n < 400 * 3600
     assert not os.path.exists(str(out) + ".lock")
+
+
+BUS_CONFIG = """
+[station]
+name = "full"
+seed = 4
+
+[[device]]
+name = "gyro"
+driver = "bmx055"
+bus = "i2c:1"
+rate_hz = 400
+bandwidth_hz = 47
+"""
+
+#: a capture that flushes every 4000 rows, stops before its third flush until told to go on,
+#: and exits 3 on DiskFullError: the disk is filled at a moment the test chooses
+PAUSED_CAPTURE = """
+import sys
+from imustation.acquisition import capture, load_config
+from imustation.errors import DiskFullError
+from imustation.runfile import RunWriter
+
+RunWriter.flush_due = lambda self: self._pending_rows >= 4000
+real_flush = RunWriter.flush
+flushes = [0]
+
+def flush(self, *, reserve=True):
+    if reserve and self._pending_rows:
+        flushes[0] += 1
+        if flushes[0] == 3:
+            print("ready", flush=True)
+            sys.stdin.readline()
+    return real_flush(self, reserve=reserve)
+
+RunWriter.flush = flush
+try:
+    capture(load_config(sys.argv[1]), sys.argv[2], 2000.0, simulate=True, min_free_bytes=2**19, ballast_bytes=2**20)
+except DiskFullError as exc:
+    print(exc, flush=True)
+    sys.exit(3)
+"""
+
+
+@pytest.fixture
+def disk_for_three(tmp_path):
+    yield from small_tmpfs(tmp_path, "16m")
+
+
+def _fill(path, stop) -> int:
+    """Another program: takes every byte the filesystem frees until ``stop`` is set."""
+    written = 0
+    with open(path, "wb", buffering=0) as f:
+        while not stop.is_set():
+            try:
+                written += f.write(b"\0" * 4096)
+            except OSError:
+                stop.wait(0.001)
+    return written
+
+
+def test_a_disk_filled_by_another_program_finishes_every_capture(disk_for_three, tmp_path):
+    """Three bus-level captures on one disk, which another program fills and keeps full: every
+    file ends with ended_utc and stopped = disk full, the dropped samples logged. (Before, a
+    capture freed its ballast file to finish and the other program took the room: 2 of 3
+    files were left without ended_utc.)"""
+    import threading
+
+    cfg = tmp_path / "bus.toml"
+    cfg.write_text(BUS_CONFIG)
+    outs = [disk_for_three / f"bus{k}.h5" for k in range(3)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", PAUSED_CAPTURE, str(cfg), str(out)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        for out in outs
+    ]
+    stop = threading.Event()
+    filler = threading.Thread(target=_fill, args=(disk_for_three / "filler", stop))
+    try:
+        for p in procs:
+            assert p.stdout.readline().strip() == "ready", p.stderr.read()
+        filler.start()
+        while os.statvfs(disk_for_three).f_bavail > 0:  # the disk is full before anyone goes on
+            stop.wait(0.01)
+        for p in procs:
+            p.stdin.write("go\n")
+            p.stdin.flush()
+        results = [p.communicate(timeout=START_LIMIT_S) for p in procs]
+    finally:
+        stop.set()
+        if filler.is_alive():
+            filler.join()
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    for p, (stdout, stderr), out in zip(procs, results, outs, strict=True):
+        assert p.returncode == 3 and "disk full" in stdout, (p.returncode, stdout, stderr[-2000:])
+        assert "Traceback" not in stderr
+        with open_run(out) as run:
+            assert run.complete and run.attrs["stopped"] == "disk full", out
+            n = run.rows("gyro")
+            events = run.events()
+            gaps = [e for e in events if e.kind == "gap"]
+        assert n >= 8000  # two flushes before the disk filled
+        assert events[-1].detail == "capture stopped: disk full"
+        # the samples dropped at the stop are stated: written + lost = every sample produced
+        assert gaps and all(e.detail == "disk full: samples not written" for e in gaps)
+        assert n + sum(e.lost for e in gaps) == max(e.t_ns for e in gaps) // (10**9 // 400)
+        assert not os.path.exists(str(out) + ".ballast") and not os.path.exists(str(out) + ".lock")
+        assert os.stat(out).st_blocks * 512 < os.stat(out).st_size + 2**16  # the room kept is given back
+
+
+def test_the_room_to_finish_a_file_is_allocated_to_it(tmp_path):
+    """While a file is written the room to finish it is allocated past its end (its size, which
+    HDF5 reads, unchanged); a clean close gives it back."""
+    w = _writer(tmp_path / "room.h5")  # no ballast
+    assert os.stat(w.path).st_blocks * 512 < os.stat(w.path).st_size + 2**16
+    w.close()
+    dev = w.devices["g"]
+    w = RunWriter(tmp_path / "room2.h5", station="s", config_text="", simulated=True, devices=[dev], fsync=False)
+    if not w._tail:
+        w.abort()
+        pytest.skip("this filesystem has no fallocate: the room is a ballast file")
+    w.append("g", np.arange(1000, dtype=np.int64) * 10_000_000, {"gyro": np.zeros((1000, 3), np.int16)})
+    w.flush()
+    st = os.stat(w.path)
+    assert st.st_blocks * 512 >= st.st_size + w.ballast_bytes
+    assert not os.path.exists(w.path + ".ballast")
+    w.close()
+    st = os.stat(w.path)
+    assert st.st_blocks * 512 < st.st_size + 2**16
+    with open_run(w.path) as run:
+        assert run.complete and run.rows("g") == 1000

@@ -388,13 +388,14 @@ def test_ros1_stream_keeps_file_order_and_reads_unindexed_bag(tmp_path):
     assert rep2.n == 2000 and rep2.backwards == 1
     with open_run(tmp_path / "open.h5") as run_:
         np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g)
-    # ... cut in the middle of a chunk (the recorder was killed): the chunks before it are imported, the rest noted
+    # ... cut in the middle of a chunk (the recorder was killed): what precedes the cut is imported, the rest noted
     (tmp_path / "cut.bag").write_bytes(bytes(raw[: len(raw) // 2]))
     res = run("import", str(tmp_path / "cut.bag"), "-o", str(tmp_path / "cut.h5"))
     assert res.exit_code == 0 and "unreadable, not imported" in res.output, res.output
     with open_run(tmp_path / "cut.h5") as run_:
         k = len(run_.read("imu_data", "t"))
-        assert 500 < k < 1000
+        assert 500 < k < 2000  # the complete messages of the chunk cut short are imported too
+        assert f"({k} messages before them imported)" in res.output
         np.testing.assert_array_equal(run_.read("imu_data", "gyro"), g[:k])
         assert any("recording not closed" in e.detail for e in run_.events())
 
@@ -514,3 +515,53 @@ def test_temperature_topics_become_thermometers(tmp_path, fmt, reader):
         np.testing.assert_allclose(c, 20 + i * 1e-4, rtol=0, atol=1e-12)
     res = run("import", str(src), "-o", str(tmp_path / "cli.h5"))
     assert res.exit_code == 0 and "imu_temperature (30 readings)" in res.output, res.output
+
+
+@pytest.fixture(scope="module", params=[None, "bz2", "lz4"])
+def chunked_bag(request, tmp_path_factory):
+    """A closed (indexed) ROS 1 bag of 6000 Imu messages in 22 chunks, its chunk positions and counts,
+    and every message's gyro as rosbags reads it."""
+    from bagmaker import write_big_imu_bag
+    from rosbags.rosbag1 import Reader
+
+    src = write_big_imu_bag(tmp_path_factory.mktemp("cut") / "full.bag", 6000, compression=request.param,
+                            chunk_bytes=100_000)  # fmt: skip
+    ref = _read_all(src, "old", ["/imu/data"])["/imu/data"]
+    with Reader(src) as r:
+        chunks = [(c.pos, sum(c.connection_counts.values())) for c in r.chunk_infos]
+    return src, request.param, chunks, ref
+
+
+@pytest.mark.parametrize("where", [0.25, 0.5, 0.8, "index"])
+def test_a_truncated_ros1_bag_imports_every_message_before_the_cut(chunked_bag, tmp_path, where):
+    """A closed bag cut short (its index at the end gone) used to import nothing ('no Imu topic'):
+    the chunks are read one after the other up to the cut, the complete messages of the chunk cut
+    short too where its compression allows, and the cut is stated on stderr and in the file."""
+    src, compression, chunks, (t_ref, g_ref, _a) = chunked_bag
+    data = src.read_bytes()
+    index_pos = int.from_bytes(data[data.index(b"index_pos=") + 10 :][:8], "little")
+    cut = index_pos + 40 if where == "index" else int(len(data) * where)
+    p = tmp_path / "cut.bag"
+    p.write_bytes(data[:cut])
+    res = run("import", str(p), "-o", str(tmp_path / "cut.h5"))
+    assert res.exit_code == 0, res.output
+    with open_run(tmp_path / "cut.h5") as run_:
+        k = run_.rows("imu_data")
+        t, g = run_.read("imu_data", "t"), run_.read("imu_data", "gyro")
+        notes = [e.detail for e in run_.events() if e.kind == "note" and "truncated bag" in e.detail]
+    # a prefix of the bag, at least every chunk that ends before the cut, at most those that start before it
+    ends = [pos for pos, _ in chunks[1:]] + [index_pos]
+    complete = sum(n for (pos, n), end in zip(chunks, ends, strict=True) if end <= cut)
+    started = sum(n for pos, n in chunks if pos < cut)
+    assert complete <= k <= started and k > 0
+    np.testing.assert_array_equal(g, g_ref[:k])
+    np.testing.assert_array_equal(t, t_ref[:k] - t_ref[0])
+    if compression is None and where != "index":
+        assert k > complete  # the complete messages of the chunk cut short
+    lines = [ln for ln in res.output.splitlines() if "truncated bag" in ln]
+    assert len(lines) == 1 and len(notes) == 1, res.output
+    assert f"{k} messages before the cut imported" in lines[0] and lines[0].endswith(notes[0])
+    if where == "index":
+        assert k == 6000 and "inside its index" in lines[0] and "no message lost" in lines[0]
+    else:
+        assert f"file ends at byte {cut}" in lines[0] and "not imported" in lines[0]

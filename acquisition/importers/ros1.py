@@ -33,6 +33,24 @@ def ros1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
 
 
+def cut_note(bag: Ros1Bag) -> str:
+    """One line on what a bag cut short or not closed held, after :meth:`.Ros1Bag.chunks` (else "")."""
+    if bag.cut:
+        where = f"at byte {bag.unread_from}" if bag.unread_from is not None else "inside its index"
+        lost = f"bytes {bag.unread_from}-{bag.size} not imported" if bag.unread_from is not None else "no message lost"
+        return (
+            f"truncated bag: the file ends at byte {bag.size}, cut {where} (index at byte {bag.index_pos}); "
+            f"{bag.messages_read} messages before the cut imported ({bag.chunks_read} of {bag.chunk_count} chunks"
+            f"{f', {bag.salvaged} messages of the chunk cut short' if bag.salvaged else ''}), {lost}"
+        )
+    if bag.unread_from is not None:
+        return (
+            f"unindexed bag (recording not closed): bytes {bag.unread_from}-{bag.size} unreadable, not imported "
+            f"({bag.messages_read} messages before them imported)"
+        )
+    return ""
+
+
 def iter_ros1(
     path: str,
     topics: list[str],
@@ -73,10 +91,12 @@ def iter_ros1(
                         yield from _full_blocks(t, pend, have, block)
                 if limit is not None and seen >= limit:
                     break
-            if bag.unread_from is not None and notes is not None:
-                notes.append(
-                    f"unindexed bag (recording not closed): bytes {bag.unread_from}-{bag.size} unreadable, not imported"
-                )
+            if notes is not None and (limit is None or seen < limit):
+                if not bag.cut and bag.unread_from is None and bag.index_pos:
+                    bag.index()  # O(chunks): finds a bag cut inside its index (every message read)
+                note = cut_note(bag)
+                if note:
+                    notes.append(note)
     except (BagFormatError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
     for t in names:

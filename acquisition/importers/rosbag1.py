@@ -36,6 +36,10 @@ class BagFormatError(ValueError):
     """Not a readable ROS 1 (v2.0) bag."""
 
 
+class BagCutError(BagFormatError):
+    """A record runs past the end of the file (the bag was cut short)."""
+
+
 @dataclass(frozen=True)
 class Connection:
     id: int
@@ -117,6 +121,25 @@ def _connection(fields: dict[str, bytes], data: bytes) -> Connection:
 _DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
 
 
+def _decompress_prefix(kind: str, data: bytes) -> bytes:
+    """What the first bytes of a chunk cut short decompress to (b"" where nothing can be told).
+
+    bz2 and lz4 frames decompress block by block: the blocks complete before the cut come out.
+    """
+    try:
+        if kind == "none":
+            return data
+        if kind == "bz2":
+            return bz2.BZ2Decompressor().decompress(data)
+        if kind == "lz4":
+            import lz4.frame
+
+            return lz4.frame.LZ4FrameDecompressor().decompress(data)
+    except (OSError, ValueError, RuntimeError, EOFError):
+        pass
+    return b""
+
+
 def _decompress(kind: str, data: bytes, size: int) -> bytes:
     if kind not in ("lz4", *_DECOMPRESS):
         raise BagFormatError(f"chunk compression {kind!r} is not supported")
@@ -154,7 +177,14 @@ class Ros1Bag:
             self._skip(self._u32())
             self.first_record = self.fh.tell()
             self.size = os.fstat(self.fh.fileno()).st_size
+            #: where reading stopped in a bag cut short or not closed (None: read to its end)
             self.unread_from: int | None = None
+            #: the bag is indexed but cut short: its index (at ``index_pos``) is missing or
+            #: incomplete, so the chunks are read one after the other up to the cut
+            self.cut = self.index_pos > self.size
+            #: chunks and messages read by the last :meth:`chunks`, and the messages of those
+            #: that came from a chunk cut short
+            self.chunks_read = self.messages_read = self.salvaged = 0
         except BaseException:
             self.fh.close()
             raise
@@ -172,13 +202,13 @@ class Ros1Bag:
     def _u32(self) -> int:
         b = self.fh.read(4)
         if len(b) != 4:
-            raise BagFormatError("truncated record")
+            raise BagCutError("truncated record")
         return _u32(b, 0)[0]
 
     def _read(self, n: int) -> bytes:
         b = self.fh.read(n)
         if len(b) != n:
-            raise BagFormatError(f"truncated record ({len(b)} of {n} bytes)")
+            raise BagCutError(f"truncated record ({len(b)} of {n} bytes)")
         return b
 
     def _skip(self, n: int) -> None:
@@ -196,17 +226,27 @@ class Ros1Bag:
         """Connections and message counts per connection id.
 
         From the index section at the end of the bag (connection and chunk-info
-        records: O(chunks)); an unindexed bag (a recording that was not closed) is
-        scanned instead.
+        records: O(chunks)); an unindexed bag (a recording that was not closed) and
+        a bag cut short (:attr:`cut`) are scanned instead.
         """
-        if self.index_pos == 0:
-            conns: dict[int, Connection] = {}
-            counts: dict[int, int] = {}
-            for ch in self.chunks(conns):
-                ids, n = np.unique(ch.conn, return_counts=True)
-                for i, k in zip(ids.tolist(), n.tolist(), strict=True):
-                    counts[i] = counts.get(i, 0) + k
-            return conns, counts
+        if self.index_pos == 0 or self.cut:
+            return self._scan()
+        try:
+            return self._read_index()
+        except BagCutError:
+            self.cut = True  # cut inside the index: every chunk is there
+            return self._scan()
+
+    def _scan(self) -> tuple[dict[int, Connection], dict[int, int]]:
+        conns: dict[int, Connection] = {}
+        counts: dict[int, int] = {}
+        for ch in self.chunks(conns):
+            ids, n = np.unique(ch.conn, return_counts=True)
+            for i, k in zip(ids.tolist(), n.tolist(), strict=True):
+                counts[i] = counts.get(i, 0) + k
+        return conns, counts
+
+    def _read_index(self) -> tuple[dict[int, Connection], dict[int, int]]:
         self.fh.seek(self.index_pos)
         conns, counts = {}, {}
         while self.fh.tell() < self.size:
@@ -232,13 +272,16 @@ class Ros1Bag:
     def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
         """The messages of each chunk in file order; ``conns`` is filled with the connection records met.
 
-        An unindexed bag (a recording that was not closed) may end in a record that was being
-        written: reading stops there and :attr:`unread_from` tells where (else it is None).
+        An unindexed bag (a recording that was not closed) or a bag cut short may end in a
+        record that was being written: reading stops there, :attr:`unread_from` tells where (else
+        it is None), and the complete messages of a chunk cut there are handed out too.
         """
         conns = {} if conns is None else conns
         self.fh.seek(self.first_record)
         self.unread_from = None
-        end = self.index_pos if self.index_pos else self.size
+        self.chunks_read = self.messages_read = self.salvaged = 0
+        scan = self.index_pos == 0 or self.cut
+        end = self.index_pos if 0 < self.index_pos <= self.size else self.size
         while self.fh.tell() < end:
             at = self.fh.tell()
             try:
@@ -246,12 +289,21 @@ class Ros1Bag:
                 if op == OP_CHUNK:
                     msgs = self._split(_decompress(hdr.get("compression", b"none").decode(), data,
                                                    _int(hdr, "size")), conns)  # fmt: skip
-            except BagFormatError:
-                if self.index_pos:
-                    raise
+            except BagFormatError as exc:
+                if not scan:
+                    if not isinstance(exc, BagCutError):
+                        raise
+                    self.cut = True  # the index says more than the file holds
                 self.unread_from = at
+                part = self._salvage(at, conns)
+                if part is not None:
+                    self.salvaged = len(part.conn)
+                    self.messages_read += self.salvaged
+                    yield part
                 return
             if op == OP_CHUNK:
+                self.chunks_read += 1
+                self.messages_read += len(msgs.conn)
                 yield msgs
             elif op == OP_CONNECTION:
                 c = _connection(hdr, data)
@@ -262,6 +314,20 @@ class Ros1Bag:
                     data, one * _int(hdr, "conn"), one * _time(hdr), np.zeros(1, np.int64), one * len(data)
                 )
 
+    def _salvage(self, at: int, conns: dict[int, Connection]) -> ChunkMessages | None:
+        """The complete messages at the start of the chunk record at ``at``, cut short (None if none)."""
+        try:
+            self.fh.seek(at)
+            hdr = self._header()
+            if _op(hdr) != OP_CHUNK:
+                return None
+            self._u32()
+            raw = _decompress_prefix(hdr.get("compression", b"none").decode(), self.fh.read())
+            msgs = self._split(raw, conns, partial=True)
+        except BagFormatError:
+            return None
+        return msgs if len(msgs.conn) else None
+
     def _record(self) -> tuple[int, dict[str, bytes], bytes]:
         """The next top-level record: op, header fields and data (b"" for index records, skipped)."""
         hdr = self._header()
@@ -270,15 +336,18 @@ class Ros1Bag:
         if op in (OP_CHUNK, OP_CONNECTION, OP_MSGDATA):
             return op, hdr, self._read(n)
         if self.fh.tell() + n > self.size:
-            raise BagFormatError("truncated record")
+            raise BagCutError("truncated record")
         self._skip(n)
         return op, hdr, b""
 
     @staticmethod
-    def _split(raw: bytes, conns: dict[int, Connection]) -> ChunkMessages:
-        """The records of a decompressed chunk: message data (vectorised header parse) and connection records."""
+    def _split(raw: bytes, conns: dict[int, Connection], partial: bool = False) -> ChunkMessages:
+        """The records of a decompressed chunk: message data (vectorised header parse) and connection records.
+
+        ``partial``: ``raw`` is the start of a chunk cut short; its complete records only.
+        """
         b = np.frombuffer(raw, np.uint8)
-        rec = _record_starts(raw, b)
+        rec = _record_starts(raw, b, partial)
         hl_a = _gather_u32(b, rec)
         hs_a = rec + 4
         dl_a = _gather_u32(b, hs_a + hl_a)
@@ -341,8 +410,8 @@ def _time(hdr: dict[str, bytes]) -> int:
     return sec * 1_000_000_000 + nsec
 
 
-def _record_starts(raw: bytes, b: np.ndarray) -> np.ndarray:
-    """Offsets of the records of a chunk.
+def _record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarray:
+    """Offsets of the records of a chunk (``partial``: of its complete records, the chunk cut short).
 
     Records are walked one by one, but runs of records of one size (a topic's
     messages of constant length, the common case) are found with numpy.
@@ -352,10 +421,16 @@ def _record_starts(raw: bytes, b: np.ndarray) -> np.ndarray:
     plain = 0  # records to walk one by one before trying a run again
     try:
         while pos < size:
+            if partial and pos + 8 > size:
+                break
             (hn,) = _u32(raw, pos)
+            if partial and pos + 8 + hn > size:
+                break
             (dn,) = _u32(raw, pos + 4 + hn)
             stride = 8 + hn + dn
             if pos + stride > size:
+                if partial:
+                    break
                 raise BagFormatError("truncated record in chunk")
             m = min((size - pos) // stride, 4096)
             if plain or m < 4:

@@ -43,7 +43,7 @@ from imustation.analysis.reports.temperature import TEMP_READ_HZ, detect_warmup
 from imustation.errors import ImustationError
 from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
 from imustation.runfile import Event, RunFile, latest_part, open_run
-from imustation.runfile.checks import parse_events
+from imustation.runfile.checks import damaged_file, parse_events
 from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, elapsed_from_run, thermometer_status
 
 #: a device whose row count has not grown for this many wall seconds is reported stalled
@@ -307,7 +307,8 @@ class Monitor:
         ds = run.h5.get("events")
         if ds is None or ds.shape[0] <= self._events_pos:
             return
-        rows = ds[self._events_pos :]
+        with damaged_file(run.path, "events", ds):
+            rows = ds[self._events_pos :]
         self._events_pos += len(rows)
         events = parse_events(run.path, rows)  # events are rare (one per gap or fault), not per sample
         self._tally.add(events)

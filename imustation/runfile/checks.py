@@ -59,21 +59,37 @@ EVENT_FIELDS = {"t": "i", "source": "S", "kind": "S", "lost": "i", "detail": "S"
 H5_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError)
 
 
-def _reason(exc: BaseException) -> str:
+#: how HDF5 reports a chunk its filters refuse on read (h5py shows only the top of the stack)
+_FILTER_FAILURE = ("filter returned failure", "checksum", "Data error")
+
+
+def _reason(exc: BaseException, ds: h5py.Dataset | None = None) -> str:
     text = str(exc).strip().strip("'\"").splitlines()
-    return (text[0] if text else exc.__class__.__name__)[:200]
+    first = (text[0] if text else exc.__class__.__name__)[:200]
+    if any(s in first for s in _FILTER_FAILURE):
+        # fletcher32 is the last filter written, so the first one read: with it, any changed
+        # byte of a stored chunk fails the checksum before gzip sees it
+        if ds is None:
+            return "a stored chunk fails its checksum or does not decompress"
+        if ds.fletcher32:
+            return "a stored chunk fails its fletcher32 checksum (changed on disk)"
+        return "a stored chunk does not decompress (written without checksums)"
+    return first
 
 
 @contextlib.contextmanager
-def damaged_file(path: str, what: str = "") -> Iterator[None]:
-    """Turn an h5py error raised inside the block into one :class:`RunFileError` line."""
+def damaged_file(path: str, what: str = "", ds: h5py.Dataset | None = None) -> Iterator[None]:
+    """Turn an h5py error raised inside the block into one :class:`RunFileError` line.
+
+    ``ds``: the dataset being read, to name a chunk its filters refuse (checksum) as such.
+    """
     try:
         yield
     except RunFileError:
         raise
     except H5_ERRORS as exc:
         where = f" ({what})" if what else ""
-        raise RunFileError(f"{path}: damaged run file{where}: {_reason(exc)}") from None
+        raise RunFileError(f"{path}: damaged run file{where}: {_reason(exc, ds)}") from None
 
 
 class CheckedDataset:
@@ -89,7 +105,7 @@ class CheckedDataset:
         self._ds, self._path, self._what = ds, path, what
 
     def __getitem__(self, key: Any):
-        with damaged_file(self._path, f"{self._what} rows {_rows(key)}"):
+        with damaged_file(self._path, f"{self._what} rows {_rows(key)}", self._ds):
             return self._ds[key]
 
     def __len__(self) -> int:
@@ -231,7 +247,7 @@ def _check_rate(path: str, where: str, t: h5py.Dataset, n: int, rate_hz: float) 
     k = min(n, RATE_PROBE_ROWS + 1)
     if k <= 4 * RATE_WINDOW:
         return
-    with damaged_file(path, f"{where}/t rows 0:{k}"):
+    with damaged_file(path, f"{where}/t rows 0:{k}", t):
         d = np.diff(np.asarray(t[:k], dtype=np.int64)).astype(np.float64)
     w = len(d) // RATE_WINDOW
     # median of window means: robust to a gap (one window) and to coarse stamp resolution (averaged)
@@ -388,5 +404,7 @@ def parse_events(path: str, rows: np.ndarray) -> list[Event]:
 def read_events(path: str, h5: h5py.File) -> list[Event]:
     """Every row of the run file's ``/events``, checked (see :func:`parse_events`)."""
     with damaged_file(path, "events"):
-        rows = h5[EVENTS][()]
+        ds = h5[EVENTS]
+    with damaged_file(path, "events", ds):
+        rows = ds[()]
     return parse_events(path, rows)

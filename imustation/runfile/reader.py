@@ -150,8 +150,10 @@ class RunFile:
         """Thermometer ``name``: times (ns) and readings (degC), equal lengths."""
         g = self.h5[f"{THERMOMETERS}/{name}"]
         n = min(g[TIME].shape[0], g[CELSIUS].shape[0])
-        with damaged_file(self.path, f"thermometer {name}"):
-            return g[TIME][:n], g[CELSIUS][:n]
+        with damaged_file(self.path, f"thermometer {name}/t", g[TIME]):
+            t = g[TIME][:n]
+        with damaged_file(self.path, f"thermometer {name}/celsius", g[CELSIUS]):
+            return t, g[CELSIUS][:n]
 
     def refresh(self) -> None:
         """SWMR reader: see what the writer flushed since the file was opened (or last refreshed).

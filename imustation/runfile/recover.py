@@ -32,6 +32,7 @@ from imustation.runfile import (
     utc_now_iso,
 )
 from imustation.runfile.checks import damaged_file
+from imustation.runfile.disk import release_tail
 
 #: suffixes of the new file while it is written, and of the original kept after a recovery
 RECOVERING_SUFFIX = ".recovering"
@@ -94,6 +95,7 @@ def recover_run(path: str | os.PathLike) -> Recovery | None:
         pass
     os.link(p, original)
     os.replace(new, p)
+    release_tail(original)  # the room the killed capture kept past the file's end
     fd = os.open(os.path.dirname(os.path.abspath(p)), os.O_RDONLY)
     try:
         os.fsync(fd)
@@ -112,7 +114,7 @@ def _copy_dataset(run: RunFile, src: h5py.Dataset, dst_group: h5py.Group, name: 
     for key, value in src.attrs.items():
         dst.attrs[key] = value
     for i in range(0, n, COPY_ROWS):
-        with damaged_file(run.path, f"{src.name} rows {i}:{min(i + COPY_ROWS, n)}"):
+        with damaged_file(run.path, f"{src.name} rows {i}:{min(i + COPY_ROWS, n)}", src):
             dst[i : min(i + COPY_ROWS, n)] = src[i : min(i + COPY_ROWS, n)]
 
 
@@ -135,14 +137,14 @@ def _copy(run: RunFile, new: str, original: str) -> Recovery:
                         rec.dropped[f"{gname}/{name}/{dname}"] = ds.shape[0] - n
                     _copy_dataset(run, ds, sub, dname, n)
                 if n:
-                    with damaged_file(run.path, f"{gname}/{name}/t"):
+                    with damaged_file(run.path, f"{gname}/{name}/t", g[TIME]):
                         last_t = max(last_t, int(np.max(g[TIME][max(0, n - COPY_ROWS) : n])))
         rec.last_t_s = last_t * 1e-9
-        with damaged_file(run.path, "events"):
+        with damaged_file(run.path, "events", h5[EVENTS]):
             rows = h5[EVENTS][()]
         note = np.array([(last_t, b"station", b"note", 0, rec.statement().encode()[:256])], dtype=EVENT_DTYPE)
         events = np.concatenate([rows.astype(EVENT_DTYPE), note])
-        out.create_dataset(EVENTS, data=events, maxshape=(None,), chunks=(256,))
+        out.create_dataset(EVENTS, data=events, maxshape=(None,), chunks=(256,), fletcher32=h5[EVENTS].fletcher32)
         started = _dt.datetime.fromisoformat(str(run.attrs["started_utc"]))
         ended = started + _dt.timedelta(microseconds=last_t / 1e3)
         out.attrs["ended_utc"] = ended.isoformat(timespec="milliseconds")

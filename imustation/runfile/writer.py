@@ -22,7 +22,7 @@ import numpy as np
 
 from imustation import __version__
 from imustation.errors import DiskFullError, ImustationError, RunFileError
-from imustation.runfile.disk import fsync_dir, is_enospc, make_ballast
+from imustation.runfile.disk import fsync_dir, is_enospc, make_ballast, release_tail, reserve_tail
 from imustation.runfile.schema import (
     CELSIUS,
     COUNTER,
@@ -39,16 +39,23 @@ from imustation.runfile.schema import (
 )
 
 #: HDF5 storage options for every appendable dataset; gzip-1 + shuffle packs
-#: int16 sensor counts about 2-3x at a small CPU cost.
-H5_OPTS: dict[str, Any] = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: int16 sensor counts about 2-3x at a small CPU cost. fletcher32 stores a
+#: checksum with every chunk: a flipped byte inside compressed data that still
+#: decompresses would otherwise read as wrong numbers without a word (a storage
+#: filter, invisible to readers: the format version stays 1).
+H5_OPTS: dict[str, Any] = {"compression": "gzip", "compression_opts": 1, "shuffle": True, "fletcher32": True}
 CHUNK_ROWS = 8192
 #: free space a flush leaves on the filesystem (room to close the file cleanly)
 DEFAULT_MIN_FREE_BYTES = 16 * 2**20
 #: suffix of a run file while it is being created (renamed when valid)
 CREATING_SUFFIX = ".creating"
-#: room kept beside a run file to finish it when the disk fills up anyway
+#: room kept to finish a run file when the disk fills up anyway: allocated past the file's
+#: end, or as ``<name>.ballast`` beside it where the filesystem cannot (see RunWriter)
 BALLAST_SUFFIX = ".ballast"
 DEFAULT_BALLAST_BYTES = 4 * 2**20
+#: HDF5 metadata a flush may add beyond its data (chunk index, object headers, free-space
+#: aggregators of 2 KiB each), counted generously
+FLUSH_METADATA_BYTES = 2**16
 
 
 def _attr_value(value: Any) -> Any:
@@ -77,11 +84,17 @@ class RunWriter:
     min_free_bytes : a flush that would leave less free space than this on the
         file's filesystem is refused with :class:`DiskFullError` *before*
         writing, so the file stays complete and can still be closed cleanly.
-    ballast_bytes : size of ``<path>.ballast``, a file allocated beside the run
-        file and deleted when a write fails with ENOSPC anyway (another program
-        filled the disk): the freed room lets HDF5 finish its flush and close
-        the file cleanly (a file HDF5 cannot flush stays half-open in the
-        process, and the library crashes at exit). 0 disables it.
+    ballast_bytes : room kept to finish the file however full the disk gets
+        (another program may fill it at any moment): allocated to the run file
+        itself past its end (``fallocate`` with ``FALLOC_FL_KEEP_SIZE``; the size
+        HDF5 sees is unchanged). Before every flush the writer allocates the room
+        that flush can take plus ``ballast_bytes``; when the disk cannot give it the
+        flush is refused before writing, so the file always has ``ballast_bytes``
+        allocated to close it, which no other program can take (the extra room
+        is given back at close). On a filesystem without ``fallocate`` it is
+        ``<path>.ballast`` beside the file, deleted when a write fails with
+        ENOSPC (a file HDF5 cannot flush stays half-open in the process, and
+        the library crashes at exit). 0 disables it.
     """
 
     def __init__(
@@ -116,13 +129,26 @@ class RunWriter:
         # built under a temporary name and renamed once it is a valid SWMR file, so
         # a crash while creating it never leaves an unreadable file at ``path``
         creating = self.path + CREATING_SUFFIX
-        self._ballast = self.path + BALLAST_SUFFIX if ballast_bytes > 0 else None
-        if self._ballast is not None:
-            make_ballast(self._ballast, ballast_bytes)
+        self.ballast_bytes = max(0, int(ballast_bytes))
+        #: the room to finish the file is allocated past its end (else a ballast file)
+        self._tail = False
+        self._ballast: str | None = None
         try:
             self._f = h5py.File(creating, "w", libver="latest")
         except OSError as exc:
             raise RunFileError(f"{self.path}: cannot create run file: {exc}") from exc
+        if self.ballast_bytes:
+            try:
+                self._tail = reserve_tail(self._f.id.get_vfd_handle(), self.ballast_bytes + FLUSH_METADATA_BYTES)
+                if not self._tail:
+                    self._ballast = self.path + BALLAST_SUFFIX
+                    make_ballast(self._ballast, self.ballast_bytes)
+            except BaseException as exc:
+                self._f.close()
+                os.unlink(creating)
+                if isinstance(exc, DiskFullError):
+                    raise DiskFullError(f"{self.path}: disk full before the capture started") from None
+                raise
         self.closed = False
         #: set once a write failed half-way (disk full): nothing more is written
         self.broken = False
@@ -144,6 +170,8 @@ class RunWriter:
         self.devices = {d.name: d for d in devices}
         self._buffers: dict[tuple[str, str], list[np.ndarray]] = {}
         self._datasets: dict[tuple[str, str], h5py.Dataset] = {}
+        #: bytes of one uncompressed chunk per dataset (a flush rewrites a dataset's last chunk)
+        self._chunk_bytes: dict[tuple[str, str], int] = {}
         self._pending_rows = 0
         self._pending_bytes = 0
         self.samples_written: dict[str, int] = {d.name: 0 for d in devices}
@@ -181,7 +209,9 @@ class RunWriter:
             ds = self._create(g, THERMOMETERS + "/" + name, CELSIUS, "<f8", ())
             ds.attrs["units"] = "degC"
             self._create(g, THERMOMETERS + "/" + name, TIME, "<i8", ())
-        self._events = f.create_dataset(EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,))
+        self._events = f.create_dataset(
+            EVENTS, shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(256,), fletcher32=True
+        )
         self._event_buffer: list[tuple] = []
         f.swmr_mode = True
         f.flush()
@@ -204,6 +234,7 @@ class RunWriter:
         key = (owner, name)
         self._buffers[key] = []
         self._datasets[key] = ds
+        self._chunk_bytes[key] = int(np.prod(ds.chunks)) * ds.dtype.itemsize
         return ds
 
     # -- appending ----------------------------------------------------------
@@ -298,6 +329,16 @@ class RunWriter:
                     f"{self.path}: disk full ({free / 2**20:.1f} MiB free, keeping {self.min_free_bytes / 2**20:.1f} "
                     "MiB in reserve); capture stopped"
                 )
+        if self._tail:
+            try:
+                reserve_tail(self._f.id.get_vfd_handle(), self.ballast_bytes + self._flush_room())
+            except DiskFullError:
+                if reserve:
+                    raise DiskFullError(
+                        f"{self.path}: disk full (no room for the next block beside the "
+                        f"{self.ballast_bytes / 2**20:.1f} MiB kept to finish the file); capture stopped"
+                    ) from None
+                # closing: the room kept past the end since the last flush holds it
         extents = {key: ds.shape[0] for key, ds in self._datasets.items()}
         extents[(EVENTS, "")] = self._events.shape[0]
         events = list(self._event_buffer)
@@ -309,7 +350,7 @@ class RunWriter:
         except (OSError, RuntimeError) as exc:  # h5py raises RuntimeError for a failed H5Fflush
             if not is_enospc(exc):
                 raise
-            if self._drop_ballast() and self._roll_back(extents, events):
+            if (self._drop_ballast() or self._tail) and self._roll_back(extents, events):
                 raise DiskFullError(
                     f"{self.path}: disk full while writing (no space left on device); capture stopped, "
                     "the last block is logged as lost"
@@ -323,6 +364,19 @@ class RunWriter:
             self.samples_flushed[name] += k
             self._queued[name] = 0
         self._last_flush = time.monotonic()
+
+    def _flush_room(self) -> int:
+        """Bytes the next flush may add to the file, at most: its data (gzip never grows a
+        chunk by more than 0.1 % + 12 bytes; HDF5 stores one it would grow unfiltered), one
+        whole chunk per dataset written (its last chunk, rewritten elsewhere when its size
+        changes), and the metadata."""
+        room = self._pending_bytes + FLUSH_METADATA_BYTES
+        for key, parts in self._buffers.items():
+            if parts:
+                room += self._chunk_bytes[key]
+        if self._event_buffer:
+            room += int(np.prod(self._events.chunks)) * EVENT_DTYPE.itemsize
+        return room + room // 512
 
     def _write_pending(self) -> None:
         for key, parts in self._buffers.items():
@@ -406,14 +460,41 @@ class RunWriter:
             self._f.close()
             self.closed = True
             self._drop_ballast()
+            if not self.broken:
+                self._keep_tail()
         # SWMR writers may not add attributes; reopen once to mark the run complete.
         # Without HDF5's file lock: a SWMR reader (open_run, h5py with swmr=True) holds
         # a shared lock for as long as it has the file open, and the capture must finish
         # its file whatever readers do (the OutputLock keeps other writers out).
-        with h5py.File(self.path, "r+", libver="latest", locking=False) as f:
-            for key, value in (attrs or {}).items():
-                f.attrs[key] = _attr_value(value)
-            f.attrs["ended_utc"] = ended_utc or utc_now_iso()
+        try:
+            with h5py.File(self.path, "r+", libver="latest", locking=False) as f:
+                for key, value in (attrs or {}).items():
+                    f.attrs[key] = _attr_value(value)
+                f.attrs["ended_utc"] = ended_utc or utc_now_iso()
+        finally:
+            self._release_tail()
+
+    def _keep_tail(self) -> None:
+        """Between closing the SWMR file and reopening it to mark it complete: should HDF5 have
+        cut the file to its end of allocation (which frees what lies past it), take the room
+        again if the disk has it (what the reopen needs is small; best effort)."""
+        if not self._tail:
+            return
+        try:
+            fd = os.open(self.path, os.O_WRONLY)
+        except OSError:
+            return
+        try:
+            reserve_tail(fd, FLUSH_METADATA_BYTES)
+        except (OSError, DiskFullError):
+            pass
+        finally:
+            os.close(fd)
+
+    def _release_tail(self) -> None:
+        if self._tail:
+            self._tail = False
+            release_tail(self.path)
 
     def abort(self) -> None:
         """Close without marking the run complete (used when the capture failed).
@@ -435,6 +516,7 @@ class RunWriter:
                 pass
             self.closed = True
             self._drop_ballast()
+            self._release_tail()
 
     def __enter__(self) -> RunWriter:
         return self
