@@ -142,7 +142,7 @@ def capture(
     started = False
     try:
         specs = station.open()
-        recorder.start(specs, list(station.thermometers))
+        recorder.start(specs, {name: th.rate_hz for name, th in station.thermometers.items()})
         started = True
         try:
             summary = station.run(

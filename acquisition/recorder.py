@@ -223,10 +223,11 @@ class Recorder:
                 f"{ballast / mib:g} MiB of ballast and needs {START_ROOM_BYTES / mib:g} MiB more for data; free space"
             )
 
-    def start(self, devices: Sequence[OpenedDevice], thermometers: Sequence[str]) -> None:
-        """Create the first part for the opened ``devices`` and the ``thermometers`` (names)."""
+    def start(self, devices: Sequence[OpenedDevice], thermometers: Mapping[str, float]) -> None:
+        """Create the first part for the opened ``devices`` and the ``thermometers`` (name: configured poll
+        rate, Hz; every part stores it, see :class:`~imustation.runfile.RunWriter`)."""
         self.devices = [run_file_device(d) for d in devices]
-        self.thermometers = list(thermometers)
+        self.thermometers = dict(thermometers)
         self.started_utc = utc_now_iso()
         self.run_id = uuid.uuid4().hex if self.rotate_s else ""
         self._open_part(0)

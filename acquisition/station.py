@@ -49,6 +49,8 @@ from imustation.status import DeviceStatus, ThermometerStatus, capture_status, f
 
 #: wall seconds between status reports (default)
 STATUS_INTERVAL_S = 1.0
+#: a thermometer's poll rate when its config gives none, Hz
+DEFAULT_THERMOMETER_RATE_HZ = 1.0
 
 
 @dataclass(frozen=True)
@@ -126,6 +128,11 @@ class ThermometerState:
     celsius: float = float("nan")
     failed: bool = False
     failed_attempts: int = 0
+
+    @property
+    def rate_hz(self) -> float:
+        """The configured poll rate, Hz (what the run file stores; ``period_ns`` is it rounded to whole ns)."""
+        return float(self.config.settings.get("rate_hz", DEFAULT_THERMOMETER_RATE_HZ))
 
     def counts(self) -> ThermometerStatus:
         return ThermometerStatus(
@@ -237,7 +244,7 @@ class Station:
                 regs = self.buses.register_thermometer(th)
                 driver = THERMOMETER_DRIVERS[th.driver](regs, th.settings, sleep=self.clock.sleep)
                 identity = driver.open()
-                period = int(round(1e9 / float(th.settings.get("rate_hz", 1.0))))
+                period = int(round(1e9 / float(th.settings.get("rate_hz", DEFAULT_THERMOMETER_RATE_HZ))))
                 self.thermometers[th.name] = ThermometerState(th, driver, str(identity), period)
         if self._pool is not None:
             by_name = {d.name: d for d in (*self.config.devices, *self.config.thermometers)}

@@ -204,6 +204,8 @@ def run_file_mutations(base: Path) -> list[tuple[str, Callable, str]]:
         ("driver=3", _set("devices/gyro", "driver", 3), "all"),
     ]
     m += [(f"rate_hz*{k}", _scale_rate(k), "all") for k in (2.0, 0.5, 10.0)]
+    for v in [0.0, nan, "fast", 50.0]:
+        m.append((f"thermo.rate_hz={v!r}", _set("thermometers/ambient", "rate_hz", v), "all"))
     for v in [0.0, nan, inf, "x", np.array([1.0, 2.0, 3.0])]:
         m.append((f"scale={v!r}"[:60], _set("devices/gyro/gyro", "scale", v), "all"))
     m += [(f"gyro.del.{k}", _del("devices/gyro/gyro", k), "all") for k in ("scale", "offset", "units", "axes")]

@@ -3,13 +3,17 @@ checked from the run file alone (imustation.runfile.holes) and against the simul
 
 from __future__ import annotations
 
+import shutil
 import tomllib
 from pathlib import Path
 
+import h5py
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 import imustation.acquisition.buses as buses
+from imustation.acquisition.capture import capture
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.recorder import run_file_device
 from imustation.acquisition.station import Station
@@ -21,7 +25,7 @@ from imustation.configs import config_path
 from imustation.drivers.base import Block
 from imustation.drivers.sim import station_device_seed
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter, open_run
-from imustation.runfile.holes import check_run, find_holes
+from imustation.runfile.holes import check_run, check_thermometer, check_thermometers, find_holes
 
 #: a 2 s stall of the BMX055 gyro's bus 3 s after its simulator starts: on the virtual clock it holds the
 #: whole station (one thread), on the host clock its I2C bus (the BMX055 accelerometer shares it)
@@ -71,7 +75,7 @@ def _capture(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
                     setattr(st.driver, method, logged)
         path = tmp_path / "lab.h5"
         devices = [run_file_device(d) for d in specs]
-        thermometers = list(station.thermometers)
+        thermometers = {name: th.rate_hz for name, th in station.thermometers.items()}
         with RunWriter(
             path, station=cfg.name, config_text="", simulated=True, devices=devices, thermometers=thermometers
         ) as writer:
@@ -96,6 +100,9 @@ def _assert_the_file_accounts_for_every_sample(path) -> dict:
             assert c.consistent, (name, c.unlogged[:3], c.unlocated)
             assert c.samples + c.logged == c.produced and c.samples > 0, name
             assert c.holes.short == 0, name  # times advance by the rate everywhere
+        # the thermometers too (their polls made late by the stall are not losses)
+        for name, c in check_thermometers(run).items():
+            assert c is not None and c.consistent and c.samples > 0, (name, c)
     return checks
 
 
@@ -266,3 +273,102 @@ def test_a_chip_without_a_fifo_read_late_loses_what_it_made_meanwhile():
             written += block.n
             logged += sum(e.lost for e in placed.events)
         assert written + logged == newest + 1, made_at  # every sample made up to the last read
+
+
+# --- thermometers: readings against the poll rate the file stores ------------------------------------------
+
+#: a 4 Hz thermometer that is gone 2.2 s (nine failed polls, logged at the reconnect, whose reading is dated one
+#: 250 ms conversion late), on a station a 3.5 s stall of the gyro holds (the overdue polls made at once after it)
+THERMO_RAW = {
+    "station": {"seed": 3},
+    "device": [
+        {
+            "name": "gyro", "driver": "bmx055", "bus": "i2c:1", "rate_hz": 100, "bandwidth_hz": 32,
+            "sim": {"faults": [{"kind": "stall", "at_s": 10.0, "duration_s": 3.5}]},
+        }
+    ],
+    "thermometer": [
+        {
+            "name": "amb", "driver": "mcp9804", "bus": "i2c:2", "address": 0x18, "rate_hz": 4,
+            "sim": {"faults": [{"kind": "disconnect", "at_s": 30.0, "duration_s": 2.2}]},
+        }
+    ],
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def thermo_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("thermo") / "thermo.h5"
+    summary = capture(parse_config(THERMO_RAW), path, 60.0, simulate=True)
+    return path, summary
+
+
+def _thermo_line(out: str) -> str:
+    lines = out.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("  thermometer amb:"))
+    return lines[i] + "\n" + lines[i + 1]
+
+
+def test_a_thermometer_s_logged_missed_readings_are_its_only_hole(thermo_run):
+    path, summary = thermo_run
+    with open_run(path) as run:
+        assert run.thermometer_rate_hz("amb") == 4.0
+        c = check_thermometer(run, "amb")
+        t, _ = run.temperatures("amb")
+    assert c.consistent and len(c.holes) == 1 and c.holes.samples == c.logged == 9
+    assert c.samples + c.logged == summary.readings["amb"] + 9 == c.produced
+    assert c.holes.short == 15  # the 14 polls made at once after the stall, one after the reconnect
+    assert t[c.holes.at[0]] - t[c.holes.at[0] - 1] == 11 * 250_000_000
+    out = CliRunner().invoke(cli, ["inspect", str(path)]).output
+    assert "holes found: 0 not logged" in out
+    line = _thermo_line(out)
+    assert "polled at 4 Hz" in line and "holes in the data: 1 (9 readings), every one logged" in line, line
+
+
+def _edited_copy(path, tmp_path, edit):
+    out = tmp_path / "edited.h5"
+    shutil.copyfile(path, out)
+    with h5py.File(out, "r+") as f:
+        edit(f["thermometers/amb"])
+    return out
+
+
+def test_readings_dropped_without_an_event_are_flagged(thermo_run, tmp_path):
+    def drop(g):
+        t = g["t"][()]
+        keep = (t < 40_000_000_000) | (t > 40_500_000_000)  # the readings of 40, 40.25 and 40.5 s go, no event says so
+        for key in ("t", "celsius"):
+            data = g[key][()][keep]
+            g[key].resize(len(data), axis=0)
+            g[key][:] = data
+
+    path = _edited_copy(thermo_run[0], tmp_path, drop)
+    with open_run(path) as run:
+        c = check_thermometer(run, "amb")
+    assert not c.consistent and [(u.t_ns, u.lost, u.logged) for u in c.unlogged] == [(40_750_000_000, 3, 0)]
+    out = CliRunner().invoke(cli, ["inspect", str(path)]).output
+    assert "holes found: 1 not logged" in out
+    line = _thermo_line(out)
+    assert "holes in the data: 2 (12 readings); NOT LOGGED: 1 (first at t=40.750s" in line
+    assert "3 missing, 0 logged" in line
+
+
+def test_a_file_without_the_thermometer_s_rate_says_it_is_not_checked(thermo_run, tmp_path):
+    path = _edited_copy(thermo_run[0], tmp_path, lambda g: g.attrs.__delitem__("rate_hz"))
+    with open_run(path) as run:
+        assert check_thermometer(run, "amb") is None and check_thermometers(run) == {"amb": None}
+    line = _thermo_line(CliRunner().invoke(cli, ["inspect", str(path)]).output)
+    assert "poll rate not stored" in line and "holes: not checked (no rate stored)" in line, line
+
+
+def test_late_polls_are_not_holes_missed_ones_are():
+    """Poll times (periods): late polls are followed by polls on time (short steps); only missed ones lose."""
+    period = 250_000_000
+    t = np.array([0, 1, 2, 3, 4.6, 5, 6, 7, 10, 10, 10, 11, 13, 14, 17, 17, 18]) * period
+    h = find_holes(t.astype(np.int64), period, late_polls=True)
+    # 3 -> 4.6 -> 5: late; 7 -> 10 and two at once: three readings over three periods; 11 -> 13: one
+    # missed; 14 -> 17, 17: two readings over three periods, one missed
+    assert h.at.tolist() == [12, 14] and h.lost.tolist() == [1, 1] and h.short == 4
+    # the same times as a chip's samples: 7 -> 10 is not counted (next to a short step), nor is 14 -> 17
+    assert find_holes(t.astype(np.int64), period).at.tolist() == [12]
+    assert find_holes(t[:8].astype(np.int64), period, late_polls=True).samples == 0

@@ -60,6 +60,26 @@ def test_rate_contradicting_the_timestamps(base, tmp_path, factor):
     _refused(_edited(base, tmp_path, edit), "rate_hz", "contradicts its timestamps", "100 Hz")
 
 
+@pytest.mark.parametrize("rate", [0.0, -1.0, float("nan"), float("inf"), "fast", 1e9])
+def test_unusable_thermometer_rate(base, tmp_path, rate):
+    edit = lambda f: f["thermometers/ambient"].attrs.__setitem__("rate_hz", rate)  # noqa: E731
+    _refused(_edited(base, tmp_path, edit), "thermometers/ambient", "'rate_hz'")
+
+
+def test_thermometer_rate_contradicting_its_readings(base, tmp_path):
+    edit = lambda f: f["thermometers/ambient"].attrs.__setitem__("rate_hz", 4.0)  # noqa: E731
+    _refused(_edited(base, tmp_path, edit), "thermometers/ambient", "contradicts its timestamps", "1 Hz")
+
+
+def test_a_thermometer_without_a_stored_rate_still_reads(base, tmp_path):
+    """Files written before the rate was stored: read, the rate None (not guessed)."""
+    with open_run(base) as run:
+        assert run.thermometer_rate_hz("ambient") == 1.0
+    edit = lambda f: f["thermometers/ambient"].attrs.__delitem__("rate_hz")  # noqa: E731
+    with open_run(_edited(base, tmp_path, edit)) as run:
+        assert run.thermometer_rate_hz("ambient") is None and len(run.temperatures("ambient")[0]) == 100
+
+
 def test_no_timestamps_beside_samples(base, tmp_path):
     """A t of 0 rows beside the samples in a complete file (not a torn last block)."""
     _refused(_edited(base, tmp_path, lambda f: f["devices/gyro/t"].resize(0, axis=0)), "different lengths", "t 0")

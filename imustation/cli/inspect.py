@@ -51,7 +51,7 @@ def _inspect(run: str) -> None:
     import numpy as np
 
     from imustation.runfile import RunSeries, open_series
-    from imustation.runfile.holes import check_device
+    from imustation.runfile.holes import check_device, check_thermometer
     from imustation.runfile.series import base_of_part, series_parts
     from imustation.status import LOSS_KINDS, EventTally, device_status_from_run, thermometer_status
 
@@ -128,7 +128,15 @@ def _inspect(run: str) -> None:
             t, c = rf.temperatures(name)
             th = thermometer_status(name, t * 1e-9, c, tally)
             span = f"{c.min():.3f} .. {c.max():.3f} degC" if len(c) else "no readings"
-            click.echo(f"  thermometer {name}: {th.readings} readings, {span}, {th.lost} missed")
+            rate = rf.thermometer_rate_hz(name)
+            polled = f"polled at {rate:g} Hz" if rate is not None else "poll rate not stored"
+            click.echo(f"  thermometer {name}: {th.readings} readings, {span}, {th.lost} missed, {polled}")
+            tcheck = check_thermometer(rf, name, events)
+            if tcheck is None:
+                click.echo("    holes: not checked (no rate stored)")
+            else:
+                unlogged += len(tcheck.unlogged)
+                click.echo(f"    {_holes_line(tcheck, 'readings', thermometer=True)}")
         click.echo(f"  holes found: {unlogged} not logged")
         other = [e for e in events if e.kind not in LOSS_KINDS]
         click.echo(f"  events: {len(events)} ({len(events) - len(other)} gaps/overruns)")
@@ -139,10 +147,11 @@ def _inspect(run: str) -> None:
             click.echo(f"    ... {len(events) - 20} more")
 
 
-def _holes_line(check: HoleCheck) -> str:
-    """What the data show of a device's losses against what its events state (``imustation.runfile.holes``)."""
+def _holes_line(check: HoleCheck, unit: str = "samples", thermometer: bool = False) -> str:
+    """What the data show of a device's or thermometer's losses against what its events state
+    (``imustation.runfile.holes``)."""
     holes = check.holes
-    text = f"holes in the data: {len(holes)} ({holes.samples} samples)"
+    text = f"holes in the data: {len(holes)} ({holes.samples} {unit})"
     if check.unlogged:
         first = check.unlogged[0]
         text += (
@@ -152,9 +161,11 @@ def _holes_line(check: HoleCheck) -> str:
     else:
         text += ", every one logged"
     if check.unlocated:
-        text += f"; {check.unlocated} samples logged lost where the data show no hole"
+        text += f"; {check.unlocated} {unit} logged lost where the data show no hole"
     if check.edge:
-        text += f"; {check.edge} logged before the first or after the last sample"
+        text += f"; {check.edge} logged before the first or after the last {unit[:-1]}"
     if holes.short:
-        text += f"; {holes.short} steps of half a period or less"
+        # a thermometer's poll that came late is followed by one that keeps the time: not a fault
+        late = " (late polls)" if thermometer else ""
+        text += f"; {holes.short} steps of half a period or less{late}"
     return text

@@ -242,6 +242,16 @@ def _check_extents(path: str, where: str, dsets: dict[str, h5py.Dataset], comple
     return n
 
 
+def _check_rate_attr(path: str, where: str, attrs: dict[str, Any]) -> float:
+    """The group's ``rate_hz``: a finite rate in (0, MAX_RATE_HZ]."""
+    rate = attrs.get("rate_hz")
+    if not (_is_real(rate) and 0 < rate <= MAX_RATE_HZ):
+        raise RunFileError(
+            f"{path}: {where} attribute 'rate_hz' is {rate!r}, expected a rate in (0, {MAX_RATE_HZ:g}] Hz"
+        )
+    return float(rate)
+
+
 def _check_rate(path: str, where: str, t: h5py.Dataset, n: int, rate_hz: float) -> None:
     """``rate_hz`` must agree with the spacing of the first timestamps (see RATE_TOLERANCE)."""
     k = min(n, RATE_PROBE_ROWS + 1)
@@ -293,11 +303,7 @@ def _check_device(path: str, name: str, g: Any, complete: bool) -> None:
     for key, value in attrs.items():
         if not isinstance(value, (str, int, float, bool)):
             raise RunFileError(f"{path}: {where} attribute {key!r} is {value!r}, expected one value")
-    rate = attrs.get("rate_hz")
-    if not (_is_real(rate) and 0 < rate <= MAX_RATE_HZ):
-        raise RunFileError(
-            f"{path}: {where} attribute 'rate_hz' is {rate!r}, expected a rate in (0, {MAX_RATE_HZ:g}] Hz"
-        )
+    rate = _check_rate_attr(path, where, attrs)
     dsets = _members(path, g, where)
     if TIME not in dsets:
         raise RunFileError(f"{path}: {where} has no timestamps ({where}/t)")
@@ -309,7 +315,7 @@ def _check_device(path: str, name: str, g: Any, complete: bool) -> None:
         else:
             _check_channel(path, f"{where}/{key}", ds)
     n = _check_extents(path, where, dsets, complete)
-    _check_rate(path, where, dsets[TIME], n, float(rate))
+    _check_rate(path, where, dsets[TIME], n, rate)
 
 
 def _check_thermometer(path: str, name: str, g: Any, complete: bool) -> None:
@@ -321,7 +327,11 @@ def _check_thermometer(path: str, name: str, g: Any, complete: bool) -> None:
         raise RunFileError(f"{path}: {where} holds {sorted(dsets)}, expected ['celsius', 't']")
     _check_dataset(path, f"{where}/t", dsets[TIME], "i", (1,))
     _check_dataset(path, f"{where}/celsius", dsets[CELSIUS], "f", (1,))
-    _check_extents(path, where, dsets, complete)
+    n = _check_extents(path, where, dsets, complete)
+    # the poll rate, stored since it is checked against (files written before have none: not checked)
+    attrs = _attrs(path, g, where)
+    if "rate_hz" in attrs:
+        _check_rate(path, where, dsets[TIME], n, _check_rate_attr(path, where, attrs))
 
 
 def _check_events(path: str, ds: Any, complete: bool) -> None:

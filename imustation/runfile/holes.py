@@ -10,6 +10,25 @@ logged losses = samples produced* is checked without trusting the capture:
 a hole no event states is reported, as is a loss the data do not show.
 ``imustation inspect`` prints what they find; ``imustation analyze`` splits
 its records at every hole found.
+
+Thermometers (:func:`check_thermometer`) are checked the same way against the
+poll rate their group stores (``rate_hz``; a file without it is not checked:
+its thermometers are reported as such, never against a guessed rate). A
+reading has no counter, so its holes come from the times alone, and the
+station's polls are less regular than a chip's clock: a reading is dated when
+it is taken, and a poll comes late when its bus or the host is busy (a stall,
+a slow transaction; a reconnect waits one conversion, 30-250 ms, before its
+reading). Neither scheduler gives up a late poll: on the virtual clock the
+overdue polls are made at once, one after the other; on the host clock the
+next poll keeps its time, or, a period late or more, follows at once. A late
+reading is therefore followed by steps of half a period or less, and the
+readings the polls called for are counted over the late step and those short
+steps together (``late_polls``): a 3.5 s stall of a 4 Hz thermometer makes a
+step of 15 periods and 14 steps of 0, nothing missed; nine failed polls and a
+reconnect dated one conversion late make a step of 11 periods and one of 0,
+nine missed. A missed reading alone (a failed poll, made on time) is a step of
+two periods. The threshold stays 1.5 periods: a group of k steps is a hole
+when it spans more than k + 0.5 periods.
 """
 
 from __future__ import annotations
@@ -50,7 +69,12 @@ class Holes:
 
 
 def find_holes(
-    t_ns: np.ndarray, period_ns: float, counter: np.ndarray | None = None, modulus: int = 0, first_row: int = 0
+    t_ns: np.ndarray,
+    period_ns: float,
+    counter: np.ndarray | None = None,
+    modulus: int = 0,
+    first_row: int = 0,
+    late_polls: bool = False,
 ) -> Holes:
     """The holes of one record (vectorised).
 
@@ -61,6 +85,11 @@ def find_holes(
     counter : the device's sample counter (int), or None: the holes then come from the times alone.
     modulus : where the counter wraps (0: it does not).
     first_row : row number of ``t_ns[0]`` (for a record read in pieces).
+    late_polls : the times are of host polls that may come late and are then
+        followed by polls on time (a thermometer, see the module docstring): a
+        step and the steps of half a period or less after it are one group of k
+        readings, a hole of ``rint(span / period) - k`` when it spans more than
+        k + 0.5 periods.
 
     With a counter, a hole is a step of the counter above 1 and loses the samples it
     skipped; a counter that goes back or repeats (the device restarted) is read by
@@ -77,6 +106,16 @@ def find_holes(
     beside_short[1:] |= short[:-1]
     beside_short[:-1] |= short[1:]
     lost = np.where((steps > HOLE_STEPS * period_ns) & ~beside_short, by_time, 0)
+    if late_polls and len(steps):
+        starts = np.flatnonzero(~short)
+        if not len(starts) or starts[0] != 0:
+            starts = np.r_[0, starts]
+        span = np.add.reduceat(steps, starts)
+        k = np.diff(np.r_[starts, len(steps)])
+        lost = np.zeros(len(steps), dtype=np.int64)
+        lost[starts] = np.where(
+            span > (k - 1 + HOLE_STEPS) * period_ns, np.rint(span / period_ns).astype(np.int64) - k, 0
+        )
     if counter is not None:
         c = np.diff(np.asarray(counter, dtype=np.int64))
         if modulus:
@@ -129,7 +168,7 @@ class UnloggedHole:
 
 @dataclass(frozen=True)
 class HoleCheck:
-    """One device of a run file: its holes against its logged losses.
+    """One device (or thermometer) of a run file: its holes against its logged losses.
 
     ``logged``: samples its events say were lost; ``edge``: of those, the ones
     logged before its first or after its last sample (the data cannot show
@@ -199,6 +238,26 @@ def check_device(run: RunFile, device: str, events: list[Event] | None = None) -
     mine = [e for e in (run.events() if events is None else events) if e.source == device]
     logged, edge, unlocated, unlogged = match_losses(holes, mine, t_first, t_last)
     return HoleCheck(device, info.n, holes, logged, edge, unlocated, unlogged)
+
+
+def check_thermometer(run: RunFile, name: str, events: list[Event] | None = None) -> HoleCheck | None:
+    """The holes of thermometer ``name`` (readings against its stored poll rate) against the readings its
+    events say were missed; None when the file stores no poll rate (not checked). See the module docstring."""
+    rate = run.thermometer_rate_hz(name)
+    if rate is None:
+        return None
+    t, _ = run.temperatures(name)
+    holes = find_holes(t, 1e9 / rate, late_polls=True)
+    t_first, t_last = (int(t[0]), int(t[-1])) if len(t) else (None, None)
+    mine = [e for e in (run.events() if events is None else events) if e.source == name]
+    logged, edge, unlocated, unlogged = match_losses(holes, mine, t_first, t_last)
+    return HoleCheck(name, len(t), holes, logged, edge, unlocated, unlogged)
+
+
+def check_thermometers(run: RunFile, events: list[Event] | None = None) -> dict[str, HoleCheck | None]:
+    """:func:`check_thermometer` for every thermometer of ``run``."""
+    events = run.events() if events is None else events
+    return {name: check_thermometer(run, name, events) for name in run.thermometers}
 
 
 def check_run(run: RunFile) -> dict[str, HoleCheck]:

@@ -118,6 +118,12 @@ class RunFile:
     def thermometers(self) -> list[str]:
         return list(self.h5.get(THERMOMETERS, {}).keys())
 
+    def thermometer_rate_hz(self, name: str) -> float | None:
+        """Thermometer ``name``'s configured poll rate, Hz; None in a file that does not store it (written
+        before it was stored, or imported from a log that has no configured rate)."""
+        rate = self.h5[f"{THERMOMETERS}/{name}"].attrs.get("rate_hz")
+        return None if rate is None else float(rate)
+
     def events(self) -> list[Event]:
         return read_events(self.path, self.h5)
 

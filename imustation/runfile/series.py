@@ -322,6 +322,9 @@ class RunSeries:
         for i in range(0, n, rows):
             yield self.read(device, name, i, min(i + rows, n))
 
+    def thermometer_rate_hz(self, name: str) -> float | None:
+        return self.parts[0].thermometer_rate_hz(name)
+
     def temperatures(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         got = [run.temperatures(name) for run in self.parts]
         return np.concatenate([t for t, _ in got]), np.concatenate([c for _, c in got])
@@ -384,7 +387,7 @@ class RunSeries:
 
 
 def _layout(run: RunFile) -> tuple:
-    """What must be equal in every part: devices with their rates and channels, thermometers."""
+    """What must be equal in every part: devices with their rates and channels, thermometers with their rates."""
     devices = tuple(
         (
             name,
@@ -394,4 +397,4 @@ def _layout(run: RunFile) -> tuple:
         )
         for name, info in sorted(run.devices.items())
     )
-    return devices, tuple(sorted(run.thermometers))
+    return devices, tuple((name, run.thermometer_rate_hz(name)) for name in sorted(run.thermometers))

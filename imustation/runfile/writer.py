@@ -76,7 +76,10 @@ class RunWriter:
     ----------
     path : file to create; an existing file is refused unless ``overwrite``.
     devices, thermometers : everything that will be recorded (SWMR forbids
-        creating datasets once recording has started).
+        creating datasets once recording has started). ``thermometers``: names,
+        or a mapping of each name to its configured poll rate, Hz, stored as the
+        group's ``rate_hz`` (what the file alone checks its readings against;
+        names alone store none: an imported log has no configured rate).
     flush_interval_s : host seconds between flushes (data older than this is on disk).
     part, previous_part, run_id, part_started_utc : set when the capture is
         rotated into several files (root attributes, see docs/runfile.md).
@@ -105,7 +108,7 @@ class RunWriter:
         config_text: str,
         simulated: bool,
         devices: Sequence[DeviceSpec],
-        thermometers: Sequence[str] = (),
+        thermometers: Sequence[str] | Mapping[str, float] = (),
         flush_interval_s: float = 1.0,
         overwrite: bool = False,
         started_utc: str | None = None,
@@ -204,8 +207,11 @@ class RunWriter:
             self._create(g, dev.name, TIME, "<i8", ())
         tgrp = f.create_group(THERMOMETERS)
         self.thermometers = tuple(thermometers)
+        rates = thermometers if isinstance(thermometers, Mapping) else {}
         for name in self.thermometers:
             g = tgrp.create_group(name)
+            if name in rates:
+                g.attrs["rate_hz"] = float(rates[name])
             ds = self._create(g, THERMOMETERS + "/" + name, CELSIUS, "<f8", ())
             ds.attrs["units"] = "degC"
             self._create(g, THERMOMETERS + "/" + name, TIME, "<i8", ())
