@@ -335,3 +335,19 @@ def test_block_allan_variances_equal_the_allan_variance_of_each_block():
     np.testing.assert_allclose(block_oavar(counts, fs, [2], 2, scale=0.5)[:, 0],
                                [oadev(c, fs, [2 / fs], scale=0.5).adev[0] ** 2 for c in np.array_split(counts, 2)],
                                rtol=1e-9)  # fmt: skip
+
+
+def test_the_chosen_models_adequacy_is_the_choices_own_test():
+    """analyze reuses the adequacy the choice computed for the chosen model: it must be the test
+    the block would get on its own (same taus, degrees of freedom, verdict)."""
+    from imustation.analysis.pipeline.channel import analyze_channel, fit_adequacy
+    from imustation.analysis.pipeline.loaders import Channel
+
+    x, fs = record("bmx055", 0.5, SIGMA_W, B=1.5e-5, seed=2)
+    ch = Channel("imu/gyro/x", fs, "rad/s", x)
+    res = analyze_channel(ch)
+    reused = res.adequacy["noise_model"]
+    assert any(reused is c.check for c in res.choice.candidates)
+    fresh = fit_adequacy(ch, res.allan, res.noise_model)
+    assert (reused.verdict, reused.dof) == (fresh.verdict, fresh.dof)
+    assert reused.p_value == pytest.approx(fresh.p_value) and np.allclose(reused.z, fresh.z, equal_nan=True)

@@ -164,6 +164,11 @@ def analyze_channel(
     verdict = channel_verdict(ch, allan, best, need)
     res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator, choice=choice)
     done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
+    if choice is not None:  # the choice tested its candidates against this Allan variance already
+        tested = {id(c.result.noise_model): c.check for c in choice.candidates}
+        for fit in res.blocks().values():
+            if id(fit.noise_model) in tested:
+                done[id(fit)] = tested[id(fit.noise_model)]
     for key, fit in res.blocks().items():
         if id(fit) not in done:
             done[id(fit)] = fit_adequacy(ch, allan, fit)
