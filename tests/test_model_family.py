@@ -351,3 +351,22 @@ def test_the_chosen_models_adequacy_is_the_choices_own_test():
     fresh = fit_adequacy(ch, res.allan, res.noise_model)
     assert (reused.verdict, reused.dof) == (fresh.verdict, fresh.dof)
     assert reused.p_value == pytest.approx(fresh.p_value) and np.allclose(reused.z, fresh.z, equal_nan=True)
+
+
+def test_the_choice_tests_only_what_it_needs_and_the_rule_still_holds():
+    x, fs = record("adis16448", 2.0, SIGMA_W, B=1.5e-5, K=2e-7, seed=4)
+    choice = choose_model(x, fs)
+    chosen = next(c for c in choice.candidates if c.result.model == choice.chosen.model)
+    assert chosen.tested and chosen.passes
+    untested = [c for c in choice.candidates if not c.tested]
+    assert untested  # on 2 h the stage's worse models are left alone
+    assert all(c.as_dict()["fits"] is None for c in untested)
+    # the rule as if every candidate were tested: nothing converged in the chosen stage with a
+    # smaller BIC passes, and the close models (BIC within 10) all pass
+    for c in choice.candidates:
+        if c.stage == chosen.stage and c.result.converged and c.result.bic < chosen.result.bic:
+            assert not c.passes
+        # a later, larger model would have replaced it with a BIC lower by 10 had it passed
+        if c.stage > chosen.stage and c.result.converged and c.result.bic < chosen.result.bic - 10:
+            assert not c.passes
+    assert all(next(c for c in choice.candidates if c.result is r).passes for r in choice.close)

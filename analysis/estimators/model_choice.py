@@ -36,7 +36,8 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from scipy.special import ndtr
@@ -72,21 +73,41 @@ MAX_NEWTON = 20
 
 @dataclass(frozen=True)
 class Candidate:
-    """One fitted model of the family and its check against the measured Allan deviation."""
+    """One fitted model of the family and its check against the measured Allan deviation.
+
+    ``check`` (:func:`~.adequacy.model_adequacy` from ``tau_min`` on) is computed when first
+    asked for: the choice tests only the candidates it needs (the smallest BIC of a stage that
+    could still be chosen, and the models close to the choice), which halves the cost of the
+    tests on long records; :attr:`tested` says whether it has been computed.
+    """
 
     result: CompositeResult
-    check: Adequacy
     stage: int
+    #: what the check needs: the measured Allan variance, rate (Hz), segment lengths (samples),
+    #: shortest cluster time tested (s)
+    inputs: tuple[AllanResult, float, tuple[int, ...], float] = field(repr=False, compare=False)
 
-    def as_dict(self) -> dict:
-        r = self.result
-        return {"model": r.model, "stage": self.stage, "k": r.k, "bic": r.bic, "converged": r.converged,
-                "fits": self.passes, "p_value": self.check.p_value, "where": self.check.summary()}  # fmt: skip
+    @cached_property
+    def check(self) -> Adequacy:
+        allan, fs_hz, lengths, tau_min = self.inputs
+        n_fitted = sum(1 for k in self.result.params if k != "b_on")
+        return model_adequacy(allan, self.result.noise_model, fs_hz, lengths, n_fitted=n_fitted, tau_min=tau_min)
+
+    @property
+    def tested(self) -> bool:
+        return "check" in self.__dict__
 
     @property
     def passes(self) -> bool:
         """The adequacy test does not reject it ("fits", or "not tested": nothing to reject on)."""
         return self.check.verdict != NO_FIT
+
+    def as_dict(self) -> dict:
+        r = self.result
+        out = {"model": r.model, "stage": self.stage, "k": r.k, "bic": r.bic, "converged": r.converged}
+        if not self.tested:
+            return out | {"fits": None, "p_value": None, "where": "not tested: not needed for the choice"}
+        return out | {"fits": self.passes, "p_value": self.check.p_value, "where": self.check.summary()}
 
 
 @dataclass(frozen=True)
@@ -243,7 +264,7 @@ def choose_model(
     fitted: list[MLiResult] = [paper_fit] if paper_fit is not None and paper_fit.converged else []
     cands: list[Candidate] = []
     tau_min = fine.memory_s if fine.term else 0.0
-    lengths = [b - a for a, b in segments] if segments else [len(rate)]
+    lengths = tuple(b - a for a, b in segments) if segments else (len(rate),)
 
     def fit(bias: str, stage: int) -> None:
         name = _with(bias, fine.term)
@@ -260,13 +281,18 @@ def choose_model(
             )
         except InputError:
             return
-        n_fitted = sum(1 for k in res.params if k != "b_on")
-        adq = model_adequacy(allan, res.noise_model, fs_hz, lengths, n_fitted=n_fitted, tau_min=tau_min)
-        cands.append(Candidate(res, adq, stage))
+        cands.append(Candidate(res, stage, (allan, fs_hz, lengths, tau_min)))
         fitted.append(res)
 
-    def adequate(stage: int) -> list[Candidate]:
-        return [c for c in cands if c.stage == stage and c.passes and c.result.converged]
+    def top_of(stage: int, below: float) -> Candidate | None:
+        """The smallest-BIC candidate of ``stage`` that passes, if its BIC is below ``below``
+        (tested in BIC order, so candidates that could not be chosen are not tested)."""
+        for c in sorted((c for c in cands if c.stage == stage and c.result.converged), key=lambda c: c.result.bic):
+            if c.result.bic >= below:
+                return None
+            if c.passes:
+                return c
+        return None
 
     def extends(bias: str, base: Candidate) -> bool:
         return set(_bias_of(base.result.model).split("+")) <= set(bias.replace("2gm", "gm+gm").split("+"))
@@ -284,16 +310,12 @@ def choose_model(
             if lead is not None and top_any.result.bic >= lead.result.bic - BIC_STRONG:
                 break  # nothing fits and a larger model does not help either
             lead = top_any
-        ok = adequate(stage)
-        if not ok:
+        top = top_of(stage, math.inf if best is None else best.result.bic - BIC_STRONG)
+        if top is None:
             if best is None:
                 continue
             break
-        top = min(ok, key=lambda c: c.result.bic)
-        if best is None or top.result.bic < best.result.bic - BIC_STRONG:
-            best = top
-        else:
-            break
+        best = top
     if best is not None:
         reason = (
             f"{best.result.model}: the simplest model that fits the Allan deviation (stage {best.stage}, the "
@@ -302,7 +324,7 @@ def choose_model(
         close = tuple(
             c.result
             for c in cands
-            if c is not best and c.passes and c.result.converged and c.result.bic <= best.result.bic + BIC_STRONG
+            if c is not best and c.result.converged and c.result.bic <= best.result.bic + BIC_STRONG and c.passes
         )
         chosen = _join_intervals(best.result, close)
         return ModelChoice(chosen, True, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0, close)

@@ -165,7 +165,7 @@ def analyze_channel(
     res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator, choice=choice)
     done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
     if choice is not None:  # the choice tested its candidates against this Allan variance already
-        tested = {id(c.result.noise_model): c.check for c in choice.candidates}
+        tested = {id(c.result.noise_model): c.check for c in choice.candidates if c.tested}
         for fit in res.blocks().values():
             if id(fit.noise_model) in tested:
                 done[id(fit)] = tested[id(fit.noise_model)]

@@ -128,9 +128,9 @@ def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
         shared = set.intersection(*(set(c) for c in cands))
         if not shared:
             continue
-        everywhere = [m for m in shared if all(c[m].passes for c in cands)]
-        pool = everywhere or sorted(shared)
-        model = min(pool, key=lambda m: (sum(c[m].result.bic for c in cands), m))
+        by_bic = sorted(shared, key=lambda m: (sum(c[m].result.bic for c in cands), m))
+        # tested in that order: candidates the choice did not need are tested only when reached
+        model = next((m for m in by_bic if all(c[m].passes for c in cands)), by_bic[0])
         for i, c in zip(members, cands, strict=True):
             res = results[i]
             if res.noise_model.model == model:
