@@ -42,6 +42,7 @@ from scipy.stats import chi2, norm
 
 from imustation.analysis.estimators.allan import AllanResult
 from imustation.analysis.estimators.avar_cov import avar_covariance
+from imustation.analysis.estimators.fitting import MLiResult
 from imustation.analysis.estimators.noise_models import NoiseModel
 from imustation.errors import InputError
 
@@ -260,3 +261,10 @@ def model_adequacy(
             misfit = _ranges(tau, z, ok & (np.abs(z) > BROAD_Z))
     return Adequacy(verdict, p_value, stat, dof, p_stat, p_max, alpha, band, adev_model, z, edf,
                     np.isin(np.arange(len(tau)), idx), misfit)  # fmt: skip
+
+
+def fit_adequacy(allan: AllanResult, fit: MLiResult, fs_hz: float, segment_lengths: Sequence[int]) -> Adequacy:
+    """:func:`model_adequacy` of a fitted result: its noise parameters (all but ``b_on``) are the
+    ones fitted, and its model holds from its device filter's memory on (``fit.memory_s``, s)."""
+    n_fitted = sum(1 for k in fit.params if k != "b_on")
+    return model_adequacy(allan, fit.noise_model, fs_hz, segment_lengths, n_fitted=n_fitted, tau_min=fit.memory_s)

@@ -42,7 +42,7 @@ from functools import cached_property
 import numpy as np
 from scipy.special import ndtr
 
-from imustation.analysis.estimators.adequacy import NO_FIT, Adequacy, model_adequacy
+from imustation.analysis.estimators.adequacy import NO_FIT, Adequacy, fit_adequacy
 from imustation.analysis.estimators.allan import AllanResult, oadev
 from imustation.analysis.estimators.composite import (
     DEFAULT_M,
@@ -75,7 +75,7 @@ MAX_NEWTON = 20
 class Candidate:
     """One fitted model of the family and its check against the measured Allan deviation.
 
-    ``check`` (:func:`~.adequacy.model_adequacy` from ``tau_min`` on) is computed when first
+    ``check`` (:func:`~.adequacy.fit_adequacy`: from the fit's filter memory on) is computed when first
     asked for: the choice tests only the candidates it needs (the smallest BIC of a stage that
     could still be chosen, and the models close to the choice), which halves the cost of the
     tests on long records; :attr:`tested` says whether it has been computed.
@@ -83,15 +83,13 @@ class Candidate:
 
     result: CompositeResult
     stage: int
-    #: what the check needs: the measured Allan variance, rate (Hz), segment lengths (samples),
-    #: shortest cluster time tested (s)
-    inputs: tuple[AllanResult, float, tuple[int, ...], float] = field(repr=False, compare=False)
+    #: what the check needs: the measured Allan variance, rate (Hz), segment lengths (samples)
+    inputs: tuple[AllanResult, float, tuple[int, ...]] = field(repr=False, compare=False)
 
     @cached_property
     def check(self) -> Adequacy:
-        allan, fs_hz, lengths, tau_min = self.inputs
-        n_fitted = sum(1 for k in self.result.params if k != "b_on")
-        return model_adequacy(allan, self.result.noise_model, fs_hz, lengths, n_fitted=n_fitted, tau_min=tau_min)
+        allan, fs_hz, lengths = self.inputs
+        return fit_adequacy(allan, self.result, fs_hz, lengths)
 
     @property
     def tested(self) -> bool:
@@ -263,7 +261,6 @@ def choose_model(
         paper_fit = fit_composite_data(inc, paper_fine, PAPER_MODEL, robust=True)
     fitted: list[MLiResult] = [paper_fit] if paper_fit is not None and paper_fit.converged else []
     cands: list[Candidate] = []
-    tau_min = fine.memory_s if fine.term else 0.0
     lengths = tuple(b - a for a, b in segments) if segments else (len(rate),)
 
     def fit(bias: str, stage: int) -> None:
@@ -281,7 +278,7 @@ def choose_model(
             )
         except InputError:
             return
-        cands.append(Candidate(res, stage, (allan, fs_hz, lengths, tau_min)))
+        cands.append(Candidate(res, stage, (allan, fs_hz, lengths)))
         fitted.append(res)
 
     def top_of(stage: int, below: float) -> Candidate | None:

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imustation.analysis.estimators.adequacy import Adequacy, model_adequacy
+from imustation.analysis.estimators.adequacy import Adequacy
+from imustation.analysis.estimators.adequacy import fit_adequacy as result_adequacy
 from imustation.analysis.estimators.allan import AllanResult, oadev
 from imustation.analysis.estimators.composite import fit_composite
 from imustation.analysis.estimators.fitting import MLiResult
@@ -99,9 +100,7 @@ def fit_adequacy(ch: Channel, allan: AllanResult, fit: MLiResult) -> Adequacy | 
     """Adequacy of ``fit`` against the channel's measured Allan variance (None without a model)."""
     if fit.noise_model is None:
         return None
-    n_fitted = sum(1 for k in fit.params if k != "b_on")
-    lengths = [b - a for a, b in ch.segments]
-    return model_adequacy(allan, fit.noise_model, ch.fs_hz, lengths, n_fitted=n_fitted, tau_min=fit.memory_s)
+    return result_adequacy(allan, fit, ch.fs_hz, [b - a for a, b in ch.segments])
 
 
 def analyze_channel(

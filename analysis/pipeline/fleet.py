@@ -36,7 +36,7 @@ import numpy as np
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.parallel import TaskFailure
-from imustation.analysis.reports.tables import TITLES, fmt_flagged, noise_rows, units_of
+from imustation.analysis.reports.tables import TITLES, fmt_flagged, noise_rows, split_channel_id, units_of
 
 #: quantities of the fleet table (SI): ML_i standard model, then IEEE-952
 FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")
@@ -117,9 +117,8 @@ def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
     groups: dict[tuple[str, str, str], list[int]] = {}
     for i, r in enumerate(results):
         if r.choice is not None and r.noise_method == "mli-f":
-            meta = r.channel.meta
-            sensor, axis = (r.channel.id.split("/") + ["", ""])[1:3]
-            groups.setdefault((str(meta.get("driver", "")), sensor, axis), []).append(i)
+            _, sensor, axis = split_channel_id(r.channel)
+            groups.setdefault((str(r.channel.meta.get("driver", "")), sensor, axis), []).append(i)
     out = list(results)
     for members in groups.values():
         if len(members) < 2:

@@ -159,7 +159,8 @@ def _members(path: str, group: h5py.Group, name: str) -> dict[str, h5py.HLObject
     return out
 
 
-def _plain(value: Any) -> Any:
+def plain_value(value: Any) -> Any:
+    """An HDF5 attribute value as plain Python (bytes decoded, numpy scalars unwrapped)."""
     if isinstance(value, bytes):
         return value.decode()
     if isinstance(value, np.generic):
@@ -170,7 +171,7 @@ def _plain(value: Any) -> Any:
 def _attrs(path: str, obj: h5py.HLObject, name: str) -> dict[str, Any]:
     """Every attribute of ``obj`` as plain Python values (loads its object header)."""
     with damaged_file(path, f"{name} attributes"):
-        return {k: _plain(v) for k, v in obj.attrs.items()}
+        return {k: plain_value(v) for k, v in obj.attrs.items()}
 
 
 def _is_real(value: Any) -> bool:

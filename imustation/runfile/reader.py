@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 
 from imustation.errors import RunFileError
-from imustation.runfile.checks import CheckedDataset, check_run, damaged_file, read_events
+from imustation.runfile.checks import CheckedDataset, check_run, damaged_file, plain_value, read_events
 from imustation.runfile.schema import CELSIUS, COUNTER, DEVICES, EVENTS, THERMOMETERS, TIME, Event
 from imustation.runfile.swmr import open_swmr_reader
 
@@ -58,14 +58,6 @@ class DeviceInfo:
 _DEVICE_CORE_ATTRS = {"driver", "model", "bus", "identity"}
 
 
-def _plain(value: Any) -> Any:
-    if isinstance(value, bytes):
-        return value.decode()
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
 @dataclass
 class RunFile:
     """An open run file (read-only). Use :func:`open_run`; close or use ``with``."""
@@ -83,16 +75,16 @@ class RunFile:
     def devices(self) -> dict[str, DeviceInfo]:
         out = {}
         for name, g in self.h5.get(DEVICES, {}).items():
-            attrs = {k: _plain(v) for k, v in g.attrs.items()}
+            attrs = {k: plain_value(v) for k, v in g.attrs.items()}
             channels = {}
             for cname, ds in g.items():
                 if cname in (TIME, COUNTER):
                     continue
-                axes = _plain(ds.attrs.get("axes", ""))
+                axes = plain_value(ds.attrs.get("axes", ""))
                 channels[cname] = ChannelInfo(
                     name=cname,
                     dtype=ds.dtype,
-                    units=_plain(ds.attrs.get("units", "")),
+                    units=plain_value(ds.attrs.get("units", "")),
                     scale=float(ds.attrs.get("scale", 1.0)),
                     offset=float(ds.attrs.get("offset", 0.0)),
                     axes=tuple(axes.split(",")) if axes else (),
