@@ -35,7 +35,7 @@ process where the two differ (Gauss-Markov as AR(1), rate random walk).
 PSD: **two-sided** ``S(f)`` of the rate, ``avar = 4 int_0^inf S sin^4(pi f tau)/(pi f tau)^2 df``;
 pass ``onesided=True`` for ``2 S(f)`` (the convention of ``scipy.signal.welch``).
 
-One idea in ~560 lines, kept together on purpose: each term carries its PSD, Allan
+One idea in ~610 lines, kept together on purpose: each term carries its PSD, Allan
 variance, state-space block, closed-form discretisation and exact simulation side by
 side, so a new term is written in one place; splitting by operation would spread every
 term over several modules.
