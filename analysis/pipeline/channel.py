@@ -64,8 +64,9 @@ class ChannelAnalysis:
 
     def ieee952(self, fit: MLiResult) -> dict:
         """N, B, K and the Gauss-Markov terms of ``fit`` (:func:`ieee952_summary`); for the automatic
-        choice's own fit, B's interval mixed with the models that fit nearly as well."""
-        chosen = self.choice is not None and fit is self.noise_model and self.noise_method == "mli-f"
+        choice's own fit, B's interval mixed with the models that fit nearly as well (not for another
+        fit, e.g. ``--estimator mli``'s or the model ``fleet`` keeps for a device)."""
+        chosen = self.choice is not None and fit.noise_model is self.choice.chosen.noise_model
         return ieee952_summary(fit, self.channel.n / self.channel.fs_hz, self.choice.close if chosen else ())
 
     def blocks(self) -> dict[str, MLiResult]:
