@@ -13,6 +13,14 @@ writer is rewriting (one ``pwrite`` of a few kB).
 h5py exposes no setter for that property (``H5Pset_metadata_read_attempts``),
 so it is set through ctypes on the HDF5 library h5py itself loaded, and the
 file is opened with h5py's low-level ``h5f.open``.
+
+The library h5py ships is not built thread-safe (``H5is_library_threadsafe``
+says false): h5py serialises every call into it with one lock, ``phil``. A
+ctypes call releases the GIL and takes no such lock, so it ran inside HDF5 at
+the same time as another thread's h5py call: two analysis threads of an
+in-process dask cluster opening run files crashed the process (segmentation
+fault in CI; reproduced with four threads opening one file, 4 of 6 runs). The
+ctypes call is therefore made holding ``phil``.
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ from functools import cache
 
 import h5py
 from h5py import h5f, h5p
+from h5py._objects import phil  # h5py's lock around every HDF5 call (see the module docstring)
 
 #: metadata read attempts of a SWMR reader: the retries sleep 2^k ns, k = 0..n-1,
 #: so 30 attempts wait at most 2^30 ns (about 1.07 s) for one damaged block
@@ -55,7 +64,9 @@ def open_swmr_reader(path: str | os.PathLike, *, locking: bool | None = None) ->
     fapl.set_libver_bounds(h5f.LIBVER_LATEST, h5f.LIBVER_LATEST)
     if locking is not None:
         fapl.set_file_locking(bool(locking), False)  # as h5py's locking=True/False
-    if _set_read_attempts()(fapl.id, SWMR_READ_ATTEMPTS) < 0:
+    with phil:
+        refused = _set_read_attempts()(fapl.id, SWMR_READ_ATTEMPTS) < 0
+    if refused:
         raise RuntimeError("HDF5 refused H5Pset_metadata_read_attempts")
     fid = h5f.open(os.fsencode(path), h5f.ACC_RDONLY | h5f.ACC_SWMR_READ, fapl=fapl)
     return h5py.File(fid)
