@@ -123,6 +123,7 @@ def make_one(args: tuple) -> str:
 def run_one(args: tuple) -> dict:
     """Time the analysis of one stored channel (and the np.sum reference over its counts)."""
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    from imustation.analysis.estimators.model_choice import flicker_cut
     from imustation.analysis.pipeline.channel import analyze_channel
     from imustation.analysis.pipeline.loaders import Channel
 
@@ -147,7 +148,7 @@ def run_one(args: tuple) -> dict:
         "n": ch.n,
         "t": t_an,
         "t_ref": t_ref,
-        "model": res.noise_model.model,
+        "model": res.noise_model.model + (f"@{cut:.2g}s" if (cut := flicker_cut(res.noise_model)) else ""),
         "fits": choice.fits if choice else None,
         "candidates": len(choice.candidates) if choice else 0,
         "sigma_w_err": res.noise_model.sigma_w / truth - 1.0,
@@ -181,7 +182,7 @@ def main() -> None:
     for r in rows:
         print(
             f"  {r['id']:22s} {r['n'] / 1e6:5.1f} M  {r['t']:5.2f} s (x{r['t'] / r['t_ref']:5.0f} np.sum)  "
-            f"{r['model']:14s} {'fits' if r['fits'] else 'NO FIT'} ({r['candidates']} fitted)  "
+            f"{r['model']:22s} {'fits' if r['fits'] else 'NO FIT'} ({r['candidates']} fitted)  "
             f"sigma_w {100 * r['sigma_w_err']:+.2f} %{' (flagged)' if r['flag'] else ''}  IEEE N "
             f"{100 * r['ieee_N_err']:+.2f} %  paper's wn+gm {100 * r['paper_err']:+.2f} %"
         )

@@ -175,7 +175,7 @@ class CompositeResult(MLiResult):
 def fit_composite_data(
     inc: Increments,
     fine: FineScale | FineStatistic,
-    model: str = "wn+gm",
+    model: str | ParamSpec = "wn+gm",
     *,
     single_start: bool = False,
     extra_starts: list[np.ndarray] | None = None,
@@ -183,7 +183,8 @@ def fit_composite_data(
     robust: bool = False,
     max_iter: int = 50,
 ) -> CompositeResult:
-    """Fit ``model`` to a pattern-integrated record plus its fine-scale statistic.
+    """Fit ``model`` (a name, or a :class:`ParamSpec` for settings such as a flicker cut-off) to a
+    pattern-integrated record plus its fine-scale statistic.
 
     ``fine``: :func:`fine_scale` (one scale) or :func:`~.finescale.fine_statistics`
     (needed by models with a device filter ``lp``). ``single_start``: search from the
@@ -193,7 +194,9 @@ def fit_composite_data(
     account for model misfit (:mod:`.robust`). ``max_iter``: Newton steps per start.
     """
     t0 = time.perf_counter()
-    spec = ParamSpec.for_record(model, inc.fs_hz, inc.duration)
+    spec = model.with_record(inc.fs_hz, inc.duration) if isinstance(model, ParamSpec) else (
+        ParamSpec.for_record(model, inc.fs_hz, inc.duration)
+    )  # fmt: skip
     if len(inc.y) < 4 + 2 * spec.d:
         raise InputError(f"only {len(inc.y)} pattern intervals: too few for model {spec.name!r}")
     multi = isinstance(fine, FineStatistic)

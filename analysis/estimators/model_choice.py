@@ -18,7 +18,12 @@ extensions of that model in the next stage are then fitted, and one that fits
 replaces it when its BIC is lower by more than :data:`BIC_STRONG` (a check against
 an Allan deviation with few degrees of freedom at the longest taus cannot see, for
 example, a weak rate random walk beside a flicker floor; the likelihood can), and
-so on. When no candidate fits, the smallest BIC of all, with ``fits`` false and the
+so on. A stage where nothing fits also gets its smallest-BIC model with a bias instability
+refitted once with a flicker cut-off (IEEE 952's f0: the sum starts at the cut-off, picked
+from two per decade up to :data:`FLICKER_CUT_MAX_S` by the measured Allan variance,
+:func:`screen_cut`), a candidate of that stage like the others; extensions of a chosen model
+with a cut-off keep it (docs/noise-model.md, "Cut-off of the bias instability"). When no
+candidate fits, the smallest BIC of all, with ``fits`` false and the
 reason. The chosen model's intervals are mixed, weighted by BIC, with those of the
 other models that fit and whose BIC is within :data:`BIC_STRONG` (``close``,
 :func:`mixed_interval`): which of them is "the" model is itself uncertain, and
@@ -54,9 +59,10 @@ from imustation.analysis.estimators.composite import (
 )
 from imustation.analysis.estimators.finescale import FilterHint, FineStatistic, fine_statistics
 from imustation.analysis.estimators.fitting import Z90, MLiResult
+from imustation.analysis.estimators.noise_models import parse_model
 from imustation.analysis.estimators.paramspec import ParamSpec
 from imustation.analysis.estimators.pattern import check_rate, integrate
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
+from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, flicker_times
 from imustation.errors import InputError
 
 #: bias structures of the family, in stages of growing size
@@ -66,6 +72,15 @@ PAPER_MODEL = "wn+gm"
 #: a larger model replaces a smaller one that fits when its BIC is lower by more than this
 #: ("very strong" evidence, Kass & Raftery 1995, J. Am. Stat. Assoc. 90(430))
 BIC_STRONG = 10.0
+#: the longest cut-off tried for the bias instability, s: the cut-offs tried are the decades above the
+#: sum's first term up to this (two or three fits on a record at 100..1000 Hz)
+FLICKER_CUT_MAX_S = 1.0
+#: a cut-off changes the model's Allan deviation only at cluster times below this many times
+#: the cut-off (the dropped terms' share falls as T/tau): a misfit beyond is not the cut-off's
+CUT_REACH = 100.0
+#: cut-offs tried per decade: a decade grid misses a cut-off between two decades (measured: a
+#: flicker that starts at 0.25 s fits neither 0.1 s nor 1 s on a 12 h record)
+CUTS_PER_DECADE = 2
 #: Newton steps per start of a candidate: a model that needs more has more terms than the data
 #: support (its flat directions make Newton creep), it ends unconverged and is not chosen
 MAX_NEWTON = 20
@@ -96,13 +111,24 @@ class Candidate:
         return "check" in self.__dict__
 
     @property
+    def cut_s(self) -> float:
+        """The bias instability's cut-off, s (0: none, or no bias instability)."""
+        return flicker_cut(self.result)
+
+    @property
+    def key(self) -> tuple[str, float]:
+        """What tells candidates apart: the model's name and the flicker cut-off."""
+        return (self.result.model, self.cut_s)
+
+    @property
     def passes(self) -> bool:
         """The adequacy test does not reject it ("fits", or "not tested": nothing to reject on)."""
         return self.check.verdict != NO_FIT
 
     def as_dict(self) -> dict:
         r = self.result
-        out = {"model": r.model, "stage": self.stage, "k": r.k, "bic": r.bic, "converged": r.converged}
+        out = {"model": r.model, "flicker_cut_s": self.cut_s or None, "stage": self.stage, "k": r.k, "bic": r.bic}
+        out["converged"] = r.converged
         if not self.tested:
             return out | {"fits": None, "p_value": None, "where": "not tested: not needed for the choice"}
         return out | {"fits": self.passes, "p_value": self.check.p_value, "where": self.check.summary()}
@@ -142,9 +168,40 @@ class ModelChoice:
             "tau_lp": f.tau_lp if f.term == "lp" else None,
             "filter_source": f.source,
             "memory_s": f.memory_s if f.term else 0.0,
+            "flicker_cut_s": flicker_cut(self.chosen) or None,
             "close_models": [r.model for r in self.close],
             "candidates": [c.as_dict() for c in self.candidates],
         }
+
+
+def flicker_cut(res: MLiResult) -> float:
+    """The cut-off (s) of a fit's bias instability; 0 without one (or without a bias instability)."""
+    return next((float(getattr(t, "cut_s", 0.0)) for t in res.noise_model.terms if t.code == "fl"), 0.0)
+
+
+def flicker_cuts(fs_hz: float, duration_s: float) -> list[float]:
+    """Cut-offs (s) tried for a bias instability: :data:`CUTS_PER_DECADE` per decade above the
+    sum's first term, up to :data:`FLICKER_CUT_MAX_S`."""
+    first = flicker_times(fs_hz, duration_s)[0]
+    n = round(CUTS_PER_DECADE * math.log10(FLICKER_CUT_MAX_S / first))
+    return [first * 10.0 ** (i / CUTS_PER_DECADE) for i in range(1, n + 1)]
+
+
+def screen_cut(res: MLiResult, allan: AllanResult, cuts: list[float]) -> float:
+    """The cut-off of ``cuts`` (s) under which the fit ``res``, its parameters kept, is nearest to
+    the measured Allan variance (chi-square from the fit's filter memory on, each tau with its
+    own error, correlation across tau ignored): one refit instead of one per cut-off."""
+    times = next(t.times for t in res.noise_model.terms if t.code == "fl")
+    codes = parse_model(res.model)
+    keep = allan.tau >= max(res.memory_s, 0.0)
+    tau, avar = allan.tau[keep], allan.adev[keep] ** 2
+    err = avar * np.sqrt(2.0 / np.maximum(allan.edf[keep], 1.0))
+    scores = []
+    for cut in cuts:
+        spec = ParamSpec(codes, flicker_times(res.fs_hz, times[-1] / 3.0, cut), cut)
+        model = spec.model(res.phi, res.b_on, res.memory_s).avar(tau, res.fs_hz)
+        scores.append(float(np.sum(((model - avar) / err) ** 2)))
+    return cuts[int(np.argmin(scores))]
 
 
 def _with(bias: str, angle: str) -> str:
@@ -263,23 +320,42 @@ def choose_model(
     cands: list[Candidate] = []
     lengths = tuple(b - a for a, b in segments) if segments else (len(rate),)
 
-    def fit(bias: str, stage: int) -> None:
+    def fit(bias: str, stage: int, cut_s: float = 0.0, start_from: MLiResult | None = None) -> None:
         name = _with(bias, fine.term)
-        if any(c.result.model == ParamSpec.for_record(name, fs_hz, inc.duration).name for c in cands):
+        spec = ParamSpec.for_record(name, fs_hz, inc.duration, cut_s if "fl" in bias else 0.0)
+        if any(c.key == (spec.name, spec.flicker_cut_s) for c in cands):
             return
-        spec = ParamSpec.for_record(name, fs_hz, inc.duration)
         if fine.term:
             spec = replace(spec, angle_scale=angle_scale(fine))
         problem = _CompositeProblem(inc, spec, fine)
-        starts = family_starts(problem, fine, fitted)
+        if start_from is not None and start_from.phi is not None:  # the same model with another setting
+            starts = [np.clip(spec.theta_of_phi(start_from.phi[None, :])[0], problem.lo, problem.hi)]
+        else:
+            starts = family_starts(problem, fine, fitted)
         try:
             res = fit_composite_data(
-                inc, fine, name, extra_starts=starts, robust=True, starts_only=True, max_iter=MAX_NEWTON
+                inc, fine, spec, extra_starts=starts, robust=True, starts_only=True, max_iter=MAX_NEWTON
             )
         except InputError:
             return
         cands.append(Candidate(res, stage, (allan, fs_hz, lengths)))
         fitted.append(res)
+
+    def try_cuts(stage: int) -> None:
+        """Without a model that fits in ``stage``: its smallest-BIC bias instability, refitted with the
+        cut-off the Allan deviation suggests (:func:`screen_cut`; module docstring)."""
+        uncut = [
+            c
+            for c in cands
+            if c.stage == stage and c.result.converged and not c.cut_s and "fl" in _bias_of(c.result.model)
+        ]
+        if not uncut:
+            return
+        base = min(uncut, key=lambda c: c.result.bic)
+        if any(m.tau_lo > CUT_REACH * FLICKER_CUT_MAX_S for m in base.check.misfit):
+            return  # it misses where no cut-off changes the model: a larger model is needed
+        cut = screen_cut(base.result, allan, flicker_cuts(fs_hz, inc.duration))
+        fit(_bias_of(base.result.model).replace("gm+gm", "2gm"), stage, cut, start_from=base.result)
 
     def top_of(stage: int, below: float) -> Candidate | None:
         """The smallest-BIC candidate of ``stage`` that passes, if its BIC is below ``below``
@@ -300,7 +376,9 @@ def choose_model(
         base = best or lead
         for bias in biases:
             if base is None or extends(bias, base):  # a larger model must earn its place
-                fit(bias, stage)
+                fit(bias, stage, best.cut_s if best is not None else 0.0)  # a chosen cut-off stays
+        if best is None and top_of(stage, math.inf) is None:
+            try_cuts(stage)
         converged = [c for c in cands if c.stage == stage and c.result.converged]
         if best is None and converged:
             top_any = min(converged, key=lambda c: c.result.bic)
@@ -314,9 +392,10 @@ def choose_model(
             break
         best = top
     if best is not None:
+        cut = f" (bias instability cut off below {best.cut_s:g} s)" if best.cut_s else ""
         reason = (
-            f"{best.result.model}: the simplest model that fits the Allan deviation (stage {best.stage}, the "
-            f"smallest BIC there; a larger model needs a BIC {BIC_STRONG:g} lower)"
+            f"{best.result.model}{cut}: the simplest model that fits the Allan deviation (stage {best.stage}, "
+            f"the smallest BIC there; a larger model needs a BIC {BIC_STRONG:g} lower)"
         )
         close = tuple(
             c.result
@@ -439,7 +518,7 @@ def _floor_b(res: MLiResult, duration_s: float) -> tuple[float, float, float]:
     if res.phi is None or res.cov_log is None or not np.all(np.isfinite(res.cov_log)):
         return B, math.nan, math.nan
     times = next((t.times for t in res.noise_model.terms if t.code == "fl"), ())
-    spec = ParamSpec(ParamSpec.for_record(res.model, res.fs_hz, duration_s).codes, times)
+    spec = ParamSpec(ParamSpec.for_record(res.model, res.fs_hz, duration_s).codes, times, flicker_cut(res))
     h = 1e-3
     g = np.empty(len(res.phi))
     for j in range(len(res.phi)):

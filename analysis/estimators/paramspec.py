@@ -64,22 +64,28 @@ class ParamSpec:
     #: term codes as :func:`~.noise_models.parse_model` returns them, ``"wn"`` first
     codes: tuple[str, ...]
     flicker_times: tuple[float, ...] = ()
+    #: the bias instability's cut-off, s (0: none): its sum starts there (sensor_terms)
+    flicker_cut_s: float = 0.0
     #: the angle-noise coordinate (``wa``, ``lp``) is ``log(x) / angle_scale``: the two fine
     #: scales pin it down to ~1/z in log, far below the Newton's finite-difference step, so
     #: it is stretched to a comparable curvature (ML_i-F sets it from the filter test)
     angle_scale: float = 1.0
 
     @staticmethod
-    def for_record(model: str | tuple[str, ...], fs_hz: float, duration_s: float) -> ParamSpec:
-        """The layout of ``model`` (a name or codes) for a record of ``duration_s`` s at ``fs_hz``."""
+    def for_record(
+        model: str | tuple[str, ...], fs_hz: float, duration_s: float, flicker_cut_s: float = 0.0
+    ) -> ParamSpec:
+        """The layout of ``model`` (a name or codes) for a record of ``duration_s`` s at ``fs_hz``;
+        ``flicker_cut_s`` (s): the bias instability's cut-off (0: none)."""
         codes = parse_model(model) if isinstance(model, str) else tuple(model)
-        times = flicker_times(fs_hz, duration_s) if "fl" in codes else ()
-        return ParamSpec(codes, times)
+        if "fl" not in codes:
+            return ParamSpec(codes)
+        return ParamSpec(codes, flicker_times(fs_hz, duration_s, flicker_cut_s), flicker_cut_s)
 
     def with_record(self, fs_hz: float, duration_s: float) -> ParamSpec:
         """This layout with the flicker grid of the record filled in (if the model needs one)."""
         if "fl" in self.codes and not self.flicker_times:
-            return replace(self, flicker_times=flicker_times(fs_hz, duration_s))
+            return replace(self, flicker_times=flicker_times(fs_hz, duration_s, self.flicker_cut_s))
         return self
 
     @property
@@ -177,7 +183,8 @@ class ParamSpec:
             elif c == "lp":
                 r_angle = r_angle - 0.5 * v
             else:  # fl
-                for T, w in zip(self.flicker_times, flicker_weights(self.flicker_times), strict=True):
+                weights = flicker_weights(self.flicker_times, self.flicker_cut_s)
+                for T, w in zip(self.flicker_times, weights, strict=True):
                     q = v * w
                     if T <= fold_below:
                         wn = wn + q * T * T
@@ -210,7 +217,7 @@ class ParamSpec:
                 out -= 1.5 * v[:, None] / taus[None, :] ** 2
             else:  # fl: the fixed sum's AVAR per unit B^2
                 times = np.array(self.flicker_times)
-                w = flicker_weights(times)
+                w = flicker_weights(times, self.flicker_cut_s)
                 unit = np.array([float(np.sum(w * gm_unit_avar(times, t, fs_hz))) for t in taus])
                 out += v[:, None] * unit[None, :]
         return out
@@ -264,5 +271,5 @@ class ParamSpec:
             elif c == "lp":
                 terms.append(LowPass(float(v[0]), x, memory_s))
             else:
-                terms.append(BiasInstability(x, self.flicker_times))
+                terms.append(BiasInstability(x, self.flicker_times, self.flicker_cut_s))
         return NoiseModel(tuple(terms), b_on, name=self.name)

@@ -15,6 +15,14 @@ every cluster time of the record from ~0.01 s up. The decade-aligned grid depend
 on the sampling rate and the record length only, so repeats of one device use the
 same terms.
 
+**Cut-off** (IEEE Std 952-1997 C.1 gives the flicker spectrum a cut-off frequency
+``f0``, above which it stops): a bias instability whose 1/f spectrum ends well
+below the sampling rate is the same sum started at a later decade ``cut_s``
+(:func:`flicker_times` ``from_s``, the term a decade below keeping a share that
+fades with the cut-off, :func:`flicker_weights`): below ``cut_s`` the sum's Allan
+deviation falls away from the floor instead of adding to the white noise. The model choice
+(:mod:`.model_choice`) tries decade cut-offs when the uncut sum does not fit.
+
 **Device low-pass filter** (code ``lp``): a sensor's digital filter with unit DC
 gain turns the white rate noise into filtered noise whose integral over any
 interval ``T`` longer than the filter's memory has variance
@@ -48,19 +56,30 @@ FLICKER_FLOOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 FLICKER_RATIO = 10.0
 
 
-def flicker_times(fs_hz: float, duration_s: float) -> tuple[float, ...]:
+def flicker_times(fs_hz: float, duration_s: float, from_s: float = 0.0) -> tuple[float, ...]:
     """Correlation times (s) of the flicker sum for a record: ``10^k`` from the decade at or
-    below the sample time ``1/fs_hz`` up to the decade at or above ``3 x duration_s``."""
+    below the sample time ``1/fs_hz`` up to the decade at or above ``3 x duration_s``; with a
+    cut-off ``from_s`` (s, a power of ten), only the times from ``from_s`` on."""
     if not (fs_hz > 0 and duration_s > 0):
         raise InputError(f"flicker terms need a positive rate and duration, got {fs_hz} Hz, {duration_s} s")
     lo = math.floor(math.log10(1.0 / fs_hz) + 1e-9)
+    if from_s > 0:  # the decade below the cut-off carries the fading share (flicker_weights)
+        lo = max(lo, math.floor(math.log10(from_s) - 1e-9))
     hi = math.ceil(math.log10(3.0 * duration_s) - 1e-9)
     return tuple(10.0**k for k in range(lo, hi + 1))
 
 
-def flicker_weights(times: tuple[float, ...] | np.ndarray) -> np.ndarray:
-    """``sigma_b_j^2 / B^2`` of each term of the flicker sum, 1/s (``2 ln(ratio) / (pi T_j)``)."""
-    return 2.0 * math.log(FLICKER_RATIO) / (math.pi * np.asarray(times, dtype=float))
+def flicker_weights(times: tuple[float, ...] | np.ndarray, cut_s: float = 0.0) -> np.ndarray:
+    """``sigma_b_j^2 / B^2`` of each term of the flicker sum, 1/s (``2 ln(ratio) / (pi T_j)``).
+
+    With a cut-off ``cut_s`` (s), a term below it keeps the share ``1 - log10(cut_s / T_j)``
+    (0 a decade below): the sum then changes continuously with the cut-off, which need not
+    be a power of ten."""
+    t = np.asarray(times, dtype=float)
+    w = 2.0 * math.log(FLICKER_RATIO) / (math.pi * t)
+    if cut_s > 0:
+        w = w * np.clip(1.0 - np.log10(cut_s / t), 0.0, 1.0)
+    return w
 
 
 @dataclass(frozen=True)
@@ -68,11 +87,13 @@ class BiasInstability(Term):
     """Bias instability B (rad/s; m/s^2 for accelerometers): flicker noise as a fixed Gauss-Markov sum.
 
     ``times`` (s) are the sum's correlation times (:func:`flicker_times`); every
-    statistic is the sum's, exactly.
+    statistic is the sum's, exactly. ``cut_s`` (s): the cut-off the times start at (0: none,
+    the sum starts at the sample time).
     """
 
     B: float
     times: tuple[float, ...]
+    cut_s: float = 0.0
     code = "fl"
 
     @property
@@ -80,7 +101,7 @@ class BiasInstability(Term):
         return len(self.times)
 
     def components(self) -> tuple[Term, ...]:
-        w = flicker_weights(self.times)
+        w = flicker_weights(self.times, self.cut_s)
         return tuple(GaussMarkov(self.B * math.sqrt(float(wj)), T) for wj, T in zip(w, self.times, strict=True))
 
     def avar(self, tau, fs_hz=None):

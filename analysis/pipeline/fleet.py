@@ -104,6 +104,22 @@ def _f(x) -> float:
     return float("nan") if x is None else float(x)
 
 
+def _by_model(candidates) -> dict:
+    """One converged candidate per model name: a model fitted with and without a flicker cut-off
+    (:mod:`imustation.analysis.estimators.model_choice`) is represented by the fit that passes the
+    adequacy test with the smallest BIC (the smallest BIC when none passes); the cut-off is that
+    run's setting of the model, like its filter's time constant."""
+    groups: dict[str, list] = {}
+    for c in candidates:
+        if c.result.converged:
+            groups.setdefault(c.result.model, []).append(c)
+    out = {}
+    for model, group in groups.items():
+        group.sort(key=lambda c: c.result.bic)
+        out[model] = group[0] if len(group) == 1 else next((c for c in group if c.passes), group[0])
+    return out
+
+
 def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
     """``results`` with one noise model per (driver, sensor, axis) where ``--model auto`` chose.
 
@@ -123,7 +139,7 @@ def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
     for members in groups.values():
         if len(members) < 2:
             continue
-        cands = [{c.result.model: c for c in results[i].choice.candidates if c.result.converged} for i in members]
+        cands = [_by_model(results[i].choice.candidates) for i in members]
         shared = set.intersection(*(set(c) for c in cands))
         if not shared:
             continue
