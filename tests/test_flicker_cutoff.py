@@ -59,6 +59,18 @@ def test_the_layout_carries_the_cut_off_into_the_likelihood_and_the_model():
 def test_cut_offs_tried_are_two_per_decade_up_to_one_second():
     cuts = flicker_cuts(400.0, 43200.0)
     np.testing.assert_allclose(cuts, 10.0 ** (np.arange(-5, 1) / 2.0))
+    assert flicker_cuts(1.0, 43200.0) == [] and flicker_cuts(0.2, 43200.0) == []  # the sum starts at 1 s or later
+
+
+def test_without_cut_offs_to_try_the_choice_goes_on_uncut(monkeypatch):
+    """A record sampled at 1 Hz or slower has no cut-off to try (its sum starts at 1 s)."""
+    from imustation.analysis.estimators import model_choice
+
+    monkeypatch.setattr(model_choice, "flicker_cuts", lambda fs, duration: [])
+    fs = 100.0
+    truth = NoiseModel((WhiteRate(1e-3), BiasInstability(1e-3, flicker_times(fs, 7200.0, 0.3), 0.3)))
+    choice = choose_model(truth.simulate(int(7200 * fs), fs, 2), fs, paper=False)
+    assert all(c.cut_s == 0.0 for c in choice.candidates) and not choice.fits
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

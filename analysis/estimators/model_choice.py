@@ -354,7 +354,10 @@ def choose_model(
         base = min(uncut, key=lambda c: c.result.bic)
         if any(m.tau_lo > CUT_REACH * FLICKER_CUT_MAX_S for m in base.check.misfit):
             return  # it misses where no cut-off changes the model: a larger model is needed
-        cut = screen_cut(base.result, allan, flicker_cuts(fs_hz, inc.duration))
+        cuts = flicker_cuts(fs_hz, inc.duration)
+        if not cuts:  # sampled at 1 Hz or slower: the sum starts at 1 s already
+            return
+        cut = screen_cut(base.result, allan, cuts)
         fit(_bias_of(base.result.model).replace("gm+gm", "2gm"), stage, cut, start_from=base.result)
 
     def top_of(stage: int, below: float) -> Candidate | None:
