@@ -23,8 +23,6 @@ from imustation.analysis.estimators.finescale import FilterHint
 
 #: drivers whose settings carry the -3 dB bandwidth of the chip's digital low-pass (Hz)
 BANDWIDTH_DRIVERS = ("bmx055", "bmx055_accel", "mpu9150", "mpu6500")
-#: ADIS16448 internal sample rate, Hz (datasheet Rev. D, "SMPL_PRD"; docs/reference/sensors.md §4.3)
-ADIS16448_INTERNAL_HZ = 819.2
 #: drivers that output the mean over each output interval: white samples
 INTERVAL_MEAN_DRIVERS = ("mti", "dsp3000")
 
@@ -45,7 +43,9 @@ def filter_hint(meta: Mapping[str, Any], fs_hz: float) -> FilterHint | None:
         dec = int(settings.get("decimation", 0) or 0)
         if taps <= 1:
             return FilterHint(False, 0.0, f"adis16448 filter_taps = {taps}: mean over each output interval")
-        memory = (2 * (taps - 1) + 2**dec) / ADIS16448_INTERNAL_HZ
+        # the FIR runs at the internal rate, 2**dec times the output rate (SMPL_PRD,
+        # docs/reference/sensors.md §4.3): taken from the channel's own rate, not a constant
+        memory = (2 * (taps - 1) + 2**dec) / (fs_hz * 2**dec)
         return FilterHint(True, memory, f"adis16448 filter_taps = {taps}, decimation = {dec}")
     if driver in INTERVAL_MEAN_DRIVERS:
         return FilterHint(False, 0.0, f"{driver}: mean over each output interval")
