@@ -9,11 +9,12 @@ import pytest
 
 from imustation.analysis.estimators.adequacy import model_adequacy
 from imustation.analysis.estimators.allan import oadev
+from imustation.analysis.estimators.coefficients import ieee952_summary
 from imustation.analysis.estimators.composite import fine_scale, fit_composite, fit_composite_data
 from imustation.analysis.estimators.finescale import FilterHint, allan_corr, fine_statistics
 from imustation.analysis.estimators.fitting import Problem, full_nll
 from imustation.analysis.estimators.kalman import Layout, kalman_profile
-from imustation.analysis.estimators.model_choice import choose_model, ieee952_summary
+from imustation.analysis.estimators.model_choice import choose_model
 from imustation.analysis.estimators.noise_models import NoiseModel, TermBlock, WhiteRate, parse_model, van_loan
 from imustation.analysis.estimators.paramspec import ParamSpec
 from imustation.analysis.estimators.pattern import integrate

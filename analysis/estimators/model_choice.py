@@ -59,7 +59,6 @@ from imustation.analysis.estimators.composite import (
 )
 from imustation.analysis.estimators.finescale import FilterHint, FineStatistic, fine_statistics
 from imustation.analysis.estimators.fitting import Z90, MLiResult
-from imustation.analysis.estimators.noise_models import parse_model
 from imustation.analysis.estimators.paramspec import ParamSpec
 from imustation.analysis.estimators.pattern import check_rate, integrate
 from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, flicker_times
@@ -176,7 +175,7 @@ class ModelChoice:
 
 def flicker_cut(res: MLiResult) -> float:
     """The cut-off (s) of a fit's bias instability; 0 without one (or without a bias instability)."""
-    return next((float(getattr(t, "cut_s", 0.0)) for t in res.noise_model.terms if t.code == "fl"), 0.0)
+    return next((float(t.cut_s) for t in res.noise_model.terms if t.code == "fl"), 0.0)
 
 
 def flicker_cuts(fs_hz: float, duration_s: float) -> list[float]:
@@ -187,18 +186,17 @@ def flicker_cuts(fs_hz: float, duration_s: float) -> list[float]:
     return [first * 10.0 ** (i / CUTS_PER_DECADE) for i in range(1, n + 1)]
 
 
-def screen_cut(res: MLiResult, allan: AllanResult, cuts: list[float]) -> float:
-    """The cut-off of ``cuts`` (s) under which the fit ``res``, its parameters kept, is nearest to
-    the measured Allan variance (chi-square from the fit's filter memory on, each tau with its
-    own error, correlation across tau ignored): one refit instead of one per cut-off."""
-    times = next(t.times for t in res.noise_model.terms if t.code == "fl")
-    codes = parse_model(res.model)
+def screen_cut(res: MLiResult, allan: AllanResult, cuts: list[float], duration_s: float) -> float:
+    """The cut-off of ``cuts`` (s) under which the fit ``res`` to a record of ``duration_s`` s, its
+    parameters kept, is nearest to the measured Allan variance (chi-square from the fit's filter
+    memory on, each tau with its own error, correlation across tau ignored): one refit instead
+    of one per cut-off."""
     keep = allan.tau >= max(res.memory_s, 0.0)
     tau, avar = allan.tau[keep], allan.adev[keep] ** 2
     err = avar * np.sqrt(2.0 / np.maximum(allan.edf[keep], 1.0))
     scores = []
     for cut in cuts:
-        spec = ParamSpec(codes, flicker_times(res.fs_hz, times[-1] / 3.0, cut), cut)
+        spec = ParamSpec.for_record(res.model, res.fs_hz, duration_s, cut)
         model = spec.model(res.phi, res.b_on, res.memory_s).avar(tau, res.fs_hz)
         scores.append(float(np.sum(((model - avar) / err) ** 2)))
     return cuts[int(np.argmin(scores))]
@@ -357,7 +355,7 @@ def choose_model(
         cuts = flicker_cuts(fs_hz, inc.duration)
         if not cuts:  # sampled at 1 Hz or slower: the sum starts at 1 s already
             return
-        cut = screen_cut(base.result, allan, cuts)
+        cut = screen_cut(base.result, allan, cuts, inc.duration)
         fit(_bias_of(base.result.model).replace("gm+gm", "2gm"), stage, cut, start_from=base.result)
 
     def top_of(stage: int, below: float) -> Candidate | None:
@@ -464,74 +462,6 @@ def _bias_of(model: str) -> str:
     for c in codes:
         out += ["gm", "gm"] if c == "2gm" else [c]
     return "+".join(out)
-
-
-# ---------------------------------------------------------------------------
-# IEEE-952 coefficients of a fitted model
-
-
-def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, ...] = ()) -> dict:
-    """N, B, K (with 90 % intervals) and the Gauss-Markov terms a fitted model implies.
-
-    ``N`` = sigma_w; ``K`` = sigma_k (``None`` without a rate random walk); ``B``:
-    the bias-instability parameter when the model has one (``B_from`` ``"fitted"``),
-    otherwise the model's Allan-deviation minimum over ``1/fs .. duration_s/2``
-    divided by 0.664 (``"model floor"``), its interval by the delta method from the
-    fit's covariance (``cov_log``). ``close``: models that fit nearly as well (the
-    choice's ``close``), whose B intervals the B interval is mixed with (:func:`mixed_interval`). Units:
-    rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz).
-    """
-    p, ci = res.params, res.ci90
-    out: dict = {"N": res.sigma_w, "N_ci90": list(ci.get("sigma_w", (math.nan, math.nan)))}
-    if "B" in p:
-        out |= {"B": p["B"], "B_ci90": list(ci["B"]), "B_from": "fitted"}
-    else:
-        B, lo, hi = _floor_b(res, duration_s)
-        out |= {"B": B, "B_ci90": [lo, hi], "B_from": "model floor"}
-    if close:
-        items = [(*out["B_ci90"], res.bic)] + [(*ieee952_summary(o, duration_s)["B_ci90"], o.bic) for o in close]
-        lo, hi = mixed_interval(items)
-        if math.isfinite(lo):
-            out["B_ci90"] = [lo, hi]
-    if "sigma_k" in p:
-        out |= {"K": p["sigma_k"], "K_ci90": list(ci["sigma_k"])}
-    else:
-        out |= {"K": None, "K_ci90": None}
-    gms = sorted(k for k in p if k.startswith("tau_b"))
-    out["gauss_markov"] = [
-        {
-            "sigma_b": p["sigma_b" + k[5:]],
-            "tau_b": p[k],
-            "sigma_b_ci90": list(ci["sigma_b" + k[5:]]),
-            "tau_b_ci90": list(ci[k]),
-        }  # fmt: skip
-        for k in gms
-    ]
-    return out
-
-
-def _floor_b(res: MLiResult, duration_s: float) -> tuple[float, float, float]:
-    """Model Allan-deviation minimum / 0.664 and its delta-method 90 % interval."""
-    tau = np.logspace(math.log10(1.0 / res.fs_hz), math.log10(max(duration_s / 2.0, 2.0 / res.fs_hz)), 200)
-
-    def floor(model) -> float:
-        return float(np.sqrt(np.min(model.avar(tau, res.fs_hz)))) / FLICKER_FLOOR
-
-    B = floor(res.noise_model)
-    if res.phi is None or res.cov_log is None or not np.all(np.isfinite(res.cov_log)):
-        return B, math.nan, math.nan
-    times = next((t.times for t in res.noise_model.terms if t.code == "fl"), ())
-    spec = ParamSpec(ParamSpec.for_record(res.model, res.fs_hz, duration_s).codes, times, flicker_cut(res))
-    h = 1e-3
-    g = np.empty(len(res.phi))
-    for j in range(len(res.phi)):
-        d = np.zeros(len(res.phi))
-        d[j] = h
-        up = floor(spec.model(res.phi + d, res.b_on, res.memory_s))
-        dn = floor(spec.model(res.phi - d, res.b_on, res.memory_s))
-        g[j] = (math.log(up) - math.log(dn)) / (2 * h)
-    se = math.sqrt(max(float(g @ res.cov_log @ g), 0.0))
-    return B, B * math.exp(-Z90 * se), B * math.exp(Z90 * se)
 
 
 def as_choice_result(choice: ModelChoice) -> CompositeResult:

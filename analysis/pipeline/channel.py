@@ -10,12 +10,13 @@ import numpy as np
 from imustation.analysis.estimators.adequacy import Adequacy
 from imustation.analysis.estimators.adequacy import fit_adequacy as result_adequacy
 from imustation.analysis.estimators.allan import AllanResult, oadev
+from imustation.analysis.estimators.coefficients import ieee952_summary
 from imustation.analysis.estimators.composite import fit_composite
 from imustation.analysis.estimators.fitting import MLiResult
 from imustation.analysis.estimators.gmwm import fit_gmwm
 from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.estimators.mli import compare_models, fit_integrated
-from imustation.analysis.estimators.model_choice import ModelChoice, as_choice_result, choose_model, ieee952_summary
+from imustation.analysis.estimators.model_choice import ModelChoice, as_choice_result, choose_model
 from imustation.analysis.estimators.pattern import integrate
 from imustation.analysis.estimators.screen import screen
 from imustation.analysis.pipeline.choices import (
