@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from imustation.drivers.adis16448 import INTERNAL_RATE_HZ as ADIS_INTERNAL_RATE_HZ  # the chip's register table
+
 #: white-noise samples per numpy step inside a block (bounded memory at high ratios)
 CHUNK_INTERNAL = 1 << 18
 #: the filter state starts stationary: the pre-roll lasts until the impulse response is below this
@@ -256,8 +258,6 @@ def design_lowpass(bandwidth_hz: float, delay_s: float | None, fs_hz: float) -> 
 BMG160_INTERNAL_HZ = 2000.0
 #: BMX055 accelerometer (BMA2x2) internal rate, Hz: the 0.5 ms update time of PMU_BW 0x0F (BMX055 datasheet)
 BMA2X2_INTERNAL_HZ = 2000.0
-#: ADIS16448 internal sample rate, Hz (ADIS16448 datasheet, SMPL_PRD)
-ADIS16448_INTERNAL_HZ = 819.2
 #: InvenSense accelerometer output rate, Hz (MPU-6000/6050 Register Map rev 4.2, register 25)
 INVENSENSE_ACCEL_HZ = 1000.0
 
@@ -367,7 +367,7 @@ def adis16448(decimation: int, taps: int) -> ChipFilter:
     boxcars = tuple(n for n in (taps, taps, ratio) if n > 1)
     text = f"Bartlett FIR 2 x {taps} taps" if taps > 1 else "no Bartlett FIR"
     return ChipFilter(
-        f"ADIS16448 D={decimation} taps={taps}", ADIS16448_INTERNAL_HZ / ratio, ratio, boxcars=boxcars,
+        f"ADIS16448 D={decimation} taps={taps}", ADIS_INTERNAL_RATE_HZ / ratio, ratio, boxcars=boxcars,
         structure=f"{text}, then the mean of {ratio} sample(s) at 819.2 Hz",
         source="ADIS16448 datasheet, SENS_AVG (0x38) / SMPL_PRD (0x36)",
     )  # fmt: skip
