@@ -380,18 +380,18 @@ def choose_model(
                 fit(bias, stage, best.cut_s if best is not None else 0.0)  # a chosen cut-off stays
         if best is None and top_of(stage, math.inf) is None:
             try_cuts(stage)
+        top = top_of(stage, math.inf if best is None else best.result.bic - BIC_STRONG)
+        if top is not None:  # the first stage with a model that fits gives the choice
+            best = top
+            continue
+        if best is not None:
+            break
         converged = [c for c in cands if c.stage == stage and c.result.converged]
-        if best is None and converged:
+        if converged:
             top_any = min(converged, key=lambda c: c.result.bic)
             if lead is not None and top_any.result.bic >= lead.result.bic - BIC_STRONG:
                 break  # nothing fits and a larger model does not help either
             lead = top_any
-        top = top_of(stage, math.inf if best is None else best.result.bic - BIC_STRONG)
-        if top is None:
-            if best is None:
-                continue
-            break
-        best = top
     if best is not None:
         cut = f" (bias instability cut off below {best.cut_s:g} s)" if best.cut_s else ""
         reason = (
