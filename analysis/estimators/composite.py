@@ -250,6 +250,17 @@ def fit_composite_data(
     s_fine = float(b[0] / a[0])
     z = (s_fine - s_int) / math.hypot(se_int, 1.0 / math.sqrt(float(a[0])))
     message = res.message + _fine_message(fine)
+    if multi and fine.slow_share > SLOW_SHARE and math.isfinite(fine.white_bound[0]):
+        # sigma_w rests on the slow terms' shape below the fine scales, which nothing measures: its
+        # interval reaches up to the bound that needs no model of them (finescale.white_bound)
+        U, se = fine.white_bound
+        top = math.sqrt(max(U + Z90 * se, 0.0))
+        lo, hi = ci90.get("sigma_w", (math.nan, math.nan))
+        ci90["sigma_w"] = (lo, top if not math.isfinite(hi) else max(hi, top))
+        message += (
+            f"; sigma_w <= {top:.4g} (90 % upper end) from the Allan variances at {fine.bound_samples} and "
+            f"{2 * fine.bound_samples} samples, where the slow terms can only add: its interval reaches it"
+        )
     if abs(z) > FINE_SCALE_Z_LIMIT:
         message += (
             f"; fine-scale AVAR disagrees with the integrated signal (z = {z:+.1f}): noise not white at "

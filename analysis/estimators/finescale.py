@@ -212,6 +212,11 @@ class FineStatistic:
     slow_share: float = 0.0
     #: factor applied to the white-noise covariance of ``avar`` (the scatter between blocks)
     inflation: float = 1.0
+    #: when the slow terms show at the fine scales: an upper bound on sigma_w^2 that needs no model of
+    #: them, and its standard error ((rate unit)^2 s; :func:`white_bound`), and the cluster size n
+    #: (samples) of the pair n, 2n it comes from; NaN, NaN, 0 otherwise
+    white_bound: tuple[float, float] = (math.nan, math.nan)
+    bound_samples: int = 0
 
     @property
     def memory_s(self) -> float:
@@ -324,9 +329,49 @@ def fine_statistics(
     if slow and fit is not None:
         (a, _, c, d), t0 = fit[0], chosen / fs_hz
         share = float(abs(c + d * t0) / (a / t0)) if a > 0 else math.inf  # a <= 0: no white noise left
+    bound, first = (math.nan, math.nan), 0
+    if slow:  # from the first scale beyond the filter's memory: the settings' when they announce one
+        first = min(chosen, hinted) if hint is not None and hint.on else chosen
+        bound = white_bound(rate, fs_hz, first, got, scale=scale, segments=segments)
     return FineStatistic(
-        taus, D, C, nuisance, chosen, term, float(tau_lp), float(z), linear, source, octaves, share, inflation
-    )
+        taus, D, C, nuisance, chosen, term, float(tau_lp), float(z), linear, source, octaves, share, inflation,
+        bound, first if math.isfinite(bound[0]) else 0,
+    )  # fmt: skip
+
+
+def white_bound(
+    rate: np.ndarray,
+    fs_hz: float,
+    k: int,
+    got: dict[int, float],
+    *,
+    scale: float = 1.0,
+    segments: list[tuple[int, int]] | None = None,
+) -> tuple[float, float]:
+    """Upper bound on sigma_w^2 ((rate unit)^2 s) from the Allan variances at k and 2k samples
+    beyond the device filter's memory, and its standard error; (NaN, NaN) where the record does
+    not reach 2k.
+
+    With ``u(tau) = tau AVAR(tau)``, ``U = 2 u(2 tau) - u(tau)`` is exactly sigma_w^2 for white rate
+    noise, a device filter beyond its memory (``-1.5 sigma_w^2 tau_lp / tau``) and white angle
+    noise (``3 sigma_a^2 / tau``) together, and the other terms add ``tau (4 s(2 tau) - s(tau))``
+    for their Allan variance ``s``: never negative unless ``s`` falls faster than ``tau^-2`` from k
+    to 2k samples, which no noise term does (Gauss-Markov, flicker, random walk rise or stay
+    there). So U bounds sigma_w^2 from above with no model of the slow terms: used when they reach
+    the fine scales and sigma_w rests on their shape (the MPU-9150 of the datasheet profile).
+    Its variance: the larger of the white-noise one and the scatter of :data:`BLOCKS` blocks.
+    """
+    if 2 * k not in got or k not in got:
+        return (math.nan, math.nan)
+    t = np.array([k, 2 * k]) / fs_hz
+    g = np.array([-t[0], 2.0 * t[1]])
+    U = float(g @ np.array([got[k], got[2 * k]]))
+    var = float(g @ _cov(np.array([got[k], got[2 * k]]), [k, 2 * k], len(rate)) @ g)
+    per_block = [float(g @ row) for row in block_oavar(rate, fs_hz, [k, 2 * k], BLOCKS, scale=scale, segments=segments)
+                 if np.all(np.isfinite(row))]  # fmt: skip
+    if len(per_block) >= BLOCKS // 2:
+        var = max(var, float(np.var(per_block, ddof=1)) / len(per_block))
+    return (U, math.sqrt(var))
 
 
 def _block_inflation(

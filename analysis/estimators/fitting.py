@@ -151,6 +151,31 @@ def information_cov(H: np.ndarray) -> np.ndarray:
     return np.full(H.shape, np.nan)
 
 
+def identified(H: np.ndarray, free: list[int]) -> list[int]:
+    """The coordinates of ``free`` (the first, sigma_w, always kept) on which the information ``H`` is
+    positive definite: while it is not, the coordinate that loads most on its least-curved direction is
+    held fixed (a term the data do not determine; its own interval is then not stated, the others are)."""
+    free = list(free)
+    while len(free) > 1:
+        try:
+            w, v = np.linalg.eigh(H[np.ix_(free, free)])
+        except np.linalg.LinAlgError:
+            return free[:1]
+        if np.all(np.isfinite(w)) and w[0] > 0:
+            break
+        load = np.abs(v[:, 0]) if np.all(np.isfinite(v)) else np.ones(len(free))
+        load[0] = -1.0
+        free.pop(int(np.argmax(load)))
+    return free
+
+
+def _embed(cov: np.ndarray, free: list[int], d: int) -> np.ndarray:
+    """The (d, d) covariance with ``cov`` at the ``free`` coordinates and 0 at the others (held fixed)."""
+    out = np.zeros((d, d))
+    out[np.ix_(free, free)] = cov
+    return out
+
+
 def intervals(
     names: list[str], phi: np.ndarray, H: np.ndarray, cov: np.ndarray | None = None
 ) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
@@ -280,12 +305,17 @@ def build_result(
         nll = float(problem.full_nll(phi[None, :])[0])
     b_on = float(prof.b_on[0])
     names = spec.phi_names()
+    lo, hi = problem.lo, problem.hi
+    # a coordinate at its search bound (a term the data do not support) is held there for the
+    # intervals of the others: its flat or one-sided likelihood would leave every interval undefined
+    free = [0] + [1 + j for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) >= 1e-3]
     H = observed_information(problem, phi)
-    cov = information_cov(H)
+    free = identified(H, free)
+    cov = _embed(information_cov(H[np.ix_(free, free)]), free, len(phi))
     stderr, ci90 = intervals(names, phi, H, cov)
     ci90_model = dict(ci90)
     if robust:
-        cov_r = sandwich(problem, phi, H)
+        cov_r = sandwich(problem, phi, H, free=free)
         se_r, ci_r = intervals(names, phi, H, cov_r)
         for name in names:
             if math.isfinite(se_r[name]) and se_r[name] > stderr[name]:
@@ -294,12 +324,11 @@ def build_result(
             if math.isfinite(lo_r):
                 ci90[name] = (min(ci90[name][0], lo_r), max(ci90[name][1], hi_r))
         # the covariance behind the reported standard errors: the larger variance per coordinate
-        with np.errstate(all="ignore"):  # NaN where either covariance is not usable
-            scale = np.sqrt(np.maximum(np.diag(cov_r), np.diag(cov)) / np.diag(cov))
+        with np.errstate(all="ignore"):  # NaN where either covariance is not usable; 1 where held fixed
+            scale = np.where(np.diag(cov) != 0, np.sqrt(np.maximum(np.diag(cov_r), np.diag(cov)) / np.diag(cov)), 1.0)
         if np.all(np.isfinite(scale)):
             cov = cov * np.outer(scale, scale)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))
-    lo, hi = problem.lo, problem.hi
     at_bound = {names[1 + j] for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3}
     # order several Gauss-Markov terms by correlation time (the likelihood is symmetric)
     ngm = spec.codes.count("gm")

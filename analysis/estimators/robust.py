@@ -82,21 +82,28 @@ def fine_information(problem, phi: np.ndarray, h: float = FD_STEP) -> np.ndarray
     return G.T @ problem.Cinv @ G
 
 
-def sandwich(problem, phi: np.ndarray, H: np.ndarray, lags: int | None = None) -> np.ndarray:
+def sandwich(
+    problem, phi: np.ndarray, H: np.ndarray, lags: int | None = None, free: list[int] | None = None
+) -> np.ndarray:
     """Robust covariance ``H^-1 J H^-1`` of the physical log-parameters ``phi``.
 
     ``H``: the observed information at ``phi`` (D, D); ``lags``: autocovariance lags
-    of the integrated score (default :func:`hac_lags` of the number of intervals).
-    NaN where ``H`` is not positive definite.
+    of the integrated score (default :func:`hac_lags` of the number of intervals);
+    ``free``: the coordinates that vary (the others are held fixed: 0 in the result).
+    NaN where ``H`` is not positive definite on them.
     """
     D = len(phi)
+    idx = list(range(D)) if free is None else list(free)
+    sub = np.ix_(idx, idx)
+    out = np.zeros((D, D))
     try:
-        if not np.all(np.linalg.eigvalsh(H) > 0):
+        if not np.all(np.linalg.eigvalsh(H[sub]) > 0):
             return np.full((D, D), np.nan)
-        Hinv = np.linalg.inv(H)
+        Hinv = np.linalg.inv(H[sub])
     except np.linalg.LinAlgError:
         return np.full((D, D), np.nan)
     scores = interval_scores(problem, phi)
     J = long_run_variance(scores, hac_lags(len(scores)) if lags is None else lags)
     J = J + fine_information(problem, phi)
-    return Hinv @ J @ Hinv
+    out[sub] = Hinv @ J[sub] @ Hinv
+    return out
