@@ -13,7 +13,8 @@ channel's metadata, as a run file gives them). The channels are made first and s
 once more alone (in the main process, warmed as the workers are; its cold first analysis is
 printed too). Printed against the same-run reference of one ``np.sum`` over each
 channel's counts. Errors are against the white-noise density of the output samples (the
-filter's aliased gain at 0 Hz included).
+filter's aliased gain at 0 Hz included); each sigma_w is printed with its stated 90 % interval
+(relative to the truth, %).
 
     python benchmarks/bench_model_choice.py [--hours 12] [--workers 2] [--channels 31]
 """
@@ -153,6 +154,7 @@ def run_one(args: tuple) -> dict:
         "fits": choice.fits if choice else None,
         "candidates": len(choice.candidates) if choice else 0,
         "sigma_w_err": res.noise_model.sigma_w / truth - 1.0,
+        "ci_err": [v / truth - 1.0 for v in res.noise_model.ci90.get("sigma_w", (math.nan, math.nan))],
         "ieee_N_err": res.ieee.N / truth - 1.0,
         "paper_err": choice.paper.sigma_w / truth - 1.0 if choice else math.nan,
         "flag": "slow terms reach" in res.noise_model.message,
@@ -187,7 +189,8 @@ def main() -> None:
         print(
             f"  {r['id']:22s} {r['n'] / 1e6:5.1f} M  {r['t']:5.2f} s (x{r['t'] / r['t_ref']:5.0f} np.sum)  "
             f"{r['model']:22s} {'fits' if r['fits'] else 'NO FIT'} ({r['candidates']} fitted)  "
-            f"sigma_w {100 * r['sigma_w_err']:+.2f} %{' (flagged)' if r['flag'] else ''}  IEEE N "
+            f"sigma_w {100 * r['sigma_w_err']:+.2f} % [{100 * r['ci_err'][0]:+.1f}, {100 * r['ci_err'][1]:+.1f}]"
+            f"{' (flagged)' if r['flag'] else ''}  IEEE N "
             f"{100 * r['ieee_N_err']:+.2f} %  paper's wn+gm {100 * r['paper_err']:+.2f} %"
         )
     times = sorted(r["t"] for r in rows)
@@ -200,6 +203,9 @@ def main() -> None:
     print(f"slowest axis alone: {alone:.2f} s; budget 2 s, ratio {alone / 2:.2f}")
     print(f"(the same axis as the first analysis of a fresh process: {cold:.2f} s)")
     print(f"all analyses / all np.sum references (same run): x{sum(r['t'] for r in rows) / ref:.0f}")
+    fit = sum(bool(r["fits"]) for r in rows)
+    held = sum(lo <= 0.0 <= hi for lo, hi in (r["ci_err"] for r in rows))
+    print(f"chosen model fits: {fit} of {len(rows)}; sigma_w's 90 % interval holds the truth: {held} of {len(rows)}")
     print(f"(making the data, not timed above: {t_make:.0f} s)")
 
 
