@@ -206,3 +206,28 @@ def test_cli_random_walk_conversions_differ_by_the_closed_form(sim_run):
         vals[rw] = float(x.split(",")[1])
     ratio = math.sqrt(3.0 * (1.0 - (3.0 - 4.0 * math.exp(-1.0) + math.exp(-2.0)) / 2.0))
     assert vals["tau_b"] / vals["diffusion"] == pytest.approx(ratio, rel=1e-3)  # 4 printed digits
+
+
+def test_a_noise_density_the_model_cannot_vouch_for_is_flagged(wn_rw_analysis, tmp_path):
+    # the model fits and sigma_w is tight: no flag
+    res, _, _ = wn_rw_analysis
+    assert axis_noise(res, "model").noise_warning == ""
+    # the MPU-9150 gyro of the datasheet profile (bias instability dominating from 0.05 s behind a
+    # 42 Hz DLPF): no model fits and sigma_w's interval reaches the bound of finescale.white_bound
+    from imustation.analysis.pipeline.devicefilter import filter_hint
+    from imustation.drivers.sim.filters import for_device
+    from imustation.drivers.sim.sources import NoiseSource
+
+    settings = {"rate_hz": 200, "bandwidth_hz": 42}
+    cf = for_device("mpu9150", settings)["gyro"]
+    src = NoiseSource.for_device("mpu9150", "xyz", 200.0, {"profile": "datasheet", "warmup_c": 0.0}, 0)
+    src.use_filter(cf)
+    ch = Channel(
+        "mpu/gyro/x", 200.0, "rad/s", src.next(720_000)[:, 0], meta={"driver": "mpu9150", "settings": settings}
+    )
+    assert filter_hint(ch.meta, 200.0).on
+    a = axis_noise(analyze_channel(ch), "model")
+    assert "does not fit the Allan deviation" in a.noise_warning and "90 % interval" in a.noise_warning
+    gyro = SensorNoise("gyro", 200.0, (a,), "model", "diffusion")
+    text = export_text(gyro, None, "kalibr")
+    assert "WARNING mpu/gyro/x: noise density doubtful: the model does not fit" in text

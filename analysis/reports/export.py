@@ -71,6 +71,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+from imustation.analysis.estimators.adequacy import NO_FIT
 from imustation.analysis.estimators.noise_models import GaussMarkov
 from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
 from imustation.analysis.pipeline.channel import ChannelAnalysis
@@ -125,6 +126,9 @@ class AxisNoise:
     random_walk: float
     #: why the random-walk figure is doubtful ("" when it is not)
     warning: str = ""
+    #: why the noise-density figure is doubtful ("" when it is not): the model does not fit the Allan
+    #: deviation, or its interval is wide (slow terms at the fine scales, docs/noise-model.md "Limit")
+    noise_warning: str = ""
 
 
 @dataclass(frozen=True)
@@ -189,6 +193,21 @@ def inflate_sensors(
 
 #: a bias parameter whose 90 % interval spans more than this factor is "poorly determined"
 WIDE_INTERVAL = 10.0
+#: a noise density whose 90 % interval spans more than this factor (about +-5 %) is flagged
+WIDE_NOISE_INTERVAL = 1.1
+
+
+def _noise_doubts(res: ChannelAnalysis, fit) -> str:
+    """Why ``fit``'s white-noise density is doubtful ("" if it is not): its model does not fit the
+    measured Allan deviation, or its 90 % interval is wider than :data:`WIDE_NOISE_INTERVAL`."""
+    doubts = []
+    adq = res.adequacy_of(fit)
+    if adq is not None and adq.verdict == NO_FIT:
+        doubts.append(f"the model does not fit the Allan deviation ({adq.summary()})")
+    lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
+    if not (lo > 0 and math.isfinite(hi)) or hi / lo > WIDE_NOISE_INTERVAL:
+        doubts.append(f"90 % interval {lo:.3g} .. {hi:.3g}")
+    return "; ".join(doubts)
 
 
 def _poorly_determined(fit) -> str:
@@ -205,13 +224,14 @@ def _poorly_determined(fit) -> str:
 def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion") -> AxisNoise:
     """White-noise and random-walk densities of one analysed channel (SI)."""
     cid = res.channel.id
-    warning = ""
+    warning = noise_warning = ""
     if source in ("model", "mli"):
         fit = res.noise_model if source == "model" else res.mli
         if fit is None:
             raise InputError(f"channel {cid}: no {source} fit in the analysis (source {source!r})")
         nd = fit.sigma_w
         rwv = random_walk_from_params(fit.params, rw)
+        noise_warning = _noise_doubts(res, fit)
         taus = [v for k, v in fit.params.items() if k.startswith("tau_b") and math.isfinite(v)]
         if fit.at_bound or not fit.converged:
             warning = f"fit not converged or at a bound ({', '.join(fit.at_bound) or fit.message})"
@@ -230,7 +250,7 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
     if not (math.isfinite(rwv) and rwv > 0):
         hint = " (the Allan fit needs no rate-random-walk term; try --source model)" if source == "ieee" else ""
         raise InputError(f"channel {cid}: random-walk density {rwv} from {source} is not positive{hint}")
-    return AxisNoise(cid, float(nd), float(rwv), warning)
+    return AxisNoise(cid, float(nd), float(rwv), warning, noise_warning)
 
 
 def sensor_noise(
@@ -349,6 +369,8 @@ def export_text(
             continue
         for a in s.axes:
             comments.append(f"  {a.channel}: {a.noise_density:.4e}, {a.random_walk:.4e}")
+            if a.noise_warning:
+                comments.append(f"  WARNING {a.channel}: noise density doubtful: {a.noise_warning}")
             if a.warning:
                 comments.append(f"  WARNING {a.channel}: random walk doubtful: {a.warning}; record longer")
     for why in skipped:

@@ -138,6 +138,8 @@ def export(
                 )
     for s in (gyro, accel):
         for a in s.axes if s is not None else ():
+            if a.noise_warning:
+                click.echo(f"warning: {a.channel}: noise density doubtful: {a.noise_warning}", err=True)
             if a.warning:
                 click.echo(f"warning: {a.channel}: random walk doubtful: {a.warning}", err=True)
     text = export_text(gyro, accel, fmt, topic=topic, origin=run, skipped=skipped)
