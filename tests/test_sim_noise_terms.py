@@ -17,7 +17,7 @@ from imustation.drivers.sim import device_sources
 from imustation.drivers.sim.noise_terms import FLICKER_FLOOR, DieTemperature, SlowBias, flicker_avar
 from imustation.drivers.sim.profiles import DATASHEET
 from imustation.drivers.sim.sources import NoiseSource
-from imustation.errors import ConfigError
+from imustation.errors import ConfigError, SettingError
 from imustation.runfile import open_run
 
 NO_TEMP = DieTemperature(drift_c=0.0)
@@ -110,6 +110,17 @@ def test_profile_values_and_overrides():
     assert signs == {-1.0, 1.0}
     for key, term in DATASHEET["mpu9150"].items():
         assert term.source, key  # every value says where it comes from
+
+
+def test_a_source_of_fewer_axes_takes_each_axis_own_profile_value():
+    full = NoiseSource.for_device("mpu9150", "xyz", 200.0, {"profile": "datasheet"}, 1)
+    for axes in ("z", "xz"):
+        part = NoiseSource.for_device("mpu9150", axes, 200.0, {"profile": "datasheet"}, 1)
+        picked = ["xyz".index(a) for a in axes]
+        assert np.array_equal(part._slow.b, full._slow.b[picked])
+        assert part.next(10).shape == (10, len(axes))
+    with pytest.raises(SettingError, match="given for axes z, not for x"):
+        NoiseSource.for_device("dsp3000", "x", 100.0, {"profile": "datasheet"}, 1)
 
 
 def test_the_paper_profile_adds_nothing():

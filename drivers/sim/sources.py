@@ -289,7 +289,7 @@ class NoiseSource:
             if problem:
                 raise SettingError(f"sim.{key} = {value!r}: expected {problem}")
         profile = str(sim.get("profile", "paper"))
-        eff = {**defaults(table_key, profile), **sim}
+        eff = {**_profile_for_axes(defaults(table_key, profile), sorted(base), axes, table_key), **sim}
         rng = np.random.default_rng([seed, b_on_salt])
 
         def per_axis(key: str, default: float) -> np.ndarray:
@@ -332,6 +332,24 @@ class NoiseSource:
             bias_tempco=tempco,
             filtering=bool(eff.get("filter", profile == "datasheet")),
         )
+
+
+def _profile_for_axes(
+    profile: Mapping[str, float | tuple[float, ...]], profile_axes: Sequence[str], axes: Sequence[str], table_key: str
+) -> dict[str, float | tuple[float, ...]]:
+    """The profile's per-axis values (given for ``profile_axes``, in that order) for the ``axes`` asked for."""
+    out: dict[str, float | tuple[float, ...]] = {}
+    for key, value in profile.items():
+        if isinstance(value, tuple):
+            missing = [a for a in axes if a not in profile_axes]
+            if missing or len(value) != len(profile_axes):
+                raise SettingError(
+                    f"profile of {table_key}: {key} is given for axes {', '.join(profile_axes)}, "
+                    f"not for {', '.join(missing) or 'these'}"
+                )
+            value = tuple(value[list(profile_axes).index(a)] for a in axes)
+        out[key] = value
+    return out
 
 
 def sim_number(sim: Mapping[str, object], key: str, default: float, *, positive: bool = False) -> float:
