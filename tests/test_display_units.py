@@ -17,6 +17,7 @@ from imustation.analysis.reports.summary import summary_csv, summary_markdown, s
 from imustation.analysis.reports.tables import (
     AT_BOUND,
     DASH,
+    DOUBTFUL,
     NOT_FITTED,
     NOT_IDENTIFIED,
     noise_rows,
@@ -108,6 +109,20 @@ def test_not_identified_when_the_interval_spans_two_decades(analysed):
     row = noise_rows([replace(analysed[1], noise_model=wide)])[0]
     assert row.flag("sigma_b") == NOT_IDENTIFIED
     assert "not identified" in table_markdown([row])
+
+
+def test_a_noise_density_with_a_wide_interval_is_doubtful_for_sigma_w_and_n(analysed):
+    res = analysed[1]
+    fit = res.noise_model
+    assert noise_rows([res])[0].flags.get("sigma_w", "") == ""  # a tight sigma_w is a plain number
+    # the interval finescale.white_bound gives when the slow terms reach the fine scales
+    wide = replace(fit, ci90={**fit.ci90, "sigma_w": (0.75 * fit.sigma_w, 1.01 * fit.sigma_w)})
+    row = noise_rows([replace(res, noise_model=wide)])[0]
+    assert row.flag("sigma_w") == DOUBTFUL and row.flag("N") == DOUBTFUL
+    assert f"doubtful ({fit.sigma_w:.3g})" in table_markdown([row])
+    assert r"\textsuperscript{d}" in table_latex([row])
+    line = next(csv.DictReader(io.StringIO(table_csv([row]))))
+    assert line["sigma_w_flag"] == DOUBTFUL and float(line["sigma_w"]) == fit.sigma_w
 
 
 def test_model_names_are_spelled_out_in_every_help():

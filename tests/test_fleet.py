@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,8 +14,16 @@ from click.testing import CliRunner
 from imustation.acquisition import capture, load_config
 from imustation.analysis.pipeline import parallel
 from imustation.analysis.pipeline.channel import channel_document
-from imustation.analysis.pipeline.fleet import device_key, flag_outliers, fleet_rows, repeatability, robust_z
+from imustation.analysis.pipeline.fleet import (
+    FleetRow,
+    device_key,
+    flag_outliers,
+    fleet_rows,
+    repeatability,
+    robust_z,
+)
 from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks, run_tasks
+from imustation.analysis.reports.tables import DOUBTFUL
 from imustation.cli import cli
 
 GLOB = "*/gyro/z"
@@ -231,6 +240,26 @@ def test_robust_z_spread_has_a_floor_from_the_standard_errors():
     out = np.log10(np.append(sw, 3 * 1.234e-4))
     z = robust_z(out, np.append(se_log, 0.5))  # one degenerate standard error does not move the median floor
     assert z[-1] > 3.5 and np.all(np.abs(z[:-1]) < 1.0)
+
+
+def test_a_doubtful_noise_density_is_not_judged():
+    """Five runs whose sigma_w agree within 0.2 % and a sixth 8 % low, whose interval (-25..+1 %:
+    the slow terms reach the fine scales) holds the others: no outlier (the group's spread, floored
+    by its median standard error, is not the scale of that value), but a plain value would be one."""
+
+    def row(sw: float, lo: float, hi: float, flags: dict) -> FleetRow:
+        vals = {"sigma_w": sw, "sigma_b": 1e-6, "tau_b": 300.0}
+        se = {"sigma_w": 0.002 * sw, "sigma_b": 1e-7, "tau_b": 30.0}
+        return FleetRow("r", "lab", "g", "mpu9150", "", "k", "gyro", "x", 1, 200.0, "wn+gm", True, vals, se,
+                        {**vals, "sigma_w": lo}, {**vals, "sigma_w": hi}, flags=flags)  # fmt: skip
+
+    sws = [1.000e-4, 1.001e-4, 0.999e-4, 1.002e-4, 0.998e-4]
+    rows = [row(s, 0.997 * s, 1.003 * s, {}) for s in sws] + [row(0.92e-4, 0.69e-4, 0.93e-4, {"sigma_w": DOUBTFUL})]
+    judged = flag_outliers(rows)
+    assert math.isnan(judged[-1].z["sigma_w"]) and not judged[-1].outliers
+    assert all(math.isfinite(r.z["sigma_w"]) and not r.outliers for r in judged[:-1])
+    plain = flag_outliers([*rows[:-1], replace(rows[-1], flags={})])[-1]
+    assert "sigma_w" in plain.outliers
 
 
 def test_help():

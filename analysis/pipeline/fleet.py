@@ -91,7 +91,7 @@ class FleetRow:
     hi: dict[str, float]
     z: dict[str, float] = field(default_factory=dict)
     outliers: tuple[str, ...] = ()
-    #: quantities that are not plain estimates (tables.NOT_FITTED, AT_BOUND, NOT_IDENTIFIED)
+    #: quantities that are not plain estimates (tables.NOT_FITTED, AT_BOUND, NOT_IDENTIFIED, DOUBTFUL)
     flags: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -254,7 +254,8 @@ def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group:
             with np.errstate(divide="ignore", invalid="ignore"):
                 logv = np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), np.nan)
             logv[~np.isfinite(v)] = np.nan
-            logv[[bool(rows[i].flags.get(q)) for i in idx]] = np.nan  # at a bound / not identified: no estimate
+            # at a bound / not identified: no estimate; doubtful: an interval far wider than the group spread
+            logv[[bool(rows[i].flags.get(q)) for i in idx]] = np.nan
             se = np.array([_log10_se(rows[i], q) for i in idx])
             for i, z in zip(idx, robust_z(logv, se), strict=True):
                 zs[i][q] = float(z)

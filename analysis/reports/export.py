@@ -78,6 +78,7 @@ from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
 from imustation.analysis.pipeline.choices import RW_CONVERSIONS
+from imustation.analysis.reports.tables import DOUBTFUL_RATIO
 from imustation.errors import InputError
 from imustation.units import G0
 
@@ -193,19 +194,17 @@ def inflate_sensors(
 
 #: a bias parameter whose 90 % interval spans more than this factor is "poorly determined"
 WIDE_INTERVAL = 10.0
-#: a noise density whose 90 % interval spans more than this factor (about +-5 %) is flagged
-WIDE_NOISE_INTERVAL = 1.1
 
 
 def _noise_doubts(res: ChannelAnalysis, fit) -> str:
     """Why ``fit``'s white-noise density is doubtful ("" if it is not): its model does not fit the
-    measured Allan deviation, or its 90 % interval is wider than :data:`WIDE_NOISE_INTERVAL`."""
+    measured Allan deviation, or its 90 % interval is wider than :data:`~.tables.DOUBTFUL_RATIO`."""
     doubts = []
     adq = res.adequacy_of(fit)
     if adq is not None and adq.verdict == NO_FIT:
         doubts.append(f"the model does not fit the Allan deviation ({adq.summary()})")
     lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
-    if not (lo > 0 and math.isfinite(hi)) or hi / lo > WIDE_NOISE_INTERVAL:
+    if not (lo > 0 and math.isfinite(hi)) or hi / lo > DOUBTFUL_RATIO:
         doubts.append(f"90 % interval {lo:.3g} .. {hi:.3g}")
     return "; ".join(doubts)
 

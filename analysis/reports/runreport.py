@@ -212,7 +212,9 @@ def report_run(
         f'<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: {html.escape(estimator)} fit of the '
         f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured. "
         "—: not fitted (the Allan fit did not need the term); at bound: the fit stopped at its search bound; "
-        "not identified: the 90 % interval is missing or spans more than two decades. "
+        "not identified: the 90 % interval is missing or spans more than two decades; doubtful: σ_w's 90 % "
+        "interval spans more than a factor 1.1, because slow terms reach the fine scales (σ_w and N of that axis "
+        "rest on a shape nothing measures; the summary gives the interval, docs/noise-model.md “Intervals”). "
         "Model fit: does the fitted model explain the measured Allan variance within its sampling "
         "uncertainty, correlations across τ included (a generalised χ² test at 1 %, docs/noise-model.md "
         "“Model adequacy”); where it does not, the τ ranges and whether the model is low or high there "

@@ -51,6 +51,7 @@ __all__ = [
     "param_flag",
     "param_key",
     "ieee_flag",
+    "density_flag",
     "by_sensor",
     "split_channel_id",
     "table_csv",
@@ -81,10 +82,16 @@ UNIDENTIFIED_RATIO = 100.0
 #: two-sided 90 % normal quantile, for intervals built from a standard error
 Z90 = 1.6448536269514722
 
+#: a noise density (sigma_w) whose 90 % interval spans more than this ratio is "doubtful": the
+#: slow terms reach the fine scales, where sigma_w rests on a shape nothing measures
+#: (docs/noise-model.md, "Intervals"); the IEEE-952 N of that channel has the same limit
+DOUBTFUL_RATIO = 1.1
+
 #: value flags (the CSV's ``<q>_flag``)
 NOT_FITTED = "not fitted"
 AT_BOUND = "at bound"
 NOT_IDENTIFIED = "not identified"
+DOUBTFUL = "doubtful"
 #: what a table cell shows for a value that is absent or not fitted
 DASH = "—"
 
@@ -138,6 +145,12 @@ def param_flag(fit, name: str) -> str:
     return ""
 
 
+def density_flag(fit) -> str:
+    """:data:`DOUBTFUL` when ``fit``'s sigma_w has a 90 % interval wider than :data:`DOUBTFUL_RATIO`, else ""."""
+    lo, hi = (float(v) for v in fit.ci90.get("sigma_w", (math.nan, math.nan)))
+    return DOUBTFUL if lo > 0 and math.isfinite(hi) and hi / lo > DOUBTFUL_RATIO else ""
+
+
 def ieee_flag(value: float) -> str:
     """IEEE-952 terms the Allan fit did not need are 0: "not fitted", not a measurement of zero."""
     return NOT_FITTED if value == 0.0 else ""
@@ -146,7 +159,8 @@ def ieee_flag(value: float) -> str:
 @dataclass(frozen=True)
 class NoiseRow:
     """One axis of the table; ``values`` in SI, keyed by :data:`QUANTITIES`; ``flags`` the
-    quantities that are not plain estimates (:data:`NOT_FITTED`, :data:`AT_BOUND`, :data:`NOT_IDENTIFIED`)."""
+    quantities that are not plain estimates (:data:`NOT_FITTED`, :data:`AT_BOUND`, :data:`NOT_IDENTIFIED`,
+    :data:`DOUBTFUL`)."""
 
     device: str
     sensor: str
@@ -186,6 +200,9 @@ def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
         }
         flags = {q: param_flag(fit, q) for q in ("sigma_b", "tau_b")}
         flags |= {q: ieee_flag(vals[q]) for q in ("N", "B", "K")}
+        # sigma_w and N read the same fine scales: a doubt about one is a doubt about the other
+        flags["sigma_w"] = density_flag(fit)
+        flags["N"] = flags["N"] or flags["sigma_w"]
         flags = {q: f for q, f in flags.items() if f}
         adq = r.adequacy_of(r.noise_model)
         verdict = (adq.verdict, adq.p_value, "; ".join(m.describe() for m in adq.misfit)) if adq else ("", math.nan, "")
@@ -210,6 +227,8 @@ def fmt_flagged(x: float | None, flag: str, digits: int = 3) -> str:
         return f"at bound ({fmt_number(x, digits)})"
     if flag == NOT_IDENTIFIED:
         return NOT_IDENTIFIED
+    if flag == DOUBTFUL:
+        return f"doubtful ({fmt_number(x, digits)})"
     return fmt_number(x, digits)
 
 
@@ -289,7 +308,7 @@ def _latex_num(x: float, flag: str = "") -> str:
     m, e = f"{x:.2e}".split("e")
     e = int(e)
     num = f"${m}$" if e == 0 else rf"${m}\times10^{{{e}}}$"
-    return num + r"\textsuperscript{b}" if flag == AT_BOUND else num
+    return num + {AT_BOUND: r"\textsuperscript{b}", DOUBTFUL: r"\textsuperscript{d}"}.get(flag, "")
 
 
 def _latex_text(s: str) -> str:
