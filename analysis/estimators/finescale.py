@@ -365,8 +365,9 @@ def white_bound(
         return (math.nan, math.nan)
     t = np.array([k, 2 * k]) / fs_hz
     g = np.array([-t[0], 2.0 * t[1]])
-    U = float(g @ np.array([got[k], got[2 * k]]))
-    var = float(g @ _cov(np.array([got[k], got[2 * k]]), [k, 2 * k], len(rate)) @ g)
+    avar = np.array([got[k], got[2 * k]])
+    U = float(g @ avar)
+    var = float(g @ _cov(avar, [k, 2 * k], len(rate)) @ g)
     per_block = [float(g @ row) for row in block_oavar(rate, fs_hz, [k, 2 * k], BLOCKS, scale=scale, segments=segments)
                  if np.all(np.isfinite(row))]  # fmt: skip
     if len(per_block) >= BLOCKS // 2:

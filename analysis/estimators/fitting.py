@@ -306,9 +306,10 @@ def build_result(
     b_on = float(prof.b_on[0])
     names = spec.phi_names()
     lo, hi = problem.lo, problem.hi
+    edge = [j for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3]
     # a coordinate at its search bound (a term the data do not support) is held there for the
     # intervals of the others: its flat or one-sided likelihood would leave every interval undefined
-    free = [0] + [1 + j for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) >= 1e-3]
+    free = [0] + [1 + j for j in range(spec.d) if j not in edge]
     H = observed_information(problem, phi)
     free = identified(H, free)
     cov = _embed(information_cov(H[np.ix_(free, free)]), free, len(phi))
@@ -329,7 +330,7 @@ def build_result(
         if np.all(np.isfinite(scale)):
             cov = cov * np.outer(scale, scale)
     params = dict(zip(names, np.exp(phi).tolist(), strict=True))
-    at_bound = {names[1 + j] for j in range(spec.d) if min(theta[j] - lo[j], hi[j] - theta[j]) < 1e-3}
+    at_bound = {names[1 + j] for j in edge}
     # order several Gauss-Markov terms by correlation time (the likelihood is symmetric)
     ngm = spec.codes.count("gm")
     if ngm > 1:

@@ -78,7 +78,7 @@ from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
 from imustation.analysis.pipeline.choices import RW_CONVERSIONS
-from imustation.analysis.reports.tables import DOUBTFUL_RATIO
+from imustation.analysis.reports.tables import density_flag
 from imustation.errors import InputError
 from imustation.units import G0
 
@@ -198,13 +198,13 @@ WIDE_INTERVAL = 10.0
 
 def _noise_doubts(res: ChannelAnalysis, fit) -> str:
     """Why ``fit``'s white-noise density is doubtful ("" if it is not): its model does not fit the
-    measured Allan deviation, or its 90 % interval is wider than :data:`~.tables.DOUBTFUL_RATIO`."""
+    measured Allan deviation, or its 90 % interval is missing or doubtful (:func:`~.tables.density_flag`)."""
     doubts = []
     adq = res.adequacy_of(fit)
     if adq is not None and adq.verdict == NO_FIT:
         doubts.append(f"the model does not fit the Allan deviation ({adq.summary()})")
     lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
-    if not (lo > 0 and math.isfinite(hi)) or hi / lo > DOUBTFUL_RATIO:
+    if density_flag(fit) or not (lo > 0 and math.isfinite(hi)):  # wide, or no interval at all
         doubts.append(f"90 % interval {lo:.3g} .. {hi:.3g}")
     return "; ".join(doubts)
 

@@ -335,19 +335,19 @@ class NoiseSource:
 
 
 def _profile_for_axes(
-    profile: Mapping[str, float | tuple[float, ...]], profile_axes: Sequence[str], axes: Sequence[str], table_key: str
+    profile: Mapping[str, float | tuple[float, ...]], profile_axes: list[str], axes: Sequence[str], table_key: str
 ) -> dict[str, float | tuple[float, ...]]:
     """The profile's per-axis values (given for ``profile_axes``, in that order) for the ``axes`` asked for."""
+    missing = [a for a in axes if a not in profile_axes]
     out: dict[str, float | tuple[float, ...]] = {}
     for key, value in profile.items():
         if isinstance(value, tuple):
-            missing = [a for a in axes if a not in profile_axes]
             if missing or len(value) != len(profile_axes):
                 raise SettingError(
                     f"profile of {table_key}: {key} is given for axes {', '.join(profile_axes)}, "
                     f"not for {', '.join(missing) or 'these'}"
                 )
-            value = tuple(value[list(profile_axes).index(a)] for a in axes)
+            value = tuple(value[profile_axes.index(a)] for a in axes)
         out[key] = value
     return out
 
