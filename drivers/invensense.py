@@ -103,6 +103,10 @@ STARTUP_WAIT_S = 0.070
 #: after clearing SLEEP before the next register write: Linux inv_mpu6050_set_power_itg sleeps
 #: INV_MPU6050_REG_UP_TIME_MIN..MAX = 5..10 ms there; a write sooner may be lost
 WAKE_WAIT_S = 0.010
+#: after wake-up before the temperature is valid: Linux inv_mpu_iio.h INV_MPU6050_TEMP_UP_TIME
+#: (100 ms, waited after enabling the temperature sensor; older versions after any sensor): the
+#: FIFO, which carries the temperature in every frame, is enabled no sooner
+TEMP_UP_WAIT_S = 0.100
 
 
 # --- tables --------------------------------------------------------------------------
@@ -407,8 +411,9 @@ class InvenSenseIMU:
 
         The order is Linux inv_mpu6050's: after clearing SLEEP nothing is written for
         ``WAKE_WAIT_S`` (a write sooner may be lost); the clock is switched to the gyro PLL only
-        after the gyro has run its start-up time (``STARTUP_WAIT_S``), which also keeps the
-        start-up samples out of the FIFO (it is enabled afterwards). Every setting is read back.
+        after the gyro has run its start-up time (``STARTUP_WAIT_S``); the FIFO is enabled only
+        once the temperature is valid too (``TEMP_UP_WAIT_S`` after waking), so no start-up
+        sample enters it. Every setting is read back.
         """
         self.regs.write(REG_PWR_MGMT_1, bytes([PWR1_DEVICE_RESET]))
         self._sleep(RESET_WAIT_S)
@@ -423,6 +428,7 @@ class InvenSenseIMU:
         self._sleep(STARTUP_WAIT_S)  # the gyro runs (on the internal oscillator)
         self.regs.write(REG_PWR_MGMT_1, bytes([CLKSEL.encode(CLKSEL_PLL_XGYRO)]))
         self._read_back(config, CLKSEL.encode(CLKSEL_PLL_XGYRO))
+        self._sleep(max(0.0, TEMP_UP_WAIT_S - WAKE_WAIT_S - STARTUP_WAIT_S))  # the temperature is valid
         self._reset_fifo()  # leaves FIFO_EN routing and USER_CTRL.FIFO_EN set
         self.regs.read(REG_INT_STATUS, 1)  # clear the flags the start-up raised
         self._stuck = False

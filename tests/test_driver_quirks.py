@@ -255,7 +255,7 @@ def test_quirks_key_checked(tmp_path):
     cfg = load_config(p)
     assert cfg.devices[0].sim["quirks"] == ["stuck_overflow_bit", "async_reset_tail"]
     p.write_text(base + 'quirks = ["sticky"]\n')
-    with pytest.raises(ConfigError, match=r"sim.quirks.*unknown quirk 'sticky'"):
+    with pytest.raises(ConfigError, match=r"sim.quirks.*quirk names from.*'sticky' is none of them"):
         load_config(p)
     clock = VirtualClock()
     settings = MPU6500Driver.check_settings({})
@@ -263,3 +263,23 @@ def test_quirks_key_checked(tmp_path):
     assert sim.quirks == {"stuck_overflow_bit"}
     with pytest.raises(SettingError, match=r"'trailing_blanks' is not a quirk of driver 'mpu6500'"):
         make_simulator("mpu6500", clock, settings, {"quirks": ["trailing_blanks"]}, 1)
+
+
+@pytest.mark.parametrize("driver", ["mpu9150", "mpu6500"])
+def test_fifo_enabled_once_the_temperature_is_valid(driver):
+    # Linux INV_MPU6050_TEMP_UP_TIME: 100 ms after power-up before the temperature is valid; every FIFO
+    # frame carries it, so the routing goes on no sooner than 100 ms after the wake-up write
+    clock, sim, drv, _ = quirky(driver)
+    times = {}
+    on_write = sim.on_write
+
+    def log(reg, value):
+        if reg == chip.REG_PWR_MGMT_1 and value == 0:
+            times["wake"] = clock.now_ns()
+        if reg == chip.REG_FIFO_EN and value:
+            times["fifo"] = clock.now_ns()
+        on_write(reg, value)
+
+    sim.on_write = log
+    drv.open()
+    assert times["fifo"] - times["wake"] >= 0.100e9

@@ -36,11 +36,12 @@ ALL_QUIRKS = tuple(sorted({name for table in QUIRKS.values() for name in table})
 
 def quirks_problem(value: object) -> str | None:
     """What is wrong with a ``sim.quirks`` value, whatever the driver (``None``: nothing)."""
+    names = f"a list of quirk names from {', '.join(ALL_QUIRKS)}"
     if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-        return f"a list of quirk names ({', '.join(ALL_QUIRKS)})"
+        return names
     unknown = [v for v in value if v not in ALL_QUIRKS]
     if unknown:
-        return f"unknown quirk {unknown[0]!r} (known: {', '.join(ALL_QUIRKS)})"
+        return f"{names} ({unknown[0]!r} is none of them)"
     return None
 
 
