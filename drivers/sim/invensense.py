@@ -28,6 +28,14 @@ lists each rule, its source and the test that checks it):
 * FIFO_COUNT_H latches both count bytes; read-only registers ignore writes;
   interrupt status bits are set only for enabled sources and cleared only by
   reading INT_STATUS.
+
+Field quirks the register maps leave out, shown when named (``quirks``,
+:mod:`imustation.drivers.sim.quirks`; "Field quirks" in the conformance table):
+``stuck_overflow_bit`` (FIFO_OFLOW_INT always reads 1), ``async_reset_tail`` (a
+FIFO reset while FIFO_EN routes sensors leaves the tail of the frame being
+written), ``wake_write_loss`` (writes lost for 5 ms after SLEEP is cleared). A
+switch of the MPU-6050 set to a gyro PLL before its gyro has run is counted
+(``sim_pll_without_gyro``).
 """
 
 from __future__ import annotations
