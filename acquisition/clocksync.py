@@ -187,3 +187,30 @@ class StepWatch:
             f"host wall clock stepped by {step * 1e-9:+.3f} s (CLOCK_REALTIME - CLOCK_MONOTONIC changed); "
             "sample times are monotonic and unaffected"
         )
+
+
+class ClockWatch:
+    """The host clock seen by one capture: its state at each part's start, and the steps since.
+
+    ``adjtimex`` and ``clocks`` are injectable (tests).
+    """
+
+    def __init__(
+        self, adjtimex: Callable[[], KernelTime | None] = kernel_adjtimex, clocks: HostClocks | None = None
+    ) -> None:
+        self._adjtimex = adjtimex
+        self.steps = StepWatch(clocks)
+        self.state: SyncState | None = None
+
+    def sync(self) -> SyncState:
+        """Read the synchronisation state now (at the start of a part)."""
+        self.state = read_sync(self._adjtimex)
+        return self.state
+
+    def check(self, t_ns: int) -> str | None:
+        return self.steps.check(t_ns)
+
+    def status(self) -> dict[str, Any]:
+        """The status document's ``clock``: the last state read and the steps seen."""
+        state = self.state or SyncState(None, source="unavailable")
+        return {**state.status(), "steps": self.steps.steps}
