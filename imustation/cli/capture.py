@@ -52,6 +52,18 @@ def _workers(value: str, cfg, can: bool) -> int:
     return n
 
 
+def _bring_up_check(cfg, seconds: float, *, simulate: bool, sim_level: str, fsync: bool) -> None:
+    """``capture --check``: the report on stdout, exit status 1 for NO-GO."""
+    from imustation.acquisition.bringup import run_check
+
+    click.echo(f"checking {cfg.name} for {format_duration(seconds)} (keep the rig still) ...", err=True)
+    report = run_check(cfg, seconds, simulate=simulate, sim_level=sim_level, fsync=fsync)
+    for line in report.lines():
+        click.echo(line)
+    if not report.go:
+        raise SystemExit(1)
+
+
 @cli.command()
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", default="run.h5", show_default=True, help="Run file to create (HDF5).")
@@ -70,6 +82,14 @@ def _workers(value: str, cfg, can: bool) -> int:
     help="Continue the run at OUTPUT as its next part if it exists (after a crash, power cut or stop): same run, "
     "the outage a logged gap, a cut-off part recovered first; --duration counts from the run's start. "
     "Without a run there, a new one starts (docs/capture.md).",
+)
+@click.option(
+    "--check",
+    default=None,
+    metavar="DURATION",
+    help="Bring-up check instead of a run: capture DURATION (e.g. 30s) into a temporary file and report per "
+    "device the rate reached, losses, gravity, gyro bias against the range, temperatures, then GO / NO-GO "
+    "(exit status 0 / 1). The rig must stand still.",
 )
 @click.option("--quiet", is_flag=True, help="No live status (errors and the final summary only).")
 @click.option("--json-status", is_flag=True, help="Print the status as one JSON line per interval on stdout.")
@@ -142,6 +162,7 @@ def capture(
     sim_speed: float | None,
     no_fsync: bool,
     resume: bool,
+    check: str | None,
 ) -> None:
     """Record every device and thermometer of CONFIG into a run file (format v1).
 
@@ -160,6 +181,9 @@ def capture(
     if resume and overwrite:
         raise InputError("--resume continues the run at -o; --overwrite would replace it: give one of them")
     cfg = load_config(config)
+    if check is not None:
+        _bring_up_check(cfg, parse_duration(check), simulate=simulate, sim_level=sim_level, fsync=not no_fsync)
+        return
     # outputs before any device is touched (existing parts of a rotated capture: the recorder's check)
     check_file(output, overwrite=overwrite or bool(rotate) or resume)
     if trace_file is not None:
