@@ -255,7 +255,8 @@ class Recorder:
         self.devices = [run_file_device(d) for d in devices]
         self.thermometers = dict(thermometers)
         if self.resume is not None:
-            check_layout(self.resume, self.devices)
+            check_layout(self.resume, self.devices, self.thermometers)
+            self.resume.commit()
             self.started_utc, self.run_id = self.resume.started_utc, self.resume.run_id
         else:
             self.started_utc = utc_now_iso()

@@ -89,6 +89,17 @@ class ResumePoint:
     note: str = ""
     #: the run's last file as found (a single-file run keeps its name until a part follows it)
     last_path: str = ""
+    #: the run is one file (no parts): it becomes part 1 when the resumed capture starts
+    single: bool = False
+
+    def commit(self) -> None:
+        """The resumed capture starts (its devices opened and checked): a single-file run becomes part 1."""
+        if self.single:
+            self.run_id = _make_part_one(self.output, self.previous)
+            self.single = False
+            self.done.append(
+                f"{os.path.basename(self.output)} became part 1 of its run: {os.path.basename(self.previous)}"
+            )
 
     @property
     def previous(self) -> str:
@@ -135,24 +146,14 @@ def prepare_resume(
                 "resume with the same config"
             )
         number = int(attrs.get("part", 1))
-        devices, layout = {}, {}
-        for name, info in run.devices.items():
-            layout[name] = _layout(
-                info.driver, info.rate_hz, {c: (ch.scale, ch.offset) for c, ch in info.channels.items()}
-            )
-            if info.n:
-                t = int(run.read(name, TIME, info.n - 1)[0])
-                c = int(run.read(name, COUNTER, info.n - 1)[0]) if info.has_counter else None
-                modulus = int(info.settings.get("counter_modulus", 0) or 0)
-                devices[name] = Edge(t, 1e9 / info.rate_hz, c, modulus)
-        thermometers = {}
-        for name in run.thermometers:
-            t, _ = run.temperatures(name)
-            rate = run.thermometer_rate_hz(name)
-            if len(t) and rate:
-                thermometers[name] = Edge(int(t[-1]), 1e9 / rate)
+        layout = {
+            name: _layout(info.driver, info.rate_hz, {c: (ch.scale, ch.offset) for c, ch in info.channels.items()})
+            for name, info in run.devices.items()
+        }
+        layout.update({f"thermometer {n}": ("thermometer", run.thermometer_rate_hz(n)) for n in run.thermometers})
         started_utc = str(attrs["started_utc"])
         run_id = str(attrs.get("run_id", ""))
+    devices, thermometers = _edges(parts)
     last_t = max([e.t_ns for e in (*devices.values(), *thermometers.values())], default=0)
     started = _dt.datetime.fromisoformat(started_utc)
     if simulated:  # virtual time: the outage is what passed on the wall since the killed part's last write
@@ -181,19 +182,43 @@ def prepare_resume(
         note=note,
         last_path=last,
     )
-    if single and point.remaining_s(duration_s) > 0:
-        point.run_id = _make_part_one(output, part_path(output, 1))
-        point.done.append(f"{os.path.basename(output)} became part 1 of its run: {os.path.basename(point.previous)}")
+    point.single = single
     return point
+
+
+def _edges(parts: list[str]) -> tuple[dict[str, Edge], dict[str, Edge]]:
+    """Each device's and thermometer's last sample in the run (a part killed right after a hand-over may
+    hold none of a device's: its last sample is then in a part before)."""
+    devices: dict[str, Edge] = {}
+    thermometers: dict[str, Edge] = {}
+    for path in reversed(parts):
+        with open_run(path) as run:
+            for name, info in run.devices.items():
+                if name not in devices and info.n:
+                    t = int(run.read(name, TIME, info.n - 1)[0])
+                    c = int(run.read(name, COUNTER, info.n - 1)[0]) if info.has_counter else None
+                    modulus = int(info.settings.get("counter_modulus", 0) or 0)
+                    devices[name] = Edge(t, 1e9 / info.rate_hz, c, modulus)
+            for name in run.thermometers:
+                rate = run.thermometer_rate_hz(name)
+                if name not in thermometers and rate:
+                    t, _ = run.temperatures(name)
+                    if len(t):
+                        thermometers[name] = Edge(int(t[-1]), 1e9 / rate)
+            if all(n in devices for n in run.devices) and all(n in thermometers for n in run.thermometers):
+                break
+    return devices, thermometers
 
 
 def _layout(driver: str, rate_hz: float, channels: Mapping[str, tuple[float, float]]) -> tuple:
     return driver, float(rate_hz), tuple(sorted((c, float(s), float(o)) for c, (s, o) in channels.items()))
 
 
-def check_layout(point: ResumePoint, devices: list[DeviceSpec]) -> None:
-    """The resumed capture records what the run recorded: the same devices, rates and channel scales."""
+def check_layout(point: ResumePoint, devices: list[DeviceSpec], thermometers: Mapping[str, float]) -> None:
+    """The resumed capture records what the run recorded: the same devices, rates and channel scales, and
+    the same thermometers at the same poll rates."""
     new = {d.name: _layout(d.driver, d.rate_hz, {c.name: (c.scale, c.offset) for c in d.channels}) for d in devices}
+    new.update({f"thermometer {n}": ("thermometer", float(rate)) for n, rate in thermometers.items()})
     if new == point.layout:
         return
     differ = sorted(n for n in set(new) | set(point.layout) if new.get(n) != point.layout.get(n))

@@ -174,3 +174,12 @@ def test_a_wall_clock_behind_the_last_sample_is_noted(cfg_path, tmp_path):
 
     point = prepare_resume(str(out), load_config(cfg_path), 60.0, simulated=False, now=lambda: started)
     assert point is not None and point.outage_s == 1.0 and "outage's length is unknown" in point.note
+
+
+def test_resume_refuses_a_thermometer_polled_at_another_rate(cfg_path, tmp_path):
+    out = tmp_path / "t.h5"
+    capture(load_config(cfg_path), out, 20.0, simulate=True, fsync=False)
+    cfg_path.write_text(CONFIG.replace('bus = "i2c:1"\nrate_hz = 1', 'bus = "i2c:1"\nrate_hz = 2'))
+    res = CliRunner().invoke(cli, ["capture", str(cfg_path), "--simulate", "-o", str(out), "--resume", "--quiet"])
+    assert res.exit_code == 2 and "cannot resume: thermometer room now differ(s)" in res.output
+    assert out.exists() and not (tmp_path / "t.001.h5").exists()  # nothing renamed, nothing added
