@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.clocksync import (
@@ -16,6 +17,7 @@ from imustation.acquisition.clocksync import (
     kernel_adjtimex,
     read_sync,
 )
+from imustation.cli import cli
 from imustation.cli.statusview import header
 from imustation.runfile import open_run
 
@@ -98,6 +100,9 @@ def test_capture_stores_the_state_and_logs_a_step_with_sample_times_unaffected(t
         assert len(steps) == 1 and "+5.000 s" in steps[0].detail and steps[0].kind == "note"
         assert not [e for e in b.events() if "stepped" in e.detail]
         assert np.array_equal(a.read("gyro", "t"), b.read("gyro", "t"))  # monotonic times: unaffected
+    res = CliRunner().invoke(cli, ["inspect", str(tmp_path / "a.h5")])
+    assert "host clock at the start: synchronised, estimated error 1.2 ms, at most 15.0 ms" in res.output
+    assert "host wall clock stepped by +5.000 s" in res.output
     final = statuses[-1]
     assert final["clock"] == {"sync": "synchronised", "est_error_s": 1.2e-3, "max_error_s": 15e-3, "steps": 1}
     assert "clock synced ±1.2 ms, STEPPED 1x" in header({**final, "speed": 1.0})  # a real capture's header
