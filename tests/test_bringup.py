@@ -135,3 +135,10 @@ def test_devices_cli_exit_status_and_remedies(tmp_path):
     assert "host clock:" in res.output
     res = CliRunner().invoke(cli, ["devices", str(p), "--simulate"])
     assert res.exit_code == 0, res.output
+
+
+def test_nack_on_a_simulated_bus_names_wiring_and_strap(tmp_path):
+    body = I2C + '  [device.sim]\n  faults = [{kind = "disconnect", at_s = 0, duration_s = 100}]\n'
+    (f,) = check_station(config(tmp_path, body), simulate=True, clock=VirtualClock())
+    assert not f.ok and f.cause == "nothing answers at i2c:1@0x68"
+    assert "pull-ups" in f.remedy and "address strap" in f.remedy and "i2cdetect -y 1" in f.remedy
