@@ -135,9 +135,11 @@ def prepare_resume(
         if os.path.exists(first):
             raise RunFileError(f"{output}: {first} exists too; move one of them away before resuming")
         parts = [output]
+    last = parts[-1]
+    # its last write, before a recovery rewrites it (a simulation's outage is measured from there)
+    last_write = _dt.datetime.fromtimestamp(os.path.getmtime(last), _dt.UTC)
     for path in parts:
         done += _recover(path)
-    last = parts[-1]
     with open_run(last) as run:
         attrs = run.attrs
         if str(attrs.get("station", "")) != config.name:
@@ -157,7 +159,6 @@ def prepare_resume(
     last_t = max([e.t_ns for e in (*devices.values(), *thermometers.values())], default=0)
     started = _dt.datetime.fromisoformat(started_utc)
     if simulated:  # virtual time: the outage is what passed on the wall since the killed part's last write
-        last_write = _dt.datetime.fromtimestamp(os.path.getmtime(last), _dt.UTC)
         outage_ns = int((now() - last_write).total_seconds() * 1e9)
     else:
         outage_ns = int((now() - started).total_seconds() * 1e9) - last_t
@@ -235,7 +236,7 @@ def _recover(path: str) -> list[str]:
     if complete and not needs_recovery(path):
         return []
     rec = recover_run(path)
-    return [f"{path}: {rec.statement()}"] if rec is not None else []
+    return [f"{os.path.basename(path)}: {rec.statement()}"] if rec is not None else []
 
 
 def _make_part_one(path: str, first: str) -> str:
