@@ -130,7 +130,9 @@ def _check_one(
         line = _open(what, entry, driver_cls, buses, clock)
     except ImustationError as exc:
         cause, remedy = explain(kind, entry, driver_cls, exc)
-        if kind == "serial" and not isinstance(exc, BusClosed) and bauds:
+        # a port that opened but gave nothing readable: the line rate, most likely (a refused setting
+        # or a config contradiction is not)
+        if kind == "serial" and not isinstance(exc, (BusClosed, SettingError, ConfigError)) and bauds:
             cause, remedy = _baud_probe(entry, driver_cls, simulate, clock, seed, bauds) or (cause, remedy)
         return replace(base, detail=str(exc), cause=cause, remedy=remedy)
     notes = () if simulate or kind != "serial" else _stable_name_note(entry, view)

@@ -142,3 +142,10 @@ def test_nack_on_a_simulated_bus_names_wiring_and_strap(tmp_path):
     (f,) = check_station(config(tmp_path, body), simulate=True, clock=VirtualClock())
     assert not f.ok and f.cause == "nothing answers at i2c:1@0x68"
     assert "pull-ups" in f.remedy and "address strap" in f.remedy and "i2cdetect -y 1" in f.remedy
+
+
+def test_a_refused_setting_is_not_taken_for_a_baud_mismatch(tmp_path):
+    """400 Hz MTi output does not fit 115200 baud: a setting to change, not a line rate to probe."""
+    body = '[[device]]\nname = "mti"\ndriver = "mti"\nbus = "serial:/dev/ttyUSB0?baud=115200"\nrate_hz = 400\n'
+    (f,) = check_station(config(tmp_path, body), simulate=True, clock=VirtualClock())
+    assert not f.ok and f.cause == "a setting the device refuses" and "rate_hz = 200 or less" in f.detail
