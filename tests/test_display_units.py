@@ -128,7 +128,7 @@ def test_a_noise_density_with_a_wide_interval_is_doubtful_for_sigma_w_and_n(anal
 def test_model_names_are_spelled_out_in_every_help():
     from click.testing import CliRunner
 
-    from imustation.analysis.estimators.noise_models import _TERM_ORDER
+    from imustation.analysis.estimators.models.noise_models import _TERM_ORDER
     from imustation.analysis.pipeline.choices import MODEL_TERMS
     from imustation.cli import cli
 

@@ -13,10 +13,15 @@ import math
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators.model_choice import choose_model, flicker_cut, flicker_cuts
-from imustation.analysis.estimators.noise_models import NoiseModel, WhiteRate
-from imustation.analysis.estimators.paramspec import ParamSpec
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, BiasInstability, flicker_times, flicker_weights
+from imustation.analysis.estimators.engine.paramspec import ParamSpec
+from imustation.analysis.estimators.models.noise_models import NoiseModel, WhiteRate
+from imustation.analysis.estimators.models.sensor_terms import (
+    FLICKER_FLOOR,
+    BiasInstability,
+    flicker_times,
+    flicker_weights,
+)
+from imustation.analysis.estimators.selection.model_choice import choose_model, flicker_cut, flicker_cuts
 
 
 def test_a_cut_at_a_decade_is_the_sum_started_there():

@@ -53,23 +53,23 @@ for args in calls:
     assert _loaded_after(code, HEAVY) == []
 
 
-@pytest.mark.parametrize("module", ["imustation.analysis.estimators.models", "imustation.drivers.sim"])
+@pytest.mark.parametrize("module", ["imustation.analysis.estimators.models.standard", "imustation.drivers.sim"])
 def test_simulators_skip_the_estimators(module):
     assert _loaded_after(f"import {module}", ESTIMATORS) == []
 
 
 def test_noise_models_skip_scipy_stats():
-    assert _loaded_after("import imustation.analysis.estimators.models", ["scipy.stats"]) == []
+    assert _loaded_after("import imustation.analysis.estimators.models.standard", ["scipy.stats"]) == []
 
 
 def test_public_analysis_names_resolve():
     from imustation.analysis import StandardModel, fit_mli, oadev
 
     assert (oadev.__module__, fit_mli.__module__) == (
-        "imustation.analysis.estimators.allan",
-        "imustation.analysis.estimators.mli",
+        "imustation.analysis.estimators.classical.allan",
+        "imustation.analysis.estimators.ml.mli",
     )
-    assert StandardModel.__module__ == "imustation.analysis.estimators.models"
+    assert StandardModel.__module__ == "imustation.analysis.estimators.models.standard"
     assert sorted(analysis.__all__) == sorted(analysis._ORIGIN)
     for name in analysis.__all__:
         value = getattr(analysis, name)

@@ -7,18 +7,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imustation.analysis.estimators.adequacy import Adequacy
-from imustation.analysis.estimators.adequacy import fit_adequacy as result_adequacy
-from imustation.analysis.estimators.allan import AllanResult, oadev
-from imustation.analysis.estimators.coefficients import ieee952_summary
-from imustation.analysis.estimators.composite import fit_composite
-from imustation.analysis.estimators.fitting import MLiResult
-from imustation.analysis.estimators.gmwm import fit_gmwm
-from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.estimators.mli import compare_models, fit_integrated
-from imustation.analysis.estimators.model_choice import ModelChoice, as_choice_result, choose_model
-from imustation.analysis.estimators.pattern import integrate
-from imustation.analysis.estimators.screen import screen
+from imustation.analysis.estimators.classical.allan import AllanResult, oadev
+from imustation.analysis.estimators.classical.ieee import IEEECoefficients, ieee_coefficients
+from imustation.analysis.estimators.engine.fitting import MLiResult
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import fit_composite
+from imustation.analysis.estimators.ml.gmwm import fit_gmwm
+from imustation.analysis.estimators.ml.mli import compare_models, fit_integrated
+from imustation.analysis.estimators.selection.adequacy import Adequacy
+from imustation.analysis.estimators.selection.adequacy import fit_adequacy as result_adequacy
+from imustation.analysis.estimators.selection.coefficients import ieee952_summary
+from imustation.analysis.estimators.selection.model_choice import ModelChoice, as_choice_result, choose_model
+from imustation.analysis.estimators.selection.screen import screen
 from imustation.analysis.pipeline.choices import (
     DEFAULT_ESTIMATOR,
     DEFAULT_METHOD,
@@ -81,7 +81,7 @@ class ChannelAnalysis:
 
 class DegenerateChannel(InputError):
     """A channel with nothing to characterise (constant, saturated, stuck, all quantisation):
-    skipped with its reason (:mod:`imustation.analysis.estimators.screen`); ``kind`` names which."""
+    skipped with its reason (:mod:`imustation.analysis.estimators.selection.screen`); ``kind`` names which."""
 
     def __init__(self, message: str, kind: str) -> None:
         super().__init__(message)

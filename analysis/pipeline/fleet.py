@@ -106,7 +106,7 @@ def _f(x) -> float:
 
 def _by_model(candidates) -> dict:
     """One converged candidate per model name: a model fitted with and without a flicker cut-off
-    (:mod:`imustation.analysis.estimators.model_choice`) is represented by the fit that passes the
+    (:mod:`imustation.analysis.estimators.selection.model_choice`) is represented by the fit that passes the
     adequacy test with the smallest BIC (the smallest BIC when none passes); the cut-off is that
     run's setting of the model, like its filter's time constant."""
     groups: dict[str, list] = {}
@@ -123,7 +123,7 @@ def _by_model(candidates) -> dict:
 def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
     """``results`` with one noise model per (driver, sensor, axis) where ``--model auto`` chose.
 
-    Every run's choice fitted the same candidates (:mod:`imustation.analysis.estimators.model_choice`);
+    Every run's choice fitted the same candidates (:mod:`imustation.analysis.estimators.selection.model_choice`);
     per group the model kept is, among the candidates every run fitted and converged, the one
     the adequacy test passes on every run with the smallest BIC summed over the runs (the
     likelihood of the group); when none passes everywhere, the smallest summed BIC. Each run

@@ -269,7 +269,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
 @functools.lru_cache(maxsize=16)
 def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float]:
     """(end of warm-up s, temperature span after it K) of a device; NaN without a temperature channel."""
-    from imustation.analysis.reports.temperature import detect_warmup, device_temperature
+    from imustation.analysis.estimators.classical.temperature import detect_warmup, device_temperature
     from imustation.errors import InputError
 
     try:

@@ -71,9 +71,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-from imustation.analysis.estimators.adequacy import NO_FIT
-from imustation.analysis.estimators.noise_models import GaussMarkov
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
+from imustation.analysis.estimators.models.noise_models import GaussMarkov
+from imustation.analysis.estimators.models.sensor_terms import FLICKER_FLOOR
+from imustation.analysis.estimators.selection.adequacy import NO_FIT
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES

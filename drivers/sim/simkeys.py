@@ -49,7 +49,7 @@ SIM_KEYS = (
     "warmup_tau_s",
     "faults",
     *GYRO_SIM_KEYS[6:],
-    # accelerometers (defaults: analysis.estimators.reference.ACCEL_DEFAULTS, not the paper)
+    # accelerometers (defaults: analysis.estimators.models.reference.ACCEL_DEFAULTS, not the paper)
     *(k for k in ACCEL_SIM_KEYS if k != "accel_replay"),
     # a recorded signal instead of the noise model (see ReplaySource)
     "replay",

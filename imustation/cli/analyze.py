@@ -260,7 +260,7 @@ def analyze(
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
-    from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
+    from imustation.analysis.estimators.ml.mli import DEFAULT_COMPARISON
     from imustation.analysis.pipeline.parallel import AnalysisOptions
 
     text = text_options(time_column, gyro_columns, accel_columns, gyro_unit)

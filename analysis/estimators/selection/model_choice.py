@@ -47,9 +47,11 @@ from functools import cached_property
 import numpy as np
 from scipy.special import ndtr
 
-from imustation.analysis.estimators.adequacy import NO_FIT, Adequacy, fit_adequacy
-from imustation.analysis.estimators.allan import AllanResult, oadev
-from imustation.analysis.estimators.composite import (
+from imustation.analysis.estimators.classical.allan import AllanResult, oadev
+from imustation.analysis.estimators.engine.fitting import Z90, MLiResult
+from imustation.analysis.estimators.engine.paramspec import ParamSpec
+from imustation.analysis.estimators.engine.pattern import check_rate, integrate
+from imustation.analysis.estimators.ml.composite import (
     DEFAULT_M,
     CompositeResult,
     _CompositeProblem,
@@ -57,11 +59,9 @@ from imustation.analysis.estimators.composite import (
     fine_scale,
     fit_composite_data,
 )
-from imustation.analysis.estimators.finescale import FilterHint, FineStatistic, fine_statistics
-from imustation.analysis.estimators.fitting import Z90, MLiResult
-from imustation.analysis.estimators.paramspec import ParamSpec
-from imustation.analysis.estimators.pattern import check_rate, integrate
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, flicker_times
+from imustation.analysis.estimators.ml.finescale import FilterHint, FineStatistic, fine_statistics
+from imustation.analysis.estimators.models.sensor_terms import FLICKER_FLOOR, flicker_times
+from imustation.analysis.estimators.selection.adequacy import NO_FIT, Adequacy, fit_adequacy
 from imustation.errors import InputError
 
 #: bias structures of the family, in stages of growing size

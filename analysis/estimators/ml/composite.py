@@ -42,7 +42,19 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from imustation.analysis.estimators.finescale import (  # noqa: F401 - re-exported: the statistic's old home
+from imustation.analysis.estimators.engine.fitting import (
+    Z90,
+    MLiResult,
+    ParamSpec,
+    Problem,
+    build_result,
+    full_nll,
+    optimise,
+)
+from imustation.analysis.estimators.engine.kalman import Profile
+from imustation.analysis.estimators.engine.newton import fd_derivatives, stencil
+from imustation.analysis.estimators.engine.pattern import Increments, check_rate, integrate
+from imustation.analysis.estimators.ml.finescale import (  # noqa: F401 - re-exported: the statistic's old home
     AUTO_SAMPLES,
     SLOW_SHARE,
     WHITE_Z,
@@ -52,21 +64,9 @@ from imustation.analysis.estimators.finescale import (  # noqa: F401 - re-export
     fine_scale,
     fine_statistics,
 )
-from imustation.analysis.estimators.fitting import (
-    Z90,
-    MLiResult,
-    ParamSpec,
-    Problem,
-    build_result,
-    full_nll,
-    optimise,
-)
-from imustation.analysis.estimators.kalman import Profile
-from imustation.analysis.estimators.mli import allan_start, grid_start
-from imustation.analysis.estimators.newton import fd_derivatives, stencil
-from imustation.analysis.estimators.noise_models import gm_unit_avar as _gm_unit_avar
-from imustation.analysis.estimators.noise_models import parse_model
-from imustation.analysis.estimators.pattern import Increments, check_rate, integrate
+from imustation.analysis.estimators.ml.mli import allan_start, grid_start
+from imustation.analysis.estimators.models.noise_models import gm_unit_avar as _gm_unit_avar
+from imustation.analysis.estimators.models.noise_models import parse_model
 from imustation.errors import InputError
 
 ESTIMATOR = "ML_i-F"
