@@ -69,7 +69,7 @@ def test_cut_offs_tried_are_two_per_decade_up_to_one_second():
 
 def test_without_cut_offs_to_try_the_choice_goes_on_uncut(monkeypatch):
     """A record sampled at 1 Hz or slower has no cut-off to try (its sum starts at 1 s)."""
-    from imustation.analysis.estimators import model_choice
+    from imustation.analysis.estimators.selection import model_choice
 
     monkeypatch.setattr(model_choice, "flicker_cuts", lambda fs, duration: [])
     fs = 100.0

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators import model_choice
+from imustation.analysis.estimators.selection import model_choice
 from imustation.analysis.estimators.selection.adequacy import FITS, NO_FIT
 
 

@@ -275,8 +275,8 @@ def test_filter_hints_from_device_settings():
 
 
 def test_model_help_names_every_term_code():
-    from imustation.analysis.estimators import model_choice
     from imustation.analysis.estimators.models.noise_models import TERM_CODES
+    from imustation.analysis.estimators.selection import model_choice
     from imustation.analysis.pipeline.choices import MODEL_HELP, PAPER_MODEL
 
     # the CLI's vocabulary loads without numpy, so it names the paper's model on its own: the same one

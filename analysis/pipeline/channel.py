@@ -32,6 +32,7 @@ from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
+from imustation.units import sensor_kind
 
 DOC_FORMAT = "imustation-analysis"
 DOC_VERSION = 1
@@ -252,3 +253,16 @@ def _noise_blocks(res: ChannelAnalysis) -> dict:
 def analysis_document(results: list[ChannelAnalysis]) -> dict:
     """The JSON document of docs/analysis-json.md."""
     return {"format": DOC_FORMAT, "version": DOC_VERSION, "channels": [channel_document(r) for r in results]}
+
+
+def split_channel_id(ch) -> tuple[str, str, str]:
+    """(device, sensor, axis) of a ``device/gyro|accel/axis`` id, else the sensor from the units."""
+    parts = ch.id.split("/")
+    kind = sensor_kind(ch.units, ch.id)
+    if kind is None:
+        raise InputError(
+            f"channel {ch.id}: units {ch.units!r} name neither a gyroscope (rad/s) nor an accelerometer (m/s^2)"
+        )
+    if len(parts) >= 3 and parts[-2] == kind:
+        return "/".join(parts[:-2]), kind, parts[-1]
+    return ch.id, kind, "-"
