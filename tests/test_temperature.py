@@ -9,10 +9,10 @@ import pytest
 
 from imustation.analysis.estimators.classical.temperature import (
     detect_warmup,
-    device_temperature,
     fit_tempco,
     fit_warmup,
 )
+from imustation.analysis.pipeline.loaders import device_temperature
 from imustation.analysis.reports.plots import bias_track
 from imustation.errors import InputError
 

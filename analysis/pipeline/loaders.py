@@ -254,3 +254,44 @@ def load_inputs(paths: Sequence[str], globs: Sequence[str] = (), fs_hz: float | 
         sel = f" matching {', '.join(globs)}" if globs else ""
         raise NoChannelsError(f"no channels{sel} in {', '.join(paths)}")
     return channels
+
+
+#: readings per second kept when a device's temperature channel is read (block means)
+TEMP_READ_HZ = 1.0
+
+
+def _t0_ns(run) -> int:
+    firsts = [int(run.dataset(d, "t")[0]) for d, info in run.devices.items() if info.n > 0]
+    return min(firsts) if firsts else 0
+
+
+def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
+    """A device's ``temp`` channel: times (s from the run's first sample) and °C, block-averaged to ~1 Hz.
+
+    Raises :class:`InputError` if the device has no temperature channel.
+    """
+    with open_series(path) as run:
+        info = run.devices.get(device)
+        if info is None or "temp" not in info.channels:
+            raise InputError(f"{path}: device {device} has no temperature channel")
+        ch = info.channels["temp"]
+        n = run.rows(device)
+        m = max(1, int(round(info.rate_hz / TEMP_READ_HZ)))
+        k = n // m
+        if k == 0:
+            raise InputError(f"{path}: device {device} has fewer than {m} temperature samples")
+        raw = run.read(device, "temp", 0, k * m).astype(np.float64)
+        raw = raw.reshape(k, m, -1).mean(axis=(1, 2)) if raw.ndim > 1 else raw.reshape(k, m).mean(axis=1)
+        t = run.read(device, "t", 0, k * m).astype(np.int64).reshape(k, m)[:, m // 2]
+        t0 = _t0_ns(run)
+    return (t - t0) * 1e-9, raw * ch.scale + ch.offset
+
+
+def thermometer_temperature(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Thermometer ``name`` (e.g. MCP9804): times (s from the run's first sample) and °C."""
+    with open_series(path) as run:
+        if name not in run.thermometers:
+            raise InputError(f"{path}: no thermometer {name} (have: {', '.join(run.thermometers) or 'none'})")
+        t, c = run.temperatures(name)
+        t0 = _t0_ns(run)
+    return (np.asarray(t, dtype=np.int64) - t0) * 1e-9, np.asarray(c, dtype=np.float64)
