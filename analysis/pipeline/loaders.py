@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import fnmatch
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -254,6 +255,46 @@ def load_inputs(paths: Sequence[str], globs: Sequence[str] = (), fs_hz: float | 
         sel = f" matching {', '.join(globs)}" if globs else ""
         raise NoChannelsError(f"no channels{sel} in {', '.join(paths)}")
     return channels
+
+
+def recording_channels(devices: Mapping[str, Any], path: str, globs: Sequence[str] = ()) -> list[Channel]:
+    """The rate channels of a field recording streamed into memory, as :func:`load_run` gives them
+    for the recording imported (ids, rates, units, samples, gap count, segments, metadata), except
+    ``source``: ``path``, the recording.
+
+    ``devices``: name -> streamed device (``spec``, ``t_ns``, ``columns``, ``events``, as
+    :func:`imustation.acquisition.importers.stream_recording` returns them; duck-typed, so the
+    analysis imports nothing from acquisition). Split at every hole, as :func:`load_run`:
+    those the stamps show and those the loss events locate (:func:`record_breaks`).
+    """
+    out = []
+    # devices and channels in the order a run file lists them (by name): the same table as the imported run's
+    for name, dev in sorted(devices.items()):
+        spec = dev.spec
+        breaks = [ev for ev in dev.events if ev.kind in ("gap", "overrun")]
+        segments = None
+        for ch in sorted(spec.channels, key=lambda c: c.name):
+            if ch.name not in RATE_CHANNELS or not ch.axes:
+                continue
+            for j, axis in enumerate(ch.axes):
+                cid = f"{name}/{ch.name}/{axis}"
+                if globs and not any(fnmatch.fnmatchcase(cid, g) for g in globs):
+                    continue
+                if segments is None:
+                    at = record_breaks(dev.t_ns, breaks, spec.rate_hz)
+                    segments = segments_from_breaks(at, len(dev.t_ns))
+                meta = {
+                    "device": name,
+                    "driver": spec.driver,
+                    "model": spec.model,
+                    "identity": spec.identity,
+                    "station": "import",
+                    "settings": {"rate_hz": spec.rate_hz, **spec.settings},
+                }
+                data = dev.columns[ch.name][j]
+                out.append(Channel(cid, spec.rate_hz, ch.units, data, ch.scale, source=path, gaps=len(breaks),
+                                   meta=meta, segments=list(segments)))  # fmt: skip
+    return out
 
 
 #: readings per second kept when a device's temperature channel is read (block means)
