@@ -13,6 +13,7 @@ import pytest
 
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.reports.analyzetable import results_table
 from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
 from imustation.analysis.reports.tables import (
     AT_BOUND,
@@ -25,7 +26,6 @@ from imustation.analysis.reports.tables import (
     table_latex,
     table_markdown,
 )
-from imustation.cli.analyze import results_table
 from imustation.units import G0, display_units, sensor_kind
 
 FS = 100.0
