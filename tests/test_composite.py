@@ -15,14 +15,13 @@ from imustation.analysis.estimators.engine.fitting import ParamSpec, full_nll
 from imustation.analysis.estimators.engine.pattern import integrate
 from imustation.analysis.estimators.ml.composite import (
     ESTIMATOR,
-    _CompositeProblem,
-    _gm_unit_avar,
+    CompositeProblem,
     fine_scale,
     fit_composite,
     fit_composite_data,
 )
 from imustation.analysis.estimators.ml.mli import fit_integrated
-from imustation.analysis.estimators.models.noise_models import GaussMarkov, parse_model, standard
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, gm_unit_avar, parse_model, standard
 from imustation.analysis.pipeline.study import run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
@@ -43,7 +42,7 @@ def record():
 def test_vectorised_gm_avar_is_the_library_closed_form(tau_b, samples):
     tau = samples / FS
     ref = GaussMarkov(1.0, tau_b).avar(np.array([tau]), FS)[0]
-    assert _gm_unit_avar(np.array([tau_b]), tau, FS)[0] == pytest.approx(ref, rel=1e-12)
+    assert gm_unit_avar(np.array([tau_b]), tau, FS)[0] == pytest.approx(ref, rel=1e-12)
 
 
 def test_fine_scale_is_the_overlapping_allan_variance_at_one_sample(record):
@@ -66,7 +65,7 @@ def test_counts_and_scaled_floats_give_the_same_statistic():
 def test_composite_nll_is_ml_i_likelihood_plus_the_fine_term_at_the_profiled_sigma_w(record):
     inc = integrate(record, FS, m=500, pattern="uniform")
     fine = fine_scale(record, FS)
-    problem = _CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
+    problem = CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
     theta = np.array([[math.log((2e-5 / 1e-3) ** 2), math.log(60.0)], [math.log(1e-6), math.log(500.0)]])
     prof = problem.profile(theta)
     A = problem.unit_avar(theta)  # (K, 1): one fine scale

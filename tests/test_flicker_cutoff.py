@@ -110,7 +110,7 @@ def test_fleet_takes_a_models_fit_that_passes_whether_cut_or_not():
     """A run's model fitted with and without a cut-off is one model for the fleet: the fit that passes."""
     from types import SimpleNamespace as NS
 
-    from imustation.analysis.pipeline.fleet import _by_model
+    from imustation.analysis.pipeline.fleet import by_model
 
     def cand(model, bic, passes, converged=True):
         return NS(result=NS(model=model, bic=bic, converged=converged), passes=passes)
@@ -118,7 +118,7 @@ def test_fleet_takes_a_models_fit_that_passes_whether_cut_or_not():
     uncut, cut = cand("wn+fl+rw", 100.0, False), cand("wn+fl+rw", 100.4, True)
     other = cand("wn+gm", 90.0, False)
     unconverged = cand("wn+gm+fl", 50.0, True, converged=False)
-    got = _by_model([other, uncut, cut, unconverged])
+    got = by_model([other, uncut, cut, unconverged])
     assert got == {"wn+fl+rw": cut, "wn+gm": other}
     # none passes: the smallest BIC
-    assert _by_model([uncut, cand("wn+fl+rw", 101.0, False)])["wn+fl+rw"] is uncut
+    assert by_model([uncut, cand("wn+fl+rw", 101.0, False)])["wn+fl+rw"] is uncut

@@ -95,12 +95,13 @@ def test_library_modules_use_the_cli_vocabularies():
     from imustation.analysis.pipeline import channel as pipeline
     from imustation.analysis.pipeline import choices, study
     from imustation.analysis.reports import export
+    from imustation.units import TIME_UNITS
 
     assert pipeline.ESTIMATORS is choices.ESTIMATORS and pipeline.METHODS is choices.METHODS
     assert pipeline.DEFAULT_ESTIMATOR is choices.DEFAULT_ESTIMATOR
     assert export.FORMATS is choices.EXPORT_FORMATS and export.SOURCES is choices.EXPORT_SOURCES
     assert export.RW_CONVERSIONS is choices.RW_CONVERSIONS
-    assert study.ESTIMATORS is choices.STUDY_ESTIMATORS and logs.TIME_UNITS is choices.TIME_UNITS
+    assert study.ESTIMATORS is choices.STUDY_ESTIMATORS and logs.TIME_UNITS is TIME_UNITS
 
 
 def test_analyze_options_carry_the_library_values():

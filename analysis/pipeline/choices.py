@@ -47,6 +47,3 @@ DEFAULT_STUDY_ESTIMATORS = ("mli-log",)
 EXPORT_FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
 EXPORT_SOURCES = ("model", "mli", "ieee")
 RW_CONVERSIONS = ("diffusion", "tau_b")
-
-#: time units of text logs -> nanoseconds (``import --time-unit``, acquisition/importers/logs.py)
-TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}

@@ -97,7 +97,7 @@ class FleetRow:
         return (self.driver, self.sensor, self.axis)
 
 
-def _by_model(candidates) -> dict:
+def by_model(candidates) -> dict:
     """One converged candidate per model name: a model fitted with and without a flicker cut-off
     (:mod:`imustation.analysis.estimators.selection.model_choice`) is represented by the fit that passes the
     adequacy test with the smallest BIC (the smallest BIC when none passes); the cut-off is that
@@ -132,7 +132,7 @@ def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
     for members in groups.values():
         if len(members) < 2:
             continue
-        cands = [_by_model(results[i].choice.candidates) for i in members]
+        cands = [by_model(results[i].choice.candidates) for i in members]
         shared = set.intersection(*(set(c) for c in cands))
         if not shared:
             continue

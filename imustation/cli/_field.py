@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from imustation.analysis.pipeline.choices import TIME_UNITS
+from imustation.units import TIME_UNITS
 
 if TYPE_CHECKING:
     from imustation.analysis.pipeline.loaders import Channel

@@ -53,8 +53,8 @@ from imustation.analysis.estimators.engine.paramspec import ParamSpec
 from imustation.analysis.estimators.engine.pattern import check_rate, integrate
 from imustation.analysis.estimators.ml.composite import (
     DEFAULT_M,
+    CompositeProblem,
     CompositeResult,
-    _CompositeProblem,
     angle_scale,
     fine_scale,
     fit_composite_data,
@@ -223,7 +223,7 @@ def _levels(kind: str, T: float) -> list[float]:
 
 
 def family_starts(
-    problem: _CompositeProblem, fine: FineStatistic, fitted: list[MLiResult], n_best: int = 2
+    problem: CompositeProblem, fine: FineStatistic, fitted: list[MLiResult], n_best: int = 2
 ) -> list[np.ndarray]:
     """Start points (theta) of a candidate: every combination of the values its terms take in the
     smaller fits (by name) and of default levels (:func:`_levels`; Gauss-Markov terms: correlation
@@ -325,7 +325,7 @@ def choose_model(
             return
         if fine.term:
             spec = replace(spec, angle_scale=angle_scale(fine))
-        problem = _CompositeProblem(inc, spec, fine)
+        problem = CompositeProblem(inc, spec, fine)
         if start_from is not None and start_from.phi is not None:  # the same model with another setting
             starts = [np.clip(spec.theta_of_phi(start_from.phi[None, :])[0], problem.lo, problem.hi)]
         else:
