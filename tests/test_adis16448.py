@@ -5,7 +5,7 @@ import pytest
 
 from imustation.clock import VirtualClock
 from imustation.drivers import adis16448 as adis
-from imustation.drivers.bus.spi import open_spi
+from imustation.drivers.bus.spi_open import open_spi
 from imustation.drivers.sim.adis16448 import ADIS16448Sim, burst_crc_rows
 from imustation.drivers.sim.faults import FaultPlan, FaultSpec
 from imustation.drivers.sim.sources import NoiseSource

@@ -59,7 +59,7 @@ def make(settings=None, source=None, address=0x68):
 
 
 def chip_model():
-    from imustation.analysis.estimators.models import StandardModel
+    from imustation.analysis.estimators.models.standard import StandardModel
 
     return StandardModel(1e-4, 1e-6, 500.0)
 

@@ -233,7 +233,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
     :data:`DEFAULT_NEED` the fitted model has.
 
     Warm-up and temperature span come from the device's temperature channel
-    when ``ch`` is a run-file channel that has one (:func:`.temperature.device_temperature`).
+    when ``ch`` is a run-file channel that has one (:func:`.loaders.device_temperature`).
     """
     duration = ch.n / ch.fs_hz
     tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
@@ -269,7 +269,8 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
 @functools.lru_cache(maxsize=16)
 def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float]:
     """(end of warm-up s, temperature span after it K) of a device; NaN without a temperature channel."""
-    from imustation.analysis.reports.temperature import detect_warmup, device_temperature
+    from imustation.analysis.estimators.classical.temperature import detect_warmup
+    from imustation.analysis.pipeline.loaders import device_temperature
     from imustation.errors import InputError
 
     try:

@@ -52,7 +52,7 @@ SIM_KEYS = (
     # field quirks the chip simulator shows (drivers/sim/quirks.py)
     "quirks",
     *GYRO_SIM_KEYS[6:],
-    # accelerometers (defaults: analysis.estimators.reference.ACCEL_DEFAULTS, not the paper)
+    # accelerometers (defaults: analysis.estimators.models.reference.ACCEL_DEFAULTS, not the paper)
     *(k for k in ACCEL_SIM_KEYS if k != "accel_replay"),
     # a recorded signal instead of the noise model (see ReplaySource)
     "replay",

@@ -7,6 +7,10 @@ every dataset exists before recording starts, data are appended in blocks and
 flushed at least every ``flush_interval_s`` seconds of host time, so a file cut
 off by a crash opens and reads up to the last flush, and readers may open it
 while it is being written. ``ended_utc`` is set only by a clean close.
+
+Over 500 lines on purpose: one class that alone knows how the layout is written (datasets
+made before recording, appends, flushes, the clean close); reading and checking the format
+live in their own modules.
 """
 
 from __future__ import annotations

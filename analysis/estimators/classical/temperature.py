@@ -1,8 +1,9 @@
-"""Temperature: readings from run files, bias-vs-temperature regression, warm-up detection.
+"""Temperature statistics: bias-vs-temperature regression, warm-up detection.
 
-* :func:`device_temperature` / :func:`thermometer_temperature` read a device's
-  internal temperature channel or an MCP9804 room thermometer (°C, times in s
-  from the first sample of the run).
+Statistics only: the readings come from run files through
+:func:`imustation.analysis.pipeline.loaders.device_temperature` /
+:func:`~imustation.analysis.pipeline.loaders.thermometer_temperature`, or from the monitor.
+
 * :func:`fit_tempco` regresses the bias (block means of the rate) on the
   temperature interpolated to the block centres: slope in unit/K (e.g.
   rad/s/K; x 3600·180/π for °/h/K), with the OLS standard error and a
@@ -28,7 +29,7 @@
   warm-up: they average out of the fit. The paper discards at least the first
   hour; callers combine both (``max(detected, minimum)``).
 
-Estimators take arrays and return dataclasses; only the two readers touch files.
+Arrays in, dataclasses out; nothing here touches files.
 """
 
 from __future__ import annotations
@@ -39,55 +40,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from imustation.errors import InputError
-from imustation.runfile import open_series
 
 #: smallest temperature span (K) a coefficient is fitted over: about twice the finest MCP9804
 #: resolution (0.0625 degC); below it the slope is quantisation noise
 MIN_SPAN_C = 0.125
-#: readings per second kept when a device's temperature channel is read (block means)
-TEMP_READ_HZ = 1.0
 #: two-sided level of one temperature-coefficient significance test
 TEMPCO_ALPHA = 0.01
 #: family-wise level of a report's coefficients (every axis against every temperature, some tens of
 #: tests): Holm's step-down procedure (:func:`holm`) picks the ones the report lists
 TEMPCO_FAMILY_ALPHA = 0.05
-
-
-def _t0_ns(run) -> int:
-    firsts = [int(run.dataset(d, "t")[0]) for d, info in run.devices.items() if info.n > 0]
-    return min(firsts) if firsts else 0
-
-
-def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
-    """A device's ``temp`` channel: times (s from the run's first sample) and °C, block-averaged to ~1 Hz.
-
-    Raises :class:`InputError` if the device has no temperature channel.
-    """
-    with open_series(path) as run:
-        info = run.devices.get(device)
-        if info is None or "temp" not in info.channels:
-            raise InputError(f"{path}: device {device} has no temperature channel")
-        ch = info.channels["temp"]
-        n = run.rows(device)
-        m = max(1, int(round(info.rate_hz / TEMP_READ_HZ)))
-        k = n // m
-        if k == 0:
-            raise InputError(f"{path}: device {device} has fewer than {m} temperature samples")
-        raw = run.read(device, "temp", 0, k * m).astype(np.float64)
-        raw = raw.reshape(k, m, -1).mean(axis=(1, 2)) if raw.ndim > 1 else raw.reshape(k, m).mean(axis=1)
-        t = run.read(device, "t", 0, k * m).astype(np.int64).reshape(k, m)[:, m // 2]
-        t0 = _t0_ns(run)
-    return (t - t0) * 1e-9, raw * ch.scale + ch.offset
-
-
-def thermometer_temperature(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Thermometer ``name`` (e.g. MCP9804): times (s from the run's first sample) and °C."""
-    with open_series(path) as run:
-        if name not in run.thermometers:
-            raise InputError(f"{path}: no thermometer {name} (have: {', '.join(run.thermometers) or 'none'})")
-        t, c = run.temperatures(name)
-        t0 = _t0_ns(run)
-    return (np.asarray(t, dtype=np.int64) - t0) * 1e-9, np.asarray(c, dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ from functools import cache
 
 import numpy as np
 
-from imustation.analysis.estimators.allan import block_oavar, oadev
+from imustation.analysis.estimators.classical.allan import block_oavar, oadev
 from imustation.errors import InputError
 
 

@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 
-from imustation.analysis.estimators.fitting import MLiResult, ParamSpec, Problem, build_result, optimise
-from imustation.analysis.estimators.kalman import Profile
-from imustation.analysis.estimators.newton import NewtonResult
-from imustation.analysis.estimators.noise_models import parse_model
-from imustation.analysis.estimators.pattern import check_rate, sampling_pattern
-from imustation.analysis.estimators.scan import scan_affine, scan_moebius
+from imustation.analysis.estimators.engine.fitting import MLiResult, ParamSpec, Problem, build_result, optimise
+from imustation.analysis.estimators.engine.kalman import Profile
+from imustation.analysis.estimators.engine.newton import NewtonResult
+from imustation.analysis.estimators.engine.pattern import check_rate, sampling_pattern
+from imustation.analysis.estimators.engine.scan import scan_affine, scan_moebius
+from imustation.analysis.estimators.models.noise_models import parse_model
 from imustation.errors import InputError
 
 

@@ -52,8 +52,8 @@ class StandardModel:
         return np.sqrt(self.avar(tau))
 
     def to_noise_model(self):
-        """The same model as a :class:`imustation.analysis.estimators.noise_models.NoiseModel` (PSD, discretisation)."""
-        from imustation.analysis.estimators.noise_models import standard
+        """The same model as a :class:`.noise_models.NoiseModel` (PSD, discretisation)."""
+        from imustation.analysis.estimators.models.noise_models import standard
 
         return standard(self.sigma_w, self.sigma_b, self.tau_b, self.b_on)
 

@@ -19,7 +19,7 @@ and the total variance (eq. 25) uses the series reflected about both ends.
 The results equal allantools' ``oadev``, ``mdev``, ``ohdev``, ``totdev`` with
 ``data_type="freq"`` at the same taus (checked in the tests to 1e-9).
 
-Integer counts are integrated exactly (see :mod:`imustation.analysis.estimators._kernels`);
+Integer counts are integrated exactly (see :mod:`imustation.analysis.estimators.classical._kernels`);
 ``segments`` (contiguous sample ranges, e.g. ``Channel.segments``) are pooled:
 only difference terms lying wholly inside one segment are summed, and the
 variance divides by the total number of such terms - never across a gap.
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
-from imustation.analysis.estimators import _kernels
+from imustation.analysis.estimators.classical import _kernels
 from imustation.errors import InputError
 
 #: probability mass inside [adev_lo, adev_hi] (one sigma of a normal)

@@ -42,7 +42,19 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from imustation.analysis.estimators.finescale import (  # noqa: F401 - re-exported: the statistic's old home
+from imustation.analysis.estimators.engine.fitting import (
+    Z90,
+    MLiResult,
+    ParamSpec,
+    Problem,
+    build_result,
+    full_nll,
+    optimise,
+)
+from imustation.analysis.estimators.engine.kalman import Profile
+from imustation.analysis.estimators.engine.newton import fd_derivatives, stencil
+from imustation.analysis.estimators.engine.pattern import Increments, check_rate, integrate
+from imustation.analysis.estimators.ml.finescale import (  # noqa: F401 - re-exported: the statistic's old home
     AUTO_SAMPLES,
     SLOW_SHARE,
     WHITE_Z,
@@ -52,21 +64,9 @@ from imustation.analysis.estimators.finescale import (  # noqa: F401 - re-export
     fine_scale,
     fine_statistics,
 )
-from imustation.analysis.estimators.fitting import (
-    Z90,
-    MLiResult,
-    ParamSpec,
-    Problem,
-    build_result,
-    full_nll,
-    optimise,
-)
-from imustation.analysis.estimators.kalman import Profile
-from imustation.analysis.estimators.mli import allan_start, grid_start
-from imustation.analysis.estimators.newton import fd_derivatives, stencil
-from imustation.analysis.estimators.noise_models import gm_unit_avar as _gm_unit_avar
-from imustation.analysis.estimators.noise_models import parse_model
-from imustation.analysis.estimators.pattern import Increments, check_rate, integrate
+from imustation.analysis.estimators.ml.mli import allan_start, grid_start
+from imustation.analysis.estimators.models.noise_models import gm_unit_avar as _gm_unit_avar
+from imustation.analysis.estimators.models.noise_models import parse_model
 from imustation.errors import InputError
 
 ESTIMATOR = "ML_i-F"
@@ -77,7 +77,7 @@ DEFAULT_M = 1000
 FINE_SCALE_Z_LIMIT = 4.0
 
 
-class _CompositeProblem(Problem):
+class CompositeProblem(Problem):
     """ML_i's batched likelihood plus the fine-scale term; sigma_w^2 profiled by a cubic.
 
     The fine-scale term is ``(D - s A)^T W (D - s A) / 2`` for the Allan variances ``D``
@@ -208,7 +208,7 @@ def fit_composite_data(
             raise InputError(f"pattern intervals of {inc.dt.min():.3g} s: too short against the filter's memory")
     if multi and fine.term and ("lp" in spec.codes or "wa" in spec.codes):
         spec = replace(spec, angle_scale=angle_scale(fine))
-    problem = _CompositeProblem(inc, spec, fine)
+    problem = CompositeProblem(inc, spec, fine)
     spec = problem.spec
     if starts_only:
         starts = []
@@ -324,7 +324,7 @@ _PROFILE_AT = np.array([-3.0, -2.0, -1.2, 1.2, 2.0, 3.0])
 _DROP_CAP = 1e6
 
 
-def _profile_intervals(problem: _CompositeProblem, theta: np.ndarray, f_hat: float) -> list[tuple[float, float]]:
+def _profile_intervals(problem: CompositeProblem, theta: np.ndarray, f_hat: float) -> list[tuple[float, float]]:
     """90 % profile-likelihood intervals of both search coordinates (log r, log tau) of the standard model.
 
     For each coordinate the other one is re-optimised (batched 1-d Newton, both

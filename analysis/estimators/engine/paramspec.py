@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from imustation.analysis.estimators.noise_models import (
+from imustation.analysis.estimators.models.noise_models import (
     GaussMarkov,
     NoiseModel,
     RandomWalk,
@@ -28,7 +28,7 @@ from imustation.analysis.estimators.noise_models import (
     model_name,
     parse_model,
 )
-from imustation.analysis.estimators.sensor_terms import (
+from imustation.analysis.estimators.models.sensor_terms import (
     BiasInstability,
     LowPass,
     flicker_times,

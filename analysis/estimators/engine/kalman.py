@@ -2,7 +2,7 @@
 
 State ``x = [term states..., Omega]`` (``Omega`` the angle since the start of the
 current segment), transition and process noise from the closed-form
-discretisation of :mod:`imustation.analysis.estimators.noise_models`, observation
+discretisation of :mod:`imustation.analysis.estimators.models.noise_models`, observation
 ``Y_i = Omega(t_i) + b_on X_i + n_i`` with ``X_i`` the time since the segment
 start and ``n_i`` the angle noise of variance ``R`` (white angle noise; negative
 for a device low-pass filter, see :mod:`.sensor_terms`).
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from imustation.analysis.estimators.noise_models import F3_COEF, TermBlock
+from imustation.analysis.estimators.models.noise_models import F3_COEF, TermBlock
 
 
 @dataclass

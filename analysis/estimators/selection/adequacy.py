@@ -40,10 +40,10 @@ import numpy as np
 from scipy.special import ndtri_exp
 from scipy.stats import chi2, norm
 
-from imustation.analysis.estimators.allan import AllanResult
-from imustation.analysis.estimators.avar_cov import avar_covariance
-from imustation.analysis.estimators.fitting import MLiResult
-from imustation.analysis.estimators.noise_models import NoiseModel
+from imustation.analysis.estimators.classical.allan import AllanResult
+from imustation.analysis.estimators.classical.avar_cov import avar_covariance
+from imustation.analysis.estimators.engine.fitting import MLiResult
+from imustation.analysis.estimators.models.noise_models import NoiseModel
 from imustation.errors import InputError
 
 #: significance level of the verdict (a 31-channel lab that fits shows ~0.3 false "does not fit")

@@ -7,7 +7,7 @@ sigma_b rad s^-2/sqrt(Hz), tau_b s.
 
 from __future__ import annotations
 
-from imustation.analysis.estimators.models import StandardModel
+from imustation.analysis.estimators.models.standard import StandardModel
 
 #: Table IV, per device and gyro axis
 TABLE_IV: dict[str, dict[str, StandardModel]] = {

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.estimators.kalman import Layout
+from imustation.analysis.estimators.engine.kalman import Layout
 from imustation.errors import InputError
 
 

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from imustation.analysis.estimators.newton import FD_STEP
+from imustation.analysis.estimators.engine.newton import FD_STEP
 
 _LOG2PI = math.log(2.0 * math.pi)
 

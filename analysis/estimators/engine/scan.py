@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from imustation.analysis.estimators.kalman import Innovations, Profile
-from imustation.analysis.estimators.noise_models import f3
+from imustation.analysis.estimators.engine.kalman import Innovations, Profile
+from imustation.analysis.estimators.models.noise_models import f3
 
 
 def scan_moebius(mats: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:

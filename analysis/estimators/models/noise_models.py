@@ -339,7 +339,7 @@ class RateRamp(Term):
 # composite model
 
 
-_TERM_ORDER = {"wa": 0, "wn": 1, "gm": 2, "fl": 3, "rw": 4, "lp": 5}
+TERM_ORDER = {"wa": 0, "wn": 1, "gm": 2, "fl": 3, "rw": 4, "lp": 5}
 #: what each code of a model name stands for (``analyze --help``, docs/mli.md)
 TERM_CODES = {
     "wn": "white rate noise (angle random walk, IEEE-952 N)",
@@ -376,7 +376,7 @@ def parse_model(name: str) -> tuple[str, ...]:
         raise InputError(f"model {name!r}: 'wa' and 'lp' cannot be told apart; use one of them")
     if codes.count("gm") > 3:
         raise InputError(f"model {name!r}: at most 3 Gauss-Markov terms")
-    return tuple(sorted(codes, key=_TERM_ORDER.__getitem__))
+    return tuple(sorted(codes, key=TERM_ORDER.__getitem__))
 
 
 def model_name(codes: tuple[str, ...]) -> str:

@@ -47,21 +47,21 @@ from functools import cached_property
 import numpy as np
 from scipy.special import ndtr
 
-from imustation.analysis.estimators.adequacy import NO_FIT, Adequacy, fit_adequacy
-from imustation.analysis.estimators.allan import AllanResult, oadev
-from imustation.analysis.estimators.composite import (
+from imustation.analysis.estimators.classical.allan import AllanResult, oadev
+from imustation.analysis.estimators.engine.fitting import Z90, MLiResult
+from imustation.analysis.estimators.engine.paramspec import ParamSpec
+from imustation.analysis.estimators.engine.pattern import check_rate, integrate
+from imustation.analysis.estimators.ml.composite import (
     DEFAULT_M,
+    CompositeProblem,
     CompositeResult,
-    _CompositeProblem,
     angle_scale,
     fine_scale,
     fit_composite_data,
 )
-from imustation.analysis.estimators.finescale import FilterHint, FineStatistic, fine_statistics
-from imustation.analysis.estimators.fitting import Z90, MLiResult
-from imustation.analysis.estimators.paramspec import ParamSpec
-from imustation.analysis.estimators.pattern import check_rate, integrate
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, flicker_times
+from imustation.analysis.estimators.ml.finescale import FilterHint, FineStatistic, fine_statistics
+from imustation.analysis.estimators.models.sensor_terms import FLICKER_FLOOR, flicker_times
+from imustation.analysis.estimators.selection.adequacy import NO_FIT, Adequacy, fit_adequacy
 from imustation.errors import InputError
 
 #: bias structures of the family, in stages of growing size
@@ -223,7 +223,7 @@ def _levels(kind: str, T: float) -> list[float]:
 
 
 def family_starts(
-    problem: _CompositeProblem, fine: FineStatistic, fitted: list[MLiResult], n_best: int = 2
+    problem: CompositeProblem, fine: FineStatistic, fitted: list[MLiResult], n_best: int = 2
 ) -> list[np.ndarray]:
     """Start points (theta) of a candidate: every combination of the values its terms take in the
     smaller fits (by name) and of default levels (:func:`_levels`; Gauss-Markov terms: correlation
@@ -325,7 +325,7 @@ def choose_model(
             return
         if fine.term:
             spec = replace(spec, angle_scale=angle_scale(fine))
-        problem = _CompositeProblem(inc, spec, fine)
+        problem = CompositeProblem(inc, spec, fine)
         if start_from is not None and start_from.phi is not None:  # the same model with another setting
             starts = [np.clip(spec.theta_of_phi(start_from.phi[None, :])[0], problem.lo, problem.hi)]
         else:

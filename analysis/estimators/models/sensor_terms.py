@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from imustation.analysis.estimators.noise_models import GaussMarkov, Term, gm_unit_avar
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, Term, gm_unit_avar
 from imustation.errors import InputError
 
 #: Allan deviation floor of flicker noise over B (IEEE 952): sqrt(2 ln 2 / pi)

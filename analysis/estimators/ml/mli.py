@@ -1,6 +1,6 @@
 """ML_i: maximum likelihood on the integrated signal (Nikolic et al. 2016, §III, Algorithm 2).
 
-Rate noise models from :mod:`imustation.analysis.estimators.noise_models` (``"wn+gm"``
+Rate noise models from :mod:`imustation.analysis.estimators.models.noise_models` (``"wn+gm"``
 is the paper's eq. 22; also ``"wn+rw"``, ``"wn+gm+rw"``, ``"wn+2gm"``, ``"wa+wn"``,
 ``"wa+wn+gm"``, ...), each with a diffuse turn-on bias. The rate is integrated once
 (eq. 20) onto a sampling pattern (:mod:`.pattern`, log-spaced, m = 1000 by default) and
@@ -23,9 +23,9 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from imustation.analysis.estimators.fitting import MLiResult, ParamSpec, Problem, build_result, optimise
-from imustation.analysis.estimators.noise_models import parse_model
-from imustation.analysis.estimators.pattern import Increments, check_rate, integrate, pattern_avar
+from imustation.analysis.estimators.engine.fitting import MLiResult, ParamSpec, Problem, build_result, optimise
+from imustation.analysis.estimators.engine.pattern import Increments, check_rate, integrate, pattern_avar
+from imustation.analysis.estimators.models.noise_models import parse_model
 from imustation.errors import InputError
 
 # ---------------------------------------------------------------------------

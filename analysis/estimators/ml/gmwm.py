@@ -8,10 +8,10 @@ adjacent means of ``m = 2^(j-1)`` samples, so
 
 and the unbiased MODWT estimator (no boundary coefficients, ``M_j = N - tau_j + 1``
 terms) is exactly half the fully overlapping Allan variance at ``m = 2^(j-1)``.
-:func:`wavelet_variance` therefore reuses :func:`imustation.analysis.estimators.allan.oadev`
+:func:`wavelet_variance` therefore reuses :func:`imustation.analysis.estimators.classical.allan.oadev`
 (numba kernels, integer counts, gaps) instead of another pass over the data, and
 the theoretical WV of a model is half the exact sampled AVAR of
-:mod:`imustation.analysis.estimators.noise_models` (``avar(tau, fs_hz)``).
+:mod:`imustation.analysis.estimators.models.noise_models` (``avar(tau, fs_hz)``).
 
 Confidence intervals: chi-square with the equivalent degrees of freedom
 ``eta_j = max(M_j / 2^j, 1)`` (Percival & Walden 2000, *Wavelet Methods for Time
@@ -55,9 +55,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import least_squares, nnls
 
-from imustation.analysis.estimators.allan import chi2_bounds, oadev
-from imustation.analysis.estimators.fitting import MLiResult, ParamSpec, intervals
-from imustation.analysis.estimators.noise_models import (
+from imustation.analysis.estimators.classical.allan import chi2_bounds, oadev
+from imustation.analysis.estimators.engine.fitting import MLiResult, ParamSpec, intervals
+from imustation.analysis.estimators.models.noise_models import (
     GaussMarkov,
     NoiseModel,
     RandomWalk,
@@ -65,7 +65,7 @@ from imustation.analysis.estimators.noise_models import (
     WhiteRate,
     parse_model,
 )
-from imustation.analysis.estimators.sensor_terms import BiasInstability, LowPass
+from imustation.analysis.estimators.models.sensor_terms import BiasInstability, LowPass
 from imustation.errors import InputError
 
 #: default probability mass inside [wv_lo, wv_hi]
@@ -115,7 +115,7 @@ def wavelet_variance(
     fs_hz : sampling rate, Hz.
     scale : units per count for integer input.
     segments : contiguous sample ranges ``(start, stop)`` with data; no wavelet
-        coefficient spans a gap (pooled as in :func:`~imustation.analysis.estimators.allan.oadev`).
+        coefficient spans a gap (pooled as in :func:`~imustation.analysis.estimators.classical.allan.oadev`).
     confidence : probability of the chi-square interval (0 < confidence < 1).
     """
     if not 0.0 < confidence < 1.0:
@@ -271,7 +271,7 @@ def _refine(problem: _WVProblem, x0: np.ndarray, w: np.ndarray):
 
 @dataclass(frozen=True)
 class GMWMResult(MLiResult):
-    """GMWM estimate with the public fields of :class:`~imustation.analysis.estimators.mli.MLiResult`.
+    """GMWM estimate with the public fields of :class:`~imustation.analysis.estimators.ml.mli.MLiResult`.
 
     ``estimator = "GMWM"``, ``pattern = "wv-haar"``, ``m`` the number of wavelet
     scales used; ``nll``/``aic``/``bic`` are NaN (no likelihood); ``b_on`` is the
@@ -304,7 +304,7 @@ def fit_gmwm(
     rate : (n,) rate samples in rad/s (or m/s^2), or integer counts with ``scale``.
     fs_hz : sampling rate, Hz.
     model : ``"wn+gm"`` (standard model), ``"wn+rw"``, ``"wn+gm+rw"``, ``"wn+2gm"``,
-        ``"wa+wn+gm"``, ... (see :func:`~imustation.analysis.estimators.noise_models.parse_model`).
+        ``"wa+wn+gm"``, ... (see :func:`~imustation.analysis.estimators.models.noise_models.parse_model`).
     segments : contiguous sample ranges with data (gaps between them).
     starts : ``"grid"`` (correlation-time grid + NNLS, default) or ``"single"``.
     reweight : refits with weights from the fitted model's WV (0 = weights from nu_hat only).

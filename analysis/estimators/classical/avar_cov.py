@@ -53,7 +53,13 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from imustation.analysis.estimators.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteAngle, WhiteRate
+from imustation.analysis.estimators.models.noise_models import (
+    GaussMarkov,
+    NoiseModel,
+    RandomWalk,
+    WhiteAngle,
+    WhiteRate,
+)
 from imustation.errors import InputError
 
 #: integers summed exactly at each end of a smooth piece of the lag sum
@@ -87,7 +93,7 @@ class AngleKernel:
         lin = cub = delta = 0.0
         v, d = [], []
         # a bias instability is its fixed Gauss-Markov sum; a device filter beyond its memory is
-        # (negative) white angle noise (analysis/estimators/sensor_terms.py)
+        # (negative) white angle noise (analysis/estimators/models/sensor_terms.py)
         for t in (c for term in model.terms for c in term.components()):
             if isinstance(t, WhiteRate):
                 lin -= t.sigma_w**2 * dt / 2.0

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
-from imustation.analysis.estimators.allan import AllanResult
+from imustation.analysis.estimators.classical.allan import AllanResult
 from imustation.errors import InputError
 
 B_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643: flat ADEV of flicker noise / B

@@ -14,10 +14,10 @@ import math
 
 import numpy as np
 
-from imustation.analysis.estimators.fitting import Z90, MLiResult
-from imustation.analysis.estimators.model_choice import flicker_cut, mixed_interval
-from imustation.analysis.estimators.paramspec import ParamSpec
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
+from imustation.analysis.estimators.engine.fitting import Z90, MLiResult
+from imustation.analysis.estimators.engine.paramspec import ParamSpec
+from imustation.analysis.estimators.models.sensor_terms import FLICKER_FLOOR
+from imustation.analysis.estimators.selection.model_choice import flicker_cut, mixed_interval
 
 
 def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, ...] = ()) -> dict:

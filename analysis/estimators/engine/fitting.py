@@ -23,13 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imustation.analysis.estimators.kalman import Innovations, Profile, kalman_innovations
-from imustation.analysis.estimators.newton import NewtonResult, fd_derivatives, newton, stencil
-from imustation.analysis.estimators.noise_models import NoiseModel
-from imustation.analysis.estimators.paramspec import FOLD_FRACTION, ParamSpec
-from imustation.analysis.estimators.pattern import Increments
-from imustation.analysis.estimators.robust import sandwich
-from imustation.analysis.estimators.scan import standard_innovations
+from imustation.analysis.estimators.engine.kalman import Innovations, Profile, kalman_innovations
+from imustation.analysis.estimators.engine.newton import NewtonResult, fd_derivatives, newton, stencil
+from imustation.analysis.estimators.engine.paramspec import FOLD_FRACTION, ParamSpec
+from imustation.analysis.estimators.engine.pattern import Increments
+from imustation.analysis.estimators.engine.robust import sandwich
+from imustation.analysis.estimators.engine.scan import standard_innovations
+from imustation.analysis.estimators.models.noise_models import NoiseModel
 from imustation.errors import InputError
 
 _LOG2PI = math.log(2.0 * math.pi)
