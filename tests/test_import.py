@@ -125,7 +125,7 @@ def broken_record(n=3000):
 
 def text_log(tmp_path, t, g, a):
     p = tmp_path / "log.csv"
-    header = "timestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
+    header = "timestamp,acc_x [m/s^2],acc_y [m/s^2],acc_z [m/s^2],gyro_x [rad/s],gyro_y [rad/s],gyro_z [rad/s]"
     np.savetxt(p, np.column_stack([(t - T0) / 1e9 + 100.0, a, g]), delimiter=",", header=header, comments="",
                fmt="%.17g")  # fmt: skip
     return p
@@ -153,7 +153,7 @@ def test_streamed_channels_equal_the_imported_run(tmp_path, fmt):
     t, g, a = broken_record()
     src = text_log(tmp_path, t, g, a) if fmt == "csv" else bag_path(tmp_path, fmt, t, g, a)
     import_recording(str(src), str(tmp_path / "run.h5"))
-    text = {"time_col": None, "gyro_cols": None, "accel_cols": None, "gyro_unit": "rad/s"}
+    text = {"time_col": None, "gyro_cols": None, "accel_cols": None, "gyro_unit": None, "accel_unit": None}
     for globs in ([], ["*/gyro/y", "*/accel/*"]):
         ref = load_inputs([str(tmp_path / "run.h5")], globs)
         got = streamed_channels(str(src), globs, quiet=True, topic=None, time_unit=None, text=text)
@@ -224,7 +224,7 @@ def test_csv_log_auto_detected(tmp_path):
     t, g, a = record(2000)
     ts = (t - T0) / 1e9 + 100.0
     p = tmp_path / "log.csv"
-    header = "timestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
+    header = "# units: rad/s, m/s^2\ntimestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
     np.savetxt(p, np.column_stack([ts, a, g]), delimiter=",", header=header, comments="", fmt="%.17g")
     mp = text_mapping(str(p))
     assert (mp.time_col, mp.gyro_cols, mp.accel_cols, mp.time_unit) == (0, (4, 5, 6), (1, 2, 3), "s")
@@ -283,8 +283,9 @@ def test_bad_inputs(tmp_path):
         run("import", str(src), "-o", str(tmp_path / "o.h5"), "--topic", "/nope"), "rec.bag", "/nope", "/imu/data"
     )
     (tmp_path / "bad.csv").write_text("time,gx,gy,gz\n0.0,1,2,3\n0.005,1,x,3\n")
+    bad = ("import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.h5"), "--gyro-unit", "rad/s")
     assert_one_line_error(
-        run("import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.h5"), "--gyro-columns", "gx,gy,gz"),
+        run(*bad, "--gyro-columns", "gx,gy,gz"),
         "bad.csv",
         "line 3",
     )
