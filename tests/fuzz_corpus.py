@@ -278,7 +278,9 @@ def array_inputs(folder: Path, rng: random.Random) -> list[tuple[str, Path, dict
     """(name, file, expectation per reader) of CSV logs and .npy arrays."""
     t = np.arange(2000) / 100.0
     g = np.random.default_rng(rng.randrange(2**32)).normal(0, 0.01, (2000, 3))
-    good_csv = "t,gx,gy,gz\n" + "\n".join(f"{a:.3f},{b:.6f},{c:.6f},{d:.6f}" for a, (b, c, d) in zip(t, g, strict=True))
+    good_csv = "t,gx [rad/s],gy [rad/s],gz [rad/s]\n" + "\n".join(
+        f"{a:.3f},{b:.6f},{c:.6f},{d:.6f}" for a, (b, c, d) in zip(t, g, strict=True)
+    )
     lines = good_csv.split("\n")
     out = []
 

@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imustation.runfile.rate import PooledFit
+
 #: a step longer than this many nominal periods is a gap
 GAP_FACTOR = 1.5
 #: at most this many gaps / backward steps are listed individually (all are counted)
@@ -138,7 +140,7 @@ class StampChecker:
         self._reg_n = 0
         self._reg_sum = 0.0
         self._reg_sum2 = 0.0
-        self._fit = _PooledFit()
+        self._fit = PooledFit()
 
     def update(self, t_ns: np.ndarray) -> None:
         t = np.asarray(t_ns, dtype=np.int64)
@@ -225,85 +227,6 @@ class StampChecker:
                 r.true_rate_hz = 1e9 / period
                 r.rate_sigma_hz = r.true_rate_hz * sigma / period
         return r
-
-
-class _PooledFit:
-    """Streaming least-squares fit of stamps against sample index, one slope for every run of regular steps.
-
-    Each run (segment) keeps its count, index and stamp means and centred co-moments; runs are joined
-    across blocks with the pairwise update (Chan et al. 1979), so nothing but the open run is kept and
-    no large sums cancel. Stamps are taken relative to the record's first (exact in float64 to 104 days).
-    """
-
-    def __init__(self) -> None:
-        self.sxx = self.sxy = self.syy = 0.0
-        self.nodes = 0
-        self.runs = 0
-        self.open: list[float] | None = None  # n, mean k, mean t, Ckk, Ckt, Ctt of the open run
-
-    def update(self, t: np.ndarray, dt: np.ndarray, regular: np.ndarray, n0: int, first: int, cont: bool) -> None:
-        """``t``: the block's stamps (global indices from ``n0``); ``dt``/``regular``: the steps into each
-        of them (the first from the previous block's last stamp when ``cont``, else the steps between them)."""
-        k = n0 + np.arange(len(t), dtype=np.float64)
-        y = (t - first).astype(np.float64)
-        if cont:
-            brk = ~regular  # step j leads into sample j
-        else:
-            brk = np.concatenate([[True], ~regular])  # the record's first sample starts a run
-        if len(brk) != len(t):
-            raise ValueError("steps and stamps do not match")
-        seg = np.cumsum(brk)  # 0: continues the open run
-        nseg = int(seg[-1]) + 1
-        cnt = np.bincount(seg, minlength=nseg).astype(np.float64)
-        used = cnt > 0
-        mk = np.bincount(seg, k, nseg)[used] / cnt[used]
-        my = np.bincount(seg, y, nseg)[used] / cnt[used]
-        ids = np.flatnonzero(used)
-        where = np.searchsorted(ids, seg)
-        dk, dy = k - mk[where], y - my[where]
-        ckk = np.bincount(where, dk * dk, len(ids))
-        cky = np.bincount(where, dk * dy, len(ids))
-        cyy = np.bincount(where, dy * dy, len(ids))
-        stats = [[c, a, b, p, q, r] for c, a, b, p, q, r in zip(cnt[used], mk, my, ckk, cky, cyy, strict=True)]
-        if ids[0] == 0 and self.open is not None:
-            stats[0] = _merge(self.open, stats[0])
-        elif self.open is not None:
-            self._close(self.open)
-        for st in stats[:-1]:
-            self._close(st)
-        self.open = stats[-1]
-
-    def _close(self, st: list[float]) -> None:
-        n, _, _, ckk, cky, cyy = st
-        self.nodes += int(n)
-        if n >= 2:
-            self.runs += 1
-            self.sxx += ckk
-            self.sxy += cky
-            self.syy += cyy
-
-    def result(self) -> tuple[float, float, int]:
-        """``(period ns, its standard error ns, stamps fitted)``; period nan without a regular step."""
-        if self.open is not None:
-            self._close(self.open)
-            self.open = None
-        if self.sxx <= 0:
-            return math.nan, math.nan, 0
-        slope = self.sxy / self.sxx
-        fitted = self.nodes
-        dof = fitted - 2 * self.runs
-        sigma = math.sqrt(max(self.syy - slope * self.sxy, 0.0) / dof / self.sxx) if dof > 0 else math.nan
-        return slope, sigma, fitted
-
-
-def _merge(a: list[float], b: list[float]) -> list[float]:
-    """Two runs' (n, mean k, mean t, Ckk, Ckt, Ctt) joined (pairwise update of co-moments)."""
-    na, nb = a[0], b[0]
-    n = na + nb
-    dk, dy = b[1] - a[1], b[2] - a[2]
-    w = na * nb / n
-    return [n, a[1] + dk * nb / n, a[2] + dy * nb / n, a[3] + b[3] + w * dk * dk, a[4] + b[4] + w * dk * dy,
-            a[5] + b[5] + w * dy * dy]  # fmt: skip
 
 
 def check_stamps(t_ns: np.ndarray, gap_factor: float = GAP_FACTOR) -> StampReport:
