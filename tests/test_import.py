@@ -566,3 +566,57 @@ def test_a_truncated_ros1_bag_imports_every_message_before_the_cut(chunked_bag, 
         assert k == 6000 and "inside its index" in lines[0] and "no message lost" in lines[0]
     else:
         assert f"file ends at byte {cut}" in lines[0] and "not imported" in lines[0]
+
+
+def test_a_ros1_bag_cut_at_a_chunk_boundary_says_what_was_lost(chunked_bag, tmp_path):
+    """A bag cut exactly between two chunks read to its end without an error, and was reported
+    'cut inside its index ... no message lost' although most chunks were gone."""
+    import re
+
+    src, _compression, chunks, _ref = chunked_bag
+    data = src.read_bytes()
+    cut = chunks[3][0]  # the first byte of the fourth chunk
+    p = tmp_path / "cut.bag"
+    p.write_bytes(data[:cut])
+    res = run("import", str(p), "-o", str(tmp_path / "cut.h5"))
+    assert res.exit_code == 0, res.output
+    k = sum(n for _pos, n in chunks[:3])
+    line = next(ln for ln in res.output.splitlines() if "truncated bag" in ln)
+    assert "no message lost" not in line and f"{k} messages before the cut imported (3 of {len(chunks)} chunks)" in line
+    assert f"{len(chunks) - 3} chunks" in line and "cut between records" in line
+    about = int(re.search(r"~(\d+) messages", line).group(1))
+    assert abs(about - (6000 - k)) < 0.05 * (6000 - k)  # estimated from the bytes per message read
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap"])
+def test_an_empty_imu_topic_beside_a_good_one_is_skipped_and_named(tmp_path, fmt):
+    """Before: 'fewer than two increasing stamps; cannot tell the sample rate' for the whole bag."""
+    from bagmaker import _imu_msg
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+    imu = store.types["sensor_msgs/msg/Imu"].__msgtype__
+    ser = store.serialize_ros1 if fmt == "ros1" else store.serialize_cdr
+    if fmt == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        path, w = tmp_path / "two.bag", Writer(tmp_path / "two.bag")
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        path, w = tmp_path / "two", Writer(tmp_path / "two", version=9, storage_plugin=StoragePlugin.MCAP)
+    with w:
+        good = w.add_connection("/imu/data", imu, typestore=store)
+        one = w.add_connection("/imu/spare", imu, typestore=store)
+        w.add_connection("/imu/unused", imu, typestore=store)
+        for i in range(500):
+            t = T0 + i * PERIOD
+            w.write(good, t, bytes(ser(_imu_msg(store, fmt, i, t, (0.01, 0.0, 0.0), (0, 0, 9.8)), imu)))
+        w.write(one, T0, bytes(ser(_imu_msg(store, fmt, 0, T0, (0.01, 0.0, 0.0), (0, 0, 9.8)), imu)))
+    src = path if fmt == "ros1" else next(path.glob("*.mcap"))
+    res = run("import", str(src), "-o", str(tmp_path / "o.h5"))
+    assert res.exit_code == 0, res.output
+    assert "Imu topic /imu/spare skipped: 1 message" in res.output
+    assert "Imu topic /imu/unused skipped: 0 messages" in res.output
+    with open_run(tmp_path / "o.h5") as r:
+        assert list(r.devices) == ["imu_data"] and r.rows("imu_data") == 500

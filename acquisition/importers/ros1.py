@@ -34,21 +34,43 @@ def ros1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
 
 
 def cut_note(bag: Ros1Bag) -> str:
-    """One line on what a bag cut short or not closed held, after :meth:`.Ros1Bag.chunks` (else "")."""
+    """One line on what a bag cut short or not closed held, after :meth:`.Ros1Bag.chunks` (else "").
+
+    A closed bag's header says where its index starts and how many chunks it wrote, so a cut before
+    the index loses ``chunk_count - chunks_read`` chunks and the data bytes up to ``index_pos``; the
+    messages in them are estimated from the bytes per message of the chunks read (the index that
+    counted them is gone). A cut inside the index loses nothing only when every chunk was read.
+    """
     if bag.cut:
-        where = f"at byte {bag.unread_from}" if bag.unread_from is not None else "inside its index"
-        lost = f"bytes {bag.unread_from}-{bag.size} not imported" if bag.unread_from is not None else "no message lost"
-        return (
-            f"truncated bag: the file ends at byte {bag.size}, cut {where} (index at byte {bag.index_pos}); "
-            f"{bag.messages_read} messages before the cut imported ({bag.chunks_read} of {bag.chunk_count} chunks"
-            f"{f', {bag.salvaged} messages of the chunk cut short' if bag.salvaged else ''}), {lost}"
+        stop = bag.unread_from if bag.unread_from is not None else bag.size
+        missing = bag.chunk_count - bag.chunks_read
+        partial = f", {bag.salvaged} of the chunk cut short" if bag.salvaged else ""
+        head = (
+            f"truncated bag: the file ends at byte {bag.size}, cut "
+            f"{'at byte ' + str(bag.unread_from) if bag.unread_from is not None else _where(bag)} "
+            f"(index at byte {bag.index_pos}); {bag.messages_read} messages before the cut imported "
+            f"({bag.chunks_read} of {bag.chunk_count} chunks{partial})"
         )
+        if missing <= 0 and bag.unread_from is None:
+            return f"{head}, no message lost"
+        gone = max(bag.index_pos - stop, 0)
+        read = stop - bag.first_record
+        est = f"~{round(bag.messages_read * gone / read)}" if bag.messages_read and read > 0 else "an unknown number of"
+        # kept under the 256 bytes of an event's detail
+        return f"{head}; not imported: bytes {stop}-{bag.index_pos}, {missing} chunks, {est} messages (estimated)"
     if bag.unread_from is not None:
         return (
             f"unindexed bag (recording not closed): bytes {bag.unread_from}-{bag.size} unreadable, not imported "
             f"({bag.messages_read} messages before them imported)"
         )
     return ""
+
+
+def _where(bag: Ros1Bag) -> str:
+    """Where a bag that ends on a record boundary was cut: inside its index, or before it."""
+    if bag.size >= bag.index_pos:
+        return "inside its index"
+    return "between records"
 
 
 def iter_ros1(
