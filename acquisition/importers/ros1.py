@@ -13,6 +13,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from imustation.acquisition.importers.mcap1 import Mcap1, McapFormatError
 from imustation.acquisition.importers.messages import (
     IMU_TYPES,
     TEMP_TYPES,
@@ -82,45 +83,89 @@ def iter_ros1(
     notes: list[str] | None = None,
 ) -> Iterator[tuple[str, Rows]]:
     """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
+    try:
+        with Ros1Bag(path) as bag:
+            yield from _decode(path, bag, topics, block, limit, temp_topics, notes, _bag_note)
+    except (BagFormatError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+
+
+def _bag_note(bag: Ros1Bag) -> str:
+    if not bag.cut and bag.unread_from is None and bag.index_pos:
+        bag.index()  # O(chunks): finds a bag cut inside its index (every message read)
+    return cut_note(bag)
+
+
+def mcap1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
+    """Channels and message counts per channel id of an MCAP file of ROS 1 messages (:meth:`.Mcap1.index`)."""
+    try:
+        with Mcap1(path) as m:
+            return m.index()
+    except (McapFormatError, OSError, struct.error) as exc:
+        raise InputError(f"{path}: not a readable MCAP file ({exc})") from None
+
+
+def iter_mcap1(
+    path: str,
+    topics: list[str],
+    block: int,
+    limit: int | None,
+    temp_topics: tuple[str, ...] = (),
+    notes: list[str] | None = None,
+) -> Iterator[tuple[str, Rows]]:
+    """The same for an MCAP file of ROS 1 messages (profile ``ros1``; :mod:`.mcap1`)."""
+    try:
+        with Mcap1(path) as m:
+            yield from _decode(path, m, topics, block, limit, temp_topics, notes, _mcap_note)
+    except (McapFormatError, struct.error) as exc:
+        raise InputError(f"{path}: damaged MCAP file ({exc})") from None
+
+
+def _mcap_note(m: Mcap1) -> str:
+    if m.unread_from is None:
+        return ""
+    return (
+        f"truncated MCAP file: it ends at byte {m.size} inside a record that starts at byte {m.unread_from}; "
+        f"{m.messages_read} messages before it imported ({m.chunks_read} chunks), what followed is not in the file"
+    )
+
+
+def _decode(path, bag, topics, block, limit, temp_topics, notes, note_of) -> Iterator[tuple[str, Rows]]:
+    """The Imu and Temperature blocks of ``bag`` (a :class:`.Ros1Bag` or :class:`.Mcap1`: ``chunks(conns)``
+    of ROS 1 messages), then its ``note_of(bag)`` appended to ``notes``."""
     names = [*topics, *temp_topics]
     pend: dict[str, list[tuple]] = {t: [] for t in names}
     have = dict.fromkeys(names, 0)
     seen = 0
     conns: dict = {}
-    try:
-        with Ros1Bag(path) as bag:
-            for ch in bag.chunks(conns):
-                ids = [i for i, c in conns.items() if c.topic in topics and c.msgtype in IMU_TYPES]
-                tids = [i for i, c in conns.items() if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
-                sel = np.isin(ch.conn, ids)
-                if limit is not None and seen + int(sel.sum()) > limit:
-                    sel &= np.cumsum(sel) <= limit - seen
-                seen += int(sel.sum())
-                for t in names:
-                    mine = [i for i in (ids if t in topics else tids) if conns[i].topic == t]
-                    m = np.isin(ch.conn, mine) & (sel if t in topics else True)
-                    if not m.any():
-                        continue
-                    what = "Imu" if t in topics else "Temperature"
-                    decode = decode_imu_ros1 if t in topics else decode_temperature_ros1
-                    try:
-                        dec = decode(ch.buf, ch.start[m], ch.length[m])
-                    except ValueError as exc:
-                        raise InputError(f"{path}: topic {t}: undecodable {what} message ({exc})") from None
-                    pend[t].append(dec)
-                    have[t] += len(dec[0])
-                    if have[t] >= block:
-                        yield from _full_blocks(t, pend, have, block)
-                if limit is not None and seen >= limit:
-                    break
-            if notes is not None and (limit is None or seen < limit):
-                if not bag.cut and bag.unread_from is None and bag.index_pos:
-                    bag.index()  # O(chunks): finds a bag cut inside its index (every message read)
-                note = cut_note(bag)
-                if note:
-                    notes.append(note)
-    except (BagFormatError, struct.error) as exc:
-        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+    for ch in bag.chunks(conns):
+        ids = [i for i, c in conns.items() if c.topic in topics and c.msgtype in IMU_TYPES]
+        tids = [i for i, c in conns.items() if c.topic in temp_topics and c.msgtype in TEMP_TYPES]
+        sel = np.isin(ch.conn, ids)
+        if limit is not None and seen + int(sel.sum()) > limit:
+            sel &= np.cumsum(sel) <= limit - seen
+        seen += int(sel.sum())
+        for t in names:
+            mine = [i for i in (ids if t in topics else tids) if conns[i].topic == t]
+            m = np.isin(ch.conn, mine) & (sel if t in topics else True)
+            if not m.any():
+                continue
+            what = "Imu" if t in topics else "Temperature"
+            decode = decode_imu_ros1 if t in topics else decode_temperature_ros1
+            try:
+                dec = decode(ch.buf, ch.start[m], ch.length[m])
+            except ValueError as exc:
+                raise InputError(f"{path}: topic {t}: undecodable {what} message ({exc})") from None
+            pend[t].append(dec)
+            have[t] += len(dec[0])
+            if have[t] >= block:
+                yield from _full_blocks(t, pend, have, block)
+        if limit is not None and seen >= limit:
+            break
+    if notes is not None and (limit is None or seen < limit):
+        note = note_of(bag)
+        if note:
+            notes.append(note)
     for t in names:
         if have[t]:
             cols = [np.concatenate(x) for x in zip(*pend[t], strict=True)]

@@ -67,12 +67,16 @@ class StampReport:
     quantum_ns: int = 0
     #: stamps in the fit (those joined to a neighbour by a regular step)
     fitted: int = 0
+    #: longest minus shortest regular step, ns
+    step_spread_ns: int = 0
 
     def warnings(self) -> list[str]:
         """What makes the stamps less than they look: a quantum coarser than QUANTUM_WARN of the period."""
         out = []
         period = 1e9 / self.true_rate_hz if self.true_rate_hz > 0 else self.nominal_period_ns
-        if self.quantum_ns and math.isfinite(period) and self.quantum_ns > QUANTUM_WARN * period:
+        # steps that all equal one period are not quantised, they are exact: only steps that differ by the quantum
+        varied = self.step_spread_ns >= self.quantum_ns > 0
+        if varied and math.isfinite(period) and self.quantum_ns > QUANTUM_WARN * period:
             out.append(
                 f"stamps quantised to {_ns_text(self.quantum_ns)}, {self.quantum_ns / period:.2g} of the "
                 f"{_ns_text(period)} period: single steps are off by up to {_ns_text(self.quantum_ns)}; the rate "
@@ -141,6 +145,7 @@ class StampChecker:
         self._reg_sum = 0.0
         self._reg_sum2 = 0.0
         self._fit = PooledFit()
+        self._reg_lo, self._reg_hi = math.inf, -math.inf
 
     def update(self, t_ns: np.ndarray) -> None:
         t = np.asarray(t_ns, dtype=np.int64)
@@ -204,6 +209,9 @@ class StampChecker:
             for k, m in zip(gi[:room], miss[:room], strict=True):
                 r.gap_list.append((int(idx[k]), int(dt[k]), int(m)))
         reg = dt[(dt > 0) & ~long].astype(np.float64)
+        if len(reg):
+            self._reg_lo = min(self._reg_lo, float(reg.min()))
+            self._reg_hi = max(self._reg_hi, float(reg.max()))
         self._reg_n += len(reg)
         self._reg_sum += float(reg.sum())
         self._reg_sum2 += float((reg * reg).sum())
@@ -222,6 +230,7 @@ class StampChecker:
             mean = self._reg_sum / self._reg_n
             var = max(self._reg_sum2 / self._reg_n - mean * mean, 0.0)
             r.jitter_ns = math.sqrt(var)
+            r.step_spread_ns = int(self._reg_hi - self._reg_lo)
             period, sigma, r.fitted = self._fit.result()
             if period > 0:
                 r.true_rate_hz = 1e9 / period
