@@ -67,9 +67,12 @@ def test_damaged_mcap_is_one_line(tmp_path, profile):
     data = src.read_bytes()
     at = _chunk_at(data)
     (n,) = struct.unpack_from("<Q", data, at + 1)
-    # a flipped byte inside the first chunk's records: its CRC fails
+    # a flipped byte inside the first chunk's records: its CRC fails (rosbags writes no CRC: a wrong one)
     flipped = bytearray(data)
-    flipped[at + 9 + n - 40] ^= 0x10
+    if profile == "ros1":
+        flipped[at + 9 + n - 40] ^= 0x10
+    else:
+        flipped[at + 9 + 24 : at + 9 + 28] = struct.pack("<I", 0xDEADBEEF)
     (tmp_path / "crc.mcap").write_bytes(bytes(flipped))
     # the first chunk's record length corrupted
     long = bytearray(data)
