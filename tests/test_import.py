@@ -566,6 +566,10 @@ def test_a_truncated_ros1_bag_imports_every_message_before_the_cut(chunked_bag, 
         assert k == 6000 and "inside its index" in lines[0] and "no message lost" in lines[0]
     else:
         assert f"file ends at byte {cut}" in lines[0] and "not imported" in lines[0]
+        import re
+
+        about = int(re.search(r"~(\d+) messages \(estimated\)", lines[0]).group(1))
+        assert abs(about - (6000 - k)) <= 0.05 * (6000 - k)  # what the cut lost, estimated
 
 
 def test_a_ros1_bag_cut_at_a_chunk_boundary_says_what_was_lost(chunked_bag, tmp_path):

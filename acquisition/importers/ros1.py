@@ -56,7 +56,9 @@ def cut_note(bag: Ros1Bag) -> str:
             return f"{head}, no message lost"
         gone = max(bag.index_pos - stop, 0)
         read = stop - bag.first_record
-        est = f"~{round(bag.messages_read * gone / read)}" if bag.messages_read and read > 0 else "an unknown number of"
+        whole = bag.messages_read - bag.salvaged  # in the chunks read whole, before ``stop``
+        # the chunk cut short is in ``gone``: its salvaged messages are not lost
+        est = f"~{max(round(whole * gone / read) - bag.salvaged, 0)}" if whole and read > 0 else "an unknown number of"
         # kept under the 256 bytes of an event's detail
         return f"{head}; not imported: bytes {stop}-{bag.index_pos}, {missing} chunks, {est} messages (estimated)"
     if bag.unread_from is not None:
