@@ -624,3 +624,31 @@ def test_an_empty_imu_topic_beside_a_good_one_is_skipped_and_named(tmp_path, fmt
     assert "Imu topic /imu/unused skipped: 0 messages" in res.output
     with open_run(tmp_path / "o.h5") as r:
         assert list(r.devices) == ["imu_data"] and r.rows("imu_data") == 500
+
+
+@pytest.mark.parametrize("compression", [None, "lz4"])
+def test_a_bag_of_one_message_per_chunk_is_read_whole_and_in_order(tmp_path, compression, monkeypatch):
+    """Small chunks are split and decoded in batches (their speed: benchmarks/bench_import.py --chunk-bytes 1);
+    every message comes out as rosbags reads it, and a cut inside a batch still keeps what precedes it."""
+    from bagmaker import write_big_imu_bag
+
+    from imustation.acquisition.importers import rosbag1
+
+    monkeypatch.setattr(rosbag1, "BATCH_BYTES", 40_000)  # several batches in a small bag
+    monkeypatch.setattr(rosbag1, "WALK_BYTES", 50_000)  # and several reads of the record walk
+    src = write_big_imu_bag(tmp_path / "tiny.bag", 3000, compression=compression, chunk_bytes=1,
+                            extra_every=7, temp_every=50)  # fmt: skip
+    t_ref, g_ref, a_ref = _read_all(src, "old", ["/imu/data"])["/imu/data"]
+    t, g, a = _read_all(src, "new", ["/imu/data"])["/imu/data"]
+    np.testing.assert_array_equal(t, t_ref)
+    np.testing.assert_array_equal(g, g_ref)
+    np.testing.assert_array_equal(a, a_ref)
+    res = import_recording(str(src), str(tmp_path / "o.h5"))
+    assert res.reports["imu_data"].n == 3000 and res.thermometers["imu_temperature"][1] == 60
+    data = src.read_bytes()
+    (tmp_path / "cut.bag").write_bytes(data[: len(data) // 2 + 7])
+    res = import_recording(str(tmp_path / "cut.bag"), str(tmp_path / "cut.h5"))
+    k = res.reports["imu_data"].n
+    assert 1000 < k < 3000 and any("truncated bag" in n for n in res.notes)
+    with open_run(tmp_path / "cut.h5") as r:
+        np.testing.assert_array_equal(r.read("imu_data", "gyro"), g_ref[:k])

@@ -8,6 +8,7 @@ inside a chunk), never sorted.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Iterator
 
@@ -24,12 +25,29 @@ from imustation.acquisition.importers.messages import (
 from imustation.acquisition.importers.rosbag1 import BagFormatError, Connection, Ros1Bag
 from imustation.errors import InputError
 
+#: the last indexes read: (path, size, mtime ns) -> (connections, counts, the index was cut short). An
+#: import reads a bag's index for its topics, its Imu definitions and its cut note: O(chunks) each time,
+#: seconds for a bag of one message per chunk
+_INDEXES: dict[tuple[str, int, int], tuple[dict[int, Connection], dict[int, int], bool]] = {}
+
+
+def _key(path: str) -> tuple[str, int, int]:
+    st = os.stat(path)
+    return os.path.abspath(path), st.st_size, st.st_mtime_ns
+
 
 def ros1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
     """Connections and message counts per connection id of a ROS 1 bag (:meth:`.Ros1Bag.index`)."""
     try:
-        with Ros1Bag(path) as bag:
-            return bag.index()
+        key = _key(path)
+        if key not in _INDEXES:
+            with Ros1Bag(path) as bag:
+                conns, counts = bag.index()
+                if len(_INDEXES) >= 4:
+                    _INDEXES.pop(next(iter(_INDEXES)))
+                _INDEXES[key] = (conns, counts, bag.cut)
+        conns, counts, _cut = _INDEXES[key]
+        return dict(conns), dict(counts)
     except (BagFormatError, OSError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
 
@@ -94,7 +112,14 @@ def iter_ros1(
 
 def _bag_note(bag: Ros1Bag) -> str:
     if not bag.cut and bag.unread_from is None and bag.index_pos:
-        bag.index()  # O(chunks): finds a bag cut inside its index (every message read)
+        # a bag cut inside its index (every message read): known from the index read for its topics
+        known = _INDEXES.get(_key(bag.path))
+        if known is not None:
+            bag.cut = known[2]
+        else:
+            chunks, messages = bag.chunks_read, bag.messages_read
+            bag.index()  # O(chunks)
+            bag.chunks_read, bag.messages_read = chunks, messages
     return cut_note(bag)
 
 

@@ -30,6 +30,8 @@ OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2
 MAGIC = b"#ROSBAG V2.0\n"
 #: decompressed chunk bytes split and handed out together (small chunks are batched up to it)
 BATCH_BYTES = 1 << 20
+#: file bytes read at a time while walking the records of the data section
+WALK_BYTES = 1 << 22
 
 _u32 = struct.Struct("<I").unpack_from
 
@@ -164,6 +166,8 @@ class Ros1Bag:
 
     def __init__(self, path: str):
         self.path = str(path)
+        self._parsed: dict[bytes, dict[str, bytes]] = {}
+        self._walk_at = 0
         self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
         try:
             if self.fh.read(len(MAGIC)) != MAGIC:
@@ -221,7 +225,15 @@ class Ros1Bag:
         if n > 1 << 20:
             raise BagFormatError(f"record header of {n} bytes")
         b = self._read(n)
-        return _fields(b, 0, n)
+        # the headers of a bag's chunks and index-data records repeat (same compression and size, same
+        # connection and count): parsed once (read-only dicts; callers only look fields up)
+        hit = self._parsed.get(b)
+        if hit is None:
+            hit = _fields(b, 0, n)
+            if len(self._parsed) >= 1024:
+                self._parsed.clear()
+            self._parsed[b] = hit
+        return hit
 
     # -- index
     def index(self) -> tuple[dict[int, Connection], dict[int, int]]:
@@ -250,25 +262,21 @@ class Ros1Bag:
 
     def _read_index(self) -> tuple[dict[int, Connection], dict[int, int]]:
         self.fh.seek(self.index_pos)
-        conns, counts = {}, {}
-        while self.fh.tell() < self.size:
-            hdr = self._header()
-            op = _op(hdr)
-            n = self._u32()
+        conns: dict[int, Connection] = {}
+        infos: list[bytes] = []
+        for _at, op, hdr, data in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
             if op == OP_CONNECTION:
-                c = _connection(hdr, self._read(n))
+                c = _connection(hdr, data)
                 conns[c.id] = c
             elif op == OP_CHUNK_INFO:
-                data = self._read(n)
-                k = _int(hdr, "count")
-                if len(data) < 8 * k:
-                    raise BagFormatError("truncated chunk info record")
-                pairs = np.frombuffer(data, "<u4", 2 * k).reshape(k, 2)
-                for cid, m in pairs.tolist():
-                    counts[cid] = counts.get(cid, 0) + m
-            else:
-                self._skip(n)
-        return conns, counts
+                # (connection id u32, message count u32) pairs; the header's count is their number
+                if len(data) % 8:
+                    raise BagFormatError("chunk info record of a length that is not pairs of u32")
+                infos.append(data)
+        pairs = np.frombuffer(b"".join(infos), "<u4").reshape(-1, 2).astype(np.int64)
+        ids, where = np.unique(pairs[:, 0], return_inverse=True)
+        sums = np.bincount(where, pairs[:, 1], len(ids)) if len(ids) else np.zeros(0)
+        return conns, {int(i): int(n) for i, n in zip(ids, sums, strict=True)}
 
     # -- messages
     def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
@@ -289,14 +297,18 @@ class Ros1Bag:
         batch: list[tuple[int, bytes]] = []
         held = 0
         failed: list[tuple[int, BagFormatError]] = []
-        while self.fh.tell() < end:
-            at = self.fh.tell()
+        walk = self._walk(end)
+        while True:
             try:
-                op, hdr, data = self._record()
+                item = next(walk, None)
+                if item is None:
+                    break
+                at, op, hdr, data = item
                 if op == OP_CHUNK:
                     raw = _decompress(hdr.get("compression", b"none").decode(), data, _int(hdr, "size"))
             except BagFormatError as err:
                 problem = err
+                at = self._walk_at
                 yield from self._flush(batch, conns, failed)
                 if failed:
                     at, problem = failed[0]
@@ -335,6 +347,60 @@ class Ros1Bag:
             if not scan:
                 raise exc
             yield from self._stop(at, conns)
+
+    def _walk(
+        self, end: int, keep: tuple[int, ...] = (OP_CHUNK, OP_CONNECTION, OP_MSGDATA)
+    ) -> Iterator[tuple[int, int, dict[str, bytes], bytes]]:
+        """``(offset, op, header fields, data)`` of the top-level records from the file position up to
+        ``end``, read WALK_BYTES at a time (data ``b""`` and header fields ``{}`` for records whose op is
+        not in ``keep``, skipped): a chunk per message costs two small records, which read one by one
+        from the file cost more than the messages. The fields of a header seen before are not parsed
+        again. :attr:`_walk_at` is the offset of the record being read (where a BagFormatError stops)."""
+        pos = self.fh.tell()
+        base, buf = pos, b""
+
+        def fill(need: int) -> bytes:
+            self.fh.seek(pos)
+            got = self.fh.read(max(WALK_BYTES, need))
+            if len(got) < need:
+                raise BagCutError(f"truncated record ({len(got)} of {need} bytes)")
+            return got
+
+        while pos < end:
+            self._walk_at = pos
+            off = pos - base
+            if off + 4 > len(buf):
+                base, buf, off = pos, fill(4), 0
+            (hn,) = _u32(buf, off)
+            if hn > 1 << 20:
+                raise BagFormatError(f"record header of {hn} bytes")
+            if off + 8 + hn > len(buf):
+                base, buf, off = pos, fill(8 + hn), 0
+            key = buf[off + 4 : off + 4 + hn]
+            hdr = self._parsed.get(key)
+            if hdr is not None:
+                op = _op(hdr)
+            else:
+                op = _op_of(key)
+                if op in keep and op != OP_CHUNK_INFO:
+                    hdr = _fields(key, 0, hn)
+                    if len(self._parsed) >= 1024:
+                        self._parsed.clear()
+                    self._parsed[key] = hdr
+                else:
+                    hdr = {}
+            (dn,) = _u32(buf, off + 4 + hn)
+            total = 8 + hn + dn
+            data = b""
+            if op in keep:
+                if off + total > len(buf):
+                    base, buf, off = pos, fill(total), 0
+                data = buf[off + 8 + hn : off + total]
+            elif pos + total > self.size:
+                raise BagCutError("truncated record")
+            yield pos, op, hdr, data
+            pos += total
+        self.fh.seek(pos)
 
     def _flush(
         self, batch: list[tuple[int, bytes]], conns: dict[int, Connection], failed: list
@@ -459,6 +525,18 @@ class Ros1Bag:
                     raise BagFormatError(f"message of unknown connection {cid}")
                 if topics is None or c.topic in topics:
                     yield c.topic, c.msgtype, t, ch.buf[s : s + n]
+
+
+def _op_of(header: bytes) -> int:
+    """The op code of a record header, found without decoding its other fields (the fields of a chunk info
+    record differ in every record: its position and times)."""
+    pos, end = 0, len(header)
+    while pos + 4 <= end:
+        (n,) = _u32(header, pos)
+        if n == 4 and header[pos + 4 : pos + 7] == b"op=":
+            return header[pos + 7]
+        pos += 4 + n
+    raise BagFormatError("record without op code")
 
 
 def _time(hdr: dict[str, bytes]) -> int:
