@@ -201,3 +201,14 @@ def test_nan_and_non_utf8_are_one_line_with_their_true_line(tmp_path):
     line = raw[:at].count(b"\n") + 1
     assert_one_line_error(run("import", p, "-o", tmp_path / "o.h5"), "latin1.csv", f"line {line}", "0xe9", "UTF-8")
     assert_one_line_error(run("analyze", p), "latin1.csv", "UTF-8")
+
+
+def test_an_integer_npy_keeps_its_unix_ns_stamps(tmp_path):
+    n = 1000
+    t = T0_NS + np.arange(n, dtype=np.int64) * 5_000_000 + np.random.default_rng(3).integers(-150, 150, n)
+    arr = np.column_stack([t, np.zeros((n, 3), np.int64)])
+    np.save(tmp_path / "ns.npy", arr)
+    res = run("import", tmp_path / "ns.npy", "-o", tmp_path / "ns.h5", "--time-unit", "ns", "--quiet")
+    assert res.exit_code == 0, res.output
+    with open_run(tmp_path / "ns.h5") as r:
+        np.testing.assert_array_equal(r.read("imu", "t"), t - t[0])

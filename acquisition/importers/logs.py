@@ -389,8 +389,12 @@ def load_npy_log(path: str, time_unit: str | None = None) -> Rows:
     data = np.asarray(arr[:, 1:], dtype=np.float64)
     if not (np.isfinite(data).all() and np.isfinite(t).all()):
         raise InputError(f"{path}: NaN/infinite values")
+    if arr.dtype.kind in "iu":  # integer stamps stay integers (unix ns does not fit a float64's 53 bits)
+        t_ns = np.asarray(arr[:, 0], dtype=np.int64) * (10 ** time_exponent(TIME_UNITS[time_unit]))
+    else:
+        t_ns = np.rint(t * TIME_UNITS[time_unit]).astype(np.int64)
     return (
-        np.rint(t * TIME_UNITS[time_unit]).astype(np.int64),
+        t_ns,
         data[:, :3],
         data[:, 3:6] if data.shape[1] == 6 else None,
     )
