@@ -25,10 +25,20 @@ def to_ns(cell: str, exp: int) -> int:
     Integers and plain decimals (``-12``, ``1700000000.0025``, ``.5``) are read digit by digit; a
     number in exponent notation through float64. ValueError for anything else or a non-finite value.
     """
-    try:
-        return int(cell) * 10**exp
-    except ValueError:
-        pass
+    ip, dot, fp = cell.partition(".")
+    if not dot:
+        try:
+            return int(cell) * 10**exp
+        except ValueError:
+            pass
+    elif fp.isdigit() and fp.isascii() and len(fp) <= exp:  # the common case: a plain decimal, exact digits
+        try:
+            whole = int(ip) if ip.strip() not in ("", "-", "+") else 0
+        except ValueError:
+            whole = None
+        if whole is not None and fp.strip() == fp:
+            ns = abs(whole) * 10**exp + int(fp) * 10 ** (exp - len(fp))
+            return -ns if ip.strip().startswith("-") else ns
     s = cell.strip()
     sign = -1 if s[:1] == "-" else 1
     body = s[1:] if s[:1] in "+-" else s
