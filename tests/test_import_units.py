@@ -212,3 +212,28 @@ def test_an_integer_npy_keeps_its_unix_ns_stamps(tmp_path):
     assert res.exit_code == 0, res.output
     with open_run(tmp_path / "ns.h5") as r:
         np.testing.assert_array_equal(r.read("imu", "t"), t - t[0])
+
+
+@pytest.mark.parametrize(
+    "cell, exp, ns",
+    [
+        ("1700000000.123456789", 9, 1_700_000_000_123_456_789),
+        ("-0.5", 6, -500_000),
+        (" 2.5 ", 6, 2_500_000),
+        ("-1.25", 9, -1_250_000_000),
+        (".5", 9, 500_000_000),
+        ("5.", 9, 5_000_000_000),
+        ("+3.5", 3, 3500),
+        ("1.23456789012", 9, 1_234_567_890),  # beyond 1 ns: rounded
+        ("1.5", 0, 2),
+        ("1.7e9", 9, 1_700_000_000 * 10**9),
+    ],
+)
+def test_time_cells_are_read_to_the_ns(cell, exp, ns):
+    assert to_ns(cell, exp) == ns
+
+
+@pytest.mark.parametrize("cell", ["x", "1.2.3", "nan", "inf", "", "1e400", "1.x"])
+def test_time_cells_that_are_not_times(cell):
+    with pytest.raises(ValueError):
+        to_ns(cell, 9)
