@@ -22,7 +22,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from imustation.acquisition.importers.rosbag1 import ChunkMessages, Connection, normalize_topic
+from imustation.acquisition.importers.ros1records import ChunkMessages, Connection, normalize_topic
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
