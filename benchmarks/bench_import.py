@@ -4,7 +4,10 @@ Writes a bag of N sensor_msgs/Imu messages at 400 Hz (numpy-built payloads), the
 it in a fresh process per reader and prints time, messages/s and peak RSS:
 
     python benchmarks/bench_import.py [-n 2000000] [--format ros1|mcap|sqlite3] [--compression lz4]
-                                      [--reader old|new|both] [--keep BAG]
+                                      [--reader old|new|both] [--keep BAG] [--chunk-bytes 1]
+
+``--chunk-bytes 1`` writes one message per chunk (a recorder flushing each message): the streaming
+reader batches such chunks, so it imports them at the speed of large-chunk bags.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ def main() -> None:
     ap.add_argument("--compression", default=None, choices=["bz2", "lz4"], help="ROS1 chunk compression")
     ap.add_argument("--reader", default="both", choices=["old", "new", "both"])
     ap.add_argument("--keep", default=None, help="bag path: reuse it if it exists, else write and keep it")
+    ap.add_argument("--chunk-bytes", type=int, default=None, help="ROS1 chunk threshold (1: a message per chunk)")
     ap.add_argument("--measure", nargs=2, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--baseline", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -74,7 +78,7 @@ def main() -> None:
         bag = os.path.join(tmp, "big.bag" if args.format == "ros1" else "big")
     if not os.path.exists(bag):
         t0 = time.perf_counter()
-        write_big_imu_bag(bag, args.n, fmt=args.format, compression=args.compression)
+        write_big_imu_bag(bag, args.n, fmt=args.format, compression=args.compression, chunk_bytes=args.chunk_bytes)
         print(f"wrote {args.n} Imu messages to {bag} in {time.perf_counter() - t0:.0f} s")
     src = bag
     if args.format == "mcap" and os.path.isdir(bag):

@@ -25,6 +25,11 @@ class RunFileError(ImustationError):
     """A file is unreadable or is not an imustation run file of a known version."""
 
 
+class RateCorrected(UserWarning):
+    """A run file's ``rate_hz`` contradicts its timestamps beyond their jitter; readers use the stamps' rate
+    (imustation.runfile.checks). The CLI prints it as one ``imustation: warning:`` line."""
+
+
 class InputError(ImustationError):
     """Analysis input (array file, channel selection, option value) is unusable."""
 

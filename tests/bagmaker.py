@@ -156,3 +156,67 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
                     if j == 0 and tc is not None and (i + r) % temp_every == 0:
                         w.write(tc, int(t[r]) + 600, temp_raw(i + r, int(t[r])))
     return path
+
+
+def write_ros1_mcap(path, t_ns, gyro, accel, *, topic="/imu/data", chunk_msgs=500, compression="", crc=True,
+                    summary=True, extra_topics=()) -> Path:  # fmt: skip
+    """An MCAP file of ROS 1 sensor_msgs/Imu messages as ``mcap convert`` writes one from a bag (profile
+    ``ros1``, schema encoding ``ros1msg``, message encoding ``ros1``; chunks of ``chunk_msgs`` messages
+    compressed with "" | "lz4" | "zstd", their CRCs when ``crc``; a summary with a Statistics record when
+    ``summary``). ``extra_topics``: Imu topics with a channel and no message. Written by hand
+    (https://mcap.dev/spec): the mcap package is not a dependency."""
+    import struct
+    import zlib
+
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    store = get_typestore(Stores.ROS1_NOETIC)
+    imu = store.types["sensor_msgs/msg/Imu"].__msgtype__
+
+    def s(x: str) -> bytes:
+        b = x.encode()
+        return struct.pack("<I", len(b)) + b
+
+    def rec(op: int, content: bytes) -> bytes:
+        return struct.pack("<BQ", op, len(content)) + content
+
+    def compress(raw: bytes) -> bytes:
+        if compression == "lz4":
+            import lz4.frame
+
+            return lz4.frame.compress(raw)
+        if compression == "zstd":
+            from backports import zstd
+
+            return zstd.compress(raw)
+        return raw
+
+    schema = rec(0x03, struct.pack("<H", 1) + s("sensor_msgs/Imu") + s("ros1msg") + s("# definition"))
+    meta = s("md5sum") + s("6a62c6daae103f4ff57a132d6f95cec2")
+    topics = [topic, *extra_topics]
+    channels = [rec(0x04, struct.pack("<HH", i + 1, 1) + s(tp) + s("ros1") + struct.pack("<I", len(meta)) + meta)
+                for i, tp in enumerate(topics)]  # fmt: skip
+    out = bytearray(b"\x89MCAP0\r\n" + rec(0x01, s("ros1") + s("imustation tests")))
+    out += schema + b"".join(channels)
+    msgs = [bytes(store.serialize_ros1(_imu_msg(store, "ros1", i, int(t), g, a), imu))
+            for i, (t, g, a) in enumerate(zip(t_ns, gyro, accel, strict=True))]  # fmt: skip
+    for i in range(0, len(msgs), chunk_msgs):
+        raw = b"".join(rec(0x05, struct.pack("<HIQQ", 1, i + j, int(t_ns[i + j]), int(t_ns[i + j])) + m)
+                       for j, m in enumerate(msgs[i : i + chunk_msgs]))  # fmt: skip
+        data = compress(raw)
+        head = struct.pack("<QQQI", int(t_ns[i]), int(t_ns[min(i + chunk_msgs, len(msgs)) - 1]), len(raw),
+                           zlib.crc32(raw) if crc else 0)  # fmt: skip
+        out += rec(0x06, head + s(compression) + struct.pack("<Q", len(data)) + data)
+    out += rec(0x0F, struct.pack("<I", 0))
+    summary_start = len(out) if summary else 0
+    if summary:
+        counts = struct.pack("<HQ", 1, len(msgs)) + b"".join(
+            struct.pack("<HQ", i + 2, 0) for i in range(len(extra_topics))
+        )
+        stats = struct.pack("<QHIIIIQQ", len(msgs), 1, len(topics), 0, 0, -(-len(msgs) // chunk_msgs),
+                            int(t_ns[0]), int(t_ns[-1])) + struct.pack("<I", len(counts)) + counts  # fmt: skip
+        out += schema + b"".join(channels) + rec(0x0B, stats)
+    out += rec(0x02, struct.pack("<QQI", summary_start, 0, 0)) + b"\x89MCAP0\r\n"
+    path.write_bytes(bytes(out))
+    return path

@@ -254,8 +254,24 @@ def run_file_mutations(base: Path) -> list[tuple[str, Callable, str]]:
         ("t.chunk1=garbage", _corrupt_chunk("devices/gyro/t", 1), "data"),
         ("gyro=nan", _replace_gyro(np.array([[np.nan, 0.0, 0.0]])), "data"),
         ("gyro=4.3e19", _replace_gyro(np.array([[4.3e19, 0.0, 0.0]])), "data"),
+        # issue 33: values out of physical range, a rate its stamps contradict
+        ("rate_hz*1.25", _scale_rate(1.25), "none"),  # read at the stamps' rate, with a warning
+        ("offset=1e300", _set("devices/gyro/gyro", "offset", 1e300), "all"),
+        ("scale=1e300", _set("devices/gyro/gyro", "scale", 1e300), "all"),
+        ("ended<started", _set("/", "ended_utc", "2001-01-01T00:00:00.000+00:00"), "all"),
+        ("event.lost=2^62", _event("lost", 2**62), "events"),
+        ("t.steps.back", _step_back(10), "all"),
+        ("t.steps.back.late", _step_back(7000), "data"),  # found when the record is read
     ]
     return m
+
+
+def _step_back(row: int) -> Callable:
+    def edit(f):
+        t = f["devices/gyro/t"]
+        t[row] = t[row - 10]
+
+    return edit
 
 
 def _refused_by(scope: str, command: str) -> bool:
@@ -278,7 +294,9 @@ def array_inputs(folder: Path, rng: random.Random) -> list[tuple[str, Path, dict
     """(name, file, expectation per reader) of CSV logs and .npy arrays."""
     t = np.arange(2000) / 100.0
     g = np.random.default_rng(rng.randrange(2**32)).normal(0, 0.01, (2000, 3))
-    good_csv = "t,gx,gy,gz\n" + "\n".join(f"{a:.3f},{b:.6f},{c:.6f},{d:.6f}" for a, (b, c, d) in zip(t, g, strict=True))
+    good_csv = "t,gx [rad/s],gy [rad/s],gz [rad/s]\n" + "\n".join(
+        f"{a:.3f},{b:.6f},{c:.6f},{d:.6f}" for a, (b, c, d) in zip(t, g, strict=True)
+    )
     lines = good_csv.split("\n")
     out = []
 
@@ -296,6 +314,18 @@ def array_inputs(folder: Path, rng: random.Random) -> list[tuple[str, Path, dict
     text("empty.csv", "", bad)
     text("ragged.csv", "\n".join([*lines[:50], "0.5,1", *lines[51:]]), bad)
     text("garbage.csv", bytes(rng.randrange(256) for _ in range(3000)), bad)
+    # issue 33: no unit stated (refused by the import; plain columns with --rate), units in the names,
+    # integer-ms stamps, a byte that is not UTF-8 far into the file
+    plain = "t,gx,gy,gz\n" + "\n".join(lines[1:])
+    text("no-unit.csv", plain, {"analyze": "any", "import": "invalid"})
+    text("dps.csv", plain.replace("t,gx,gy,gz", "t,gx_dps,gy_dps,gz_dps", 1), {"analyze": "any", "import": "any"})
+    ms = "time_ms,gx_rads,gy_rads,gz_rads\n" + "\n".join(
+        f"{int(k * 2.5)},{b:.6f},{c:.6f},{d:.6f}" for k, (b, c, d) in enumerate(g)
+    )
+    text("int-ms.csv", ms, {"analyze": "any", "import": "any"})
+    late = good_csv.encode()
+    cut = late.index(b"\n", len(late) * 3 // 4) + 1
+    text("latin1-late.csv", late[:cut] + b"\xe9" + late[cut:], bad)
 
     def npy(name: str, arr, expect: dict[str, str], raw: bytes | None = None) -> None:
         p = folder / name
@@ -392,6 +422,51 @@ def bag_inputs(folder: Path) -> list[tuple[str, Path, dict[str, str]]]:
     huge = g.copy()
     huge[200, 1] = 4.3e19
     out.append(("huge.bag", write_imu_bag(folder / "huge.bag", t, huge, a), {"import": "any", "analyze": "invalid"}))
+    out += _issue33_bags(folder, t, g, a)
+    return out
+
+
+def _issue33_bags(folder: Path, t, g, a) -> list[tuple[str, Path, dict[str, str]]]:
+    """A bag cut between two chunks, MCAP of ROS 1 messages (good, chunk CRC failing, record length
+    corrupted, cut short) and a ROS 2 MCAP whose chunk fails its CRC."""
+    import struct
+
+    from bagmaker import write_big_imu_bag, write_imu_bag, write_ros1_mcap
+    from rosbags.rosbag1 import Reader
+
+    ok, bad = {"import": "any", "analyze": "any"}, {"import": "invalid", "analyze": "invalid"}
+    out = []
+    chunky = write_big_imu_bag(folder / "chunky.bag", 3000, chunk_bytes=100_000)
+    with Reader(chunky) as r:
+        at = r.chunk_infos[2].pos
+    p = folder / "cut-at-chunk.bag"
+    p.write_bytes(chunky.read_bytes()[:at])
+    out.append((p.name, p, ok))
+    good = write_ros1_mcap(folder / "ros1.mcap", t, g, a, chunk_msgs=200, compression="lz4")
+    out.append((good.name, good, ok))
+    data = good.read_bytes()
+    pos = 8
+    while data[pos] != 0x06:  # the first chunk record
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    n = struct.unpack_from("<Q", data, pos + 1)[0]
+    flip = bytearray(data)
+    flip[pos + 9 + n - 20] ^= 0x01
+    (folder / "ros1-crc.mcap").write_bytes(bytes(flip))
+    length = bytearray(data)
+    length[pos + 1 : pos + 9] = struct.pack("<Q", 2**40)
+    (folder / "ros1-length.mcap").write_bytes(bytes(length))
+    (folder / "ros1-cut.mcap").write_bytes(data[: len(data) // 2])
+    out += [("ros1-crc.mcap", folder / "ros1-crc.mcap", bad), ("ros1-length.mcap", folder / "ros1-length.mcap", bad)]
+    out.append(("ros1-cut.mcap", folder / "ros1-cut.mcap", ok))
+    r2 = next(write_imu_bag(folder / "r2", t, g, a, fmt="mcap").glob("*.mcap"))
+    data = r2.read_bytes()
+    pos = 8
+    while data[pos] != 0x06:
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    flip = bytearray(data)  # rosbags writes no chunk CRC (0): one that does not match its records
+    flip[pos + 9 + 24 : pos + 9 + 28] = struct.pack("<I", 0xDEADBEEF)
+    (folder / "ros2-crc.mcap").write_bytes(bytes(flip))
+    out.append(("ros2-crc.mcap", folder / "ros2-crc.mcap", bad))
     return out
 
 

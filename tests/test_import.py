@@ -125,7 +125,7 @@ def broken_record(n=3000):
 
 def text_log(tmp_path, t, g, a):
     p = tmp_path / "log.csv"
-    header = "timestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
+    header = "timestamp,acc_x [m/s^2],acc_y [m/s^2],acc_z [m/s^2],gyro_x [rad/s],gyro_y [rad/s],gyro_z [rad/s]"
     np.savetxt(p, np.column_stack([(t - T0) / 1e9 + 100.0, a, g]), delimiter=",", header=header, comments="",
                fmt="%.17g")  # fmt: skip
     return p
@@ -153,7 +153,7 @@ def test_streamed_channels_equal_the_imported_run(tmp_path, fmt):
     t, g, a = broken_record()
     src = text_log(tmp_path, t, g, a) if fmt == "csv" else bag_path(tmp_path, fmt, t, g, a)
     import_recording(str(src), str(tmp_path / "run.h5"))
-    text = {"time_col": None, "gyro_cols": None, "accel_cols": None, "gyro_unit": "rad/s"}
+    text = {"time_col": None, "gyro_cols": None, "accel_cols": None, "gyro_unit": None, "accel_unit": None}
     for globs in ([], ["*/gyro/y", "*/accel/*"]):
         ref = load_inputs([str(tmp_path / "run.h5")], globs)
         got = streamed_channels(str(src), globs, quiet=True, topic=None, time_unit=None, text=text)
@@ -242,7 +242,7 @@ def test_csv_log_auto_detected(tmp_path):
     t, g, a = record(2000)
     ts = (t - T0) / 1e9 + 100.0
     p = tmp_path / "log.csv"
-    header = "timestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
+    header = "# units: rad/s, m/s^2\ntimestamp,acc_x,acc_y,acc_z,gyro_x,gyro_y,gyro_z"
     np.savetxt(p, np.column_stack([ts, a, g]), delimiter=",", header=header, comments="", fmt="%.17g")
     mp = text_mapping(str(p))
     assert (mp.time_col, mp.gyro_cols, mp.accel_cols, mp.time_unit) == (0, (4, 5, 6), (1, 2, 3), "s")
@@ -301,8 +301,9 @@ def test_bad_inputs(tmp_path):
         run("import", str(src), "-o", str(tmp_path / "o.h5"), "--topic", "/nope"), "rec.bag", "/nope", "/imu/data"
     )
     (tmp_path / "bad.csv").write_text("time,gx,gy,gz\n0.0,1,2,3\n0.005,1,x,3\n")
+    bad = ("import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.h5"), "--gyro-unit", "rad/s")
     assert_one_line_error(
-        run("import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "o.h5"), "--gyro-columns", "gx,gy,gz"),
+        run(*bad, "--gyro-columns", "gx,gy,gz"),
         "bad.csv",
         "line 3",
     )
@@ -583,3 +584,89 @@ def test_a_truncated_ros1_bag_imports_every_message_before_the_cut(chunked_bag, 
         assert k == 6000 and "inside its index" in lines[0] and "no message lost" in lines[0]
     else:
         assert f"file ends at byte {cut}" in lines[0] and "not imported" in lines[0]
+        import re
+
+        about = int(re.search(r"~(\d+) messages \(estimated\)", lines[0]).group(1))
+        assert abs(about - (6000 - k)) <= 0.05 * (6000 - k)  # what the cut lost, estimated
+
+
+def test_a_ros1_bag_cut_at_a_chunk_boundary_says_what_was_lost(chunked_bag, tmp_path):
+    """A bag cut exactly between two chunks read to its end without an error, and was reported
+    'cut inside its index ... no message lost' although most chunks were gone."""
+    import re
+
+    src, _compression, chunks, _ref = chunked_bag
+    data = src.read_bytes()
+    cut = chunks[3][0]  # the first byte of the fourth chunk
+    p = tmp_path / "cut.bag"
+    p.write_bytes(data[:cut])
+    res = run("import", str(p), "-o", str(tmp_path / "cut.h5"))
+    assert res.exit_code == 0, res.output
+    k = sum(n for _pos, n in chunks[:3])
+    line = next(ln for ln in res.output.splitlines() if "truncated bag" in ln)
+    assert "no message lost" not in line and f"{k} messages before the cut imported (3 of {len(chunks)} chunks)" in line
+    assert f"{len(chunks) - 3} chunks" in line and "cut between records" in line
+    about = int(re.search(r"~(\d+) messages", line).group(1))
+    assert abs(about - (6000 - k)) < 0.05 * (6000 - k)  # estimated from the bytes per message read
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap"])
+def test_an_empty_imu_topic_beside_a_good_one_is_skipped_and_named(tmp_path, fmt):
+    """Before: 'fewer than two increasing stamps; cannot tell the sample rate' for the whole bag."""
+    from bagmaker import _imu_msg
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+    imu = store.types["sensor_msgs/msg/Imu"].__msgtype__
+    ser = store.serialize_ros1 if fmt == "ros1" else store.serialize_cdr
+    if fmt == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        path, w = tmp_path / "two.bag", Writer(tmp_path / "two.bag")
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        path, w = tmp_path / "two", Writer(tmp_path / "two", version=9, storage_plugin=StoragePlugin.MCAP)
+    with w:
+        good = w.add_connection("/imu/data", imu, typestore=store)
+        one = w.add_connection("/imu/spare", imu, typestore=store)
+        w.add_connection("/imu/unused", imu, typestore=store)
+        for i in range(500):
+            t = T0 + i * PERIOD
+            w.write(good, t, bytes(ser(_imu_msg(store, fmt, i, t, (0.01, 0.0, 0.0), (0, 0, 9.8)), imu)))
+        w.write(one, T0, bytes(ser(_imu_msg(store, fmt, 0, T0, (0.01, 0.0, 0.0), (0, 0, 9.8)), imu)))
+    src = path if fmt == "ros1" else next(path.glob("*.mcap"))
+    res = run("import", str(src), "-o", str(tmp_path / "o.h5"))
+    assert res.exit_code == 0, res.output
+    assert "Imu topic /imu/spare skipped: 1 message" in res.output
+    assert "Imu topic /imu/unused skipped: 0 messages" in res.output
+    with open_run(tmp_path / "o.h5") as r:
+        assert list(r.devices) == ["imu_data"] and r.rows("imu_data") == 500
+
+
+@pytest.mark.parametrize("compression", [None, "lz4"])
+def test_a_bag_of_one_message_per_chunk_is_read_whole_and_in_order(tmp_path, compression, monkeypatch):
+    """Small chunks are split and decoded in batches (their speed: benchmarks/bench_import.py --chunk-bytes 1);
+    every message comes out as rosbags reads it, and a cut inside a batch still keeps what precedes it."""
+    from bagmaker import write_big_imu_bag
+
+    from imustation.acquisition.importers import rosbag1
+
+    monkeypatch.setattr(rosbag1, "BATCH_BYTES", 40_000)  # several batches in a small bag
+    monkeypatch.setattr(rosbag1, "WALK_BYTES", 50_000)  # and several reads of the record walk
+    src = write_big_imu_bag(tmp_path / "tiny.bag", 3000, compression=compression, chunk_bytes=1,
+                            extra_every=7, temp_every=50)  # fmt: skip
+    t_ref, g_ref, a_ref = _read_all(src, "old", ["/imu/data"])["/imu/data"]
+    t, g, a = _read_all(src, "new", ["/imu/data"])["/imu/data"]
+    np.testing.assert_array_equal(t, t_ref)
+    np.testing.assert_array_equal(g, g_ref)
+    np.testing.assert_array_equal(a, a_ref)
+    res = import_recording(str(src), str(tmp_path / "o.h5"))
+    assert res.reports["imu_data"].n == 3000 and res.thermometers["imu_temperature"][1] == 60
+    data = src.read_bytes()
+    (tmp_path / "cut.bag").write_bytes(data[: len(data) // 2 + 7])
+    res = import_recording(str(tmp_path / "cut.bag"), str(tmp_path / "cut.h5"))
+    k = res.reports["imu_data"].n
+    assert 1000 < k < 3000 and any("truncated bag" in n for n in res.notes)
+    with open_run(tmp_path / "cut.h5") as r:
+        np.testing.assert_array_equal(r.read("imu_data", "gyro"), g_ref[:k])

@@ -15,9 +15,10 @@ FS = 100.0
 T0_S = 1_700_000_000.0  # Unix time of the first stamp: 2023-11-14T22:13:20 UTC
 
 
-def _log(path, header: str, columns: list[np.ndarray], n: int = 3000) -> np.ndarray:
+def _log(path, header: str, columns: list[np.ndarray], n: int = 3000, units: str = "# gyro: rad/s\n# accel: m/s^2\n"):
     t = T0_S + np.arange(n) / FS
-    np.savetxt(path, np.column_stack([t, *columns]), delimiter=",", header=header, comments="", fmt="%.17g")
+    fmt = ["%.3f"] + ["%.17g"] * len(columns)  # stamps to the ms, as a logger writes them
+    np.savetxt(path, np.column_stack([t, *columns]), delimiter=",", header=units + header, comments="", fmt=fmt)
     return t
 
 

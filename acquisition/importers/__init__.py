@@ -10,9 +10,10 @@ instead of a bus. Offers:
 * :class:`StampChecker`, :func:`check_stamps` - timestamp hygiene (:mod:`.timestamps`).
 
 Readers, one module per source: :mod:`.bags` (which bag reader, topics) over
-:mod:`.ros1` (imustation's streaming ROS 1 reader, :mod:`.rosbag1`) and
-:mod:`.ros2` (rosbags: ROS 2 bags, MCAP); :mod:`.logs` (text logs, .npy);
-:mod:`.messages` decodes sensor_msgs/Imu and /Temperature with numpy.
+:mod:`.ros1` (imustation's streaming ROS 1 readers: bags, :mod:`.rosbag1`, and MCAP of
+ROS 1 messages, :mod:`.mcap1`) and :mod:`.ros2` (rosbags: ROS 2 bags, ROS 2 MCAP);
+:mod:`.logs` (text logs, .npy; their units: :mod:`.units`, exact time cells:
+:mod:`.textcells`); :mod:`.messages` decodes sensor_msgs/Imu and /Temperature with numpy.
 """
 
 from imustation.acquisition.importers.logs import TextMapping, text_mapping

@@ -11,8 +11,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+from imustation.acquisition.importers.mcap1 import profile
 from imustation.acquisition.importers.messages import BLOCK_ROWS, IMU_MD5, IMU_TYPES, TEMP_TYPES, Rows
-from imustation.acquisition.importers.ros1 import iter_ros1, ros1_index
+from imustation.acquisition.importers.ros1 import iter_mcap1, iter_ros1, mcap1_index, ros1_index
 from imustation.acquisition.importers.ros2 import iter_rosbags, rosbags_connections
 from imustation.errors import InputError
 
@@ -31,10 +32,16 @@ def _streaming(path: str, reader: str) -> bool:
     return reader == "new" and Path(path).is_file() and path.lower().endswith(".bag")
 
 
+def _ros1_mcap(path: str) -> bool:
+    """An MCAP file whose profile is not ROS 2's: ROS 1 messages (``mcap convert`` of a bag), which
+    rosbags refuses; read by :mod:`.mcap1` whatever the reader asked for."""
+    return Path(path).is_file() and path.lower().endswith(".mcap") and profile(path) not in (None, "ros2")
+
+
 def bag_connections(path: str, reader: str = "new") -> list[tuple[str, str, int]]:
     """``(topic, msgtype, message count)`` of every connection of a bag."""
-    if _streaming(path, reader):
-        conns, counts = ros1_index(path)
+    if _streaming(path, reader) or _ros1_mcap(path):
+        conns, counts = ros1_index(path) if _streaming(path, reader) else mcap1_index(path)
         return [(c.topic, c.msgtype, counts.get(c.id, 0)) for c in conns.values()]
     return rosbags_connections(path)
 
@@ -90,6 +97,9 @@ def iter_bag(
     with numpy), ROS 2 bags and MCAP with rosbags, a block of raw CDR messages decoded at once with numpy.
     ``reader="old"``: rosbags for every format, messages deserialised one by one (the import as it was).
     """
+    if _ros1_mcap(path):
+        yield from iter_mcap1(path, topics, block, limit, tuple(temp_topics), notes)
+        return
     if _streaming(path, reader):
         conns, _ = ros1_index(path)
         if all(c.md5sum == IMU_MD5 for c in conns.values() if c.topic in topics and c.msgtype in IMU_TYPES):

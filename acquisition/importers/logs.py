@@ -16,6 +16,8 @@ from itertools import islice
 import numpy as np
 
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
+from imustation.acquisition.importers.textcells import bad_utf8_line, time_exponent, to_ns
+from imustation.acquisition.importers.units import ACCEL_UNITS, GYRO_UNITS, column_unit, comment_units, strip_unit
 from imustation.errors import InputError
 from imustation.units import TIME_UNITS
 
@@ -57,6 +59,13 @@ class TextMapping:
     accel_axes: tuple[str, ...] = AXES
     temp_col: int | None = None
     ignored: tuple[int, ...] = ()
+    #: the units the gyro / accel columns are in (keys of .units.GYRO_UNITS / ACCEL_UNITS) and where
+    #: each was read ("column names", "header comment '# gyro: deg/s'", "--gyro-unit")
+    gyro_unit: str = "rad/s"
+    gyro_unit_from: str = ""
+    accel_unit: str | None = None
+    accel_unit_from: str = ""
+    accel_scale: float = 1.0
 
     def summary(self) -> str:
         """Which columns were taken: ``time 't' [s], gyro z <- 'gz', accel none, temperature none``."""
@@ -67,12 +76,18 @@ class TextMapping:
         def axes(cols, names) -> str:
             return ", ".join(f"{a} <- {name(i)}" for a, i in zip(names, cols, strict=True))
 
+        def unit(u, frm) -> str:
+            return f" [{u}, from {frm}]" if frm else f" [{u}]"
+
         acc = axes(self.accel_cols, self.accel_axes) if self.accel_cols else "none"
+        if self.accel_cols:
+            acc += unit(self.accel_unit, self.accel_unit_from)
         temp = f"temperature {name(self.temp_col)} [°C]" if self.temp_col is not None else "temperature none"
         ign = f", ignored {', '.join(name(i) for i in self.ignored)}" if self.ignored else ""
         how = f" (auto-detected: {', '.join(self.auto)})" if self.auto else ""
         return (
-            f"time {name(self.time_col)} [{self.time_unit}], gyro {axes(self.gyro_cols, self.gyro_axes)}, "
+            f"time {name(self.time_col)} [{self.time_unit}], gyro {axes(self.gyro_cols, self.gyro_axes)}"
+            f"{unit(self.gyro_unit, self.gyro_unit_from)}, "
             f"accel {acc}, {temp}{ign}{how}"
         )
 
@@ -91,9 +106,10 @@ def _resolve(path: str, spec: str, header: list[str] | None, ncols: int) -> int:
 
 
 def _normalise(name: str) -> str:
-    """``"Gyro X [rad/s]"`` -> ``"gyro_x"``: lower case, bracketed units dropped, separators as ``_``."""
+    """``"Gyro X [rad/s]"``, ``"gyro_x_dps"`` -> ``"gyro_x"``: lower case, bracketed units and unit
+    suffixes dropped, separators as ``_``."""
     name = re.sub(r"[\[(\{].*?[\])\}]", "", name.lower())
-    return re.sub(r"[^a-z0-9]+", "_", name).strip("_")
+    return strip_unit(re.sub(r"[^a-z0-9]+", "_", name).strip("_"))
 
 
 def _named_axes(low: list[str], pattern: re.Pattern, skip: set[int]) -> dict[str, int]:
@@ -130,7 +146,8 @@ def text_mapping(
     gyro_cols: str | None = None,
     accel_cols: str | None = None,
     time_unit: str | None = None,
-    gyro_unit: str = "rad/s",
+    gyro_unit: str | None = None,
+    accel_unit: str | None = None,
 ) -> TextMapping:
     """Column mapping of a text log from the options, the rest auto-detected from its first lines.
 
@@ -139,13 +156,22 @@ def text_mapping(
     in brackets ignored), else the headers containing ``gyr``/``angular``/``omega``/``rate`` and
     ``acc``/``linear`` (axes x, y, z in order), else (no header) the columns after the time column:
     gyro x, y, z, accel x, y, z — one- and two-axis logs (``t,gz``) included. A column named
-    ``temperature``/``temp`` is the temperature (°C). Rules in docs/import.md.
+    ``temperature``/``temp`` is the temperature (°C).
+
+    Units of the gyro and accel columns: ``gyro_unit``/``accel_unit`` (keys of
+    :data:`.units.GYRO_UNITS`/:data:`.units.ACCEL_UNITS`), else the column names (``gyro_x_dps``,
+    ``ax [g]``), else a header comment (``# gyro: deg/s``); a sensor column with no unit stated is
+    refused (InputError naming ``--gyro-unit``/``--accel-unit``). Rules in docs/import.md.
     """
     try:
         with open(path, encoding="utf-8") as fh:
-            lines = [ln for ln in islice(fh, 200) if ln.strip() and not ln.lstrip().startswith("#")]
-    except (OSError, UnicodeDecodeError) as exc:
+            head = list(islice(fh, 200))
+    except UnicodeDecodeError:
+        raise InputError(_not_utf8(path)) from None
+    except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc})") from None
+    lines = [ln for ln in head if ln.strip() and not ln.lstrip().startswith("#")]
+    comments = [ln for ln in head if ln.lstrip().startswith("#")]
     if not lines:
         raise InputError(f"{path}: empty log")
     first = lines[0]
@@ -226,8 +252,59 @@ def text_mapping(
         auto.append("time unit")
     if time_unit not in TIME_UNITS:
         raise InputError(f"{path}: time unit {time_unit!r}: use one of {', '.join(TIME_UNITS)}")
-    scale = {"rad/s": 1.0, "deg/s": math.pi / 180.0}[gyro_unit]
-    return TextMapping(delim, header, tc, gc, ac, time_unit, scale, auto, g_axes, a_axes, temp, ignored)
+    stated = comment_units(comments)
+    g_unit, g_from = _unit(path, "gyro", gyro_unit, GYRO_UNITS, gc, header, stated)
+    mp = TextMapping(delim, header, tc, gc, ac, time_unit, GYRO_UNITS[g_unit], auto, g_axes, a_axes, temp, ignored)
+    mp.gyro_unit, mp.gyro_unit_from = g_unit, g_from
+    if ac is not None:
+        a_unit, a_from = _unit(path, "accel", accel_unit, ACCEL_UNITS, ac, header, stated)
+        mp.accel_unit, mp.accel_unit_from, mp.accel_scale = a_unit, a_from, ACCEL_UNITS[a_unit]
+    return mp
+
+
+def _unit(
+    path: str,
+    label: str,
+    given: str | None,
+    table: dict[str, float],
+    cols: tuple[int, ...],
+    header: list[str] | None,
+    stated: dict[str, tuple[str, str]],
+) -> tuple[str, str]:
+    """``(unit, where it was read)`` of the ``label`` columns ``cols``: the option, else the column
+    names, else a header comment; InputError when none states it or the names disagree."""
+    names = [header[i] for i in cols] if header else []
+    said = {n: column_unit(n) for n in names}
+    said = {n: u for n, u in said.items() if u is not None and u in table}
+    if given is not None:
+        if given not in table:
+            raise InputError(f"{path}: --{label}-unit {given!r}: use one of {', '.join(table)}")
+        others = sorted({u for u in said.values() if u != given})
+        note = f" (the column names say {', '.join(others)})" if others else ""
+        return given, f"--{label}-unit{note}"
+    if said:
+        units = set(said.values())
+        if len(units) > 1 or len(said) < len(names):
+            listing = ", ".join(f"{n!r}: {said.get(n, 'none')}" for n in names)
+            raise InputError(f"{path}: the {label} columns state different units ({listing}); give --{label}-unit")
+        return units.pop(), "column names"
+    if label in stated:
+        unit, line = stated[label]
+        return unit, f"header comment {line!r}"
+    cols_named = ", ".join(repr(n) for n in names) if names else f"columns {', '.join(str(i) for i in cols)}"
+    raise InputError(
+        f"{path}: no unit stated for the {label} ({cols_named}); name it in the header "
+        f"({'gyro_x_dps, gx [rad/s]' if label == 'gyro' else 'acc_x_g, ax [m/s^2]'}) or give --{label}-unit "
+        f"({'|'.join(table)})"
+    )
+
+
+def _not_utf8(path: str) -> str:
+    where = bad_utf8_line(path)
+    if where is None:
+        return f"{path}: not UTF-8 text"
+    line, at, byte = where
+    return f"{path}: line {line}: byte 0x{byte:02x} at offset {at} is not UTF-8 text (save the log as UTF-8)"
 
 
 def _split(line: str, delim: str | None) -> list[str]:
@@ -235,42 +312,63 @@ def _split(line: str, delim: str | None) -> list[str]:
 
 
 def iter_text(path: str, mp: TextMapping, block: int = BLOCK_ROWS) -> Iterator[tuple[int, Rows, np.ndarray | None]]:
-    """``(bytes read, block, temperature °C or None)`` of a text log, in file order."""
-    factor = TIME_UNITS[mp.time_unit]
+    """``(bytes read, block, temperature °C or None)`` of a text log, in file order.
+
+    Stamps are read exactly (:func:`.textcells.to_ns`: an integer column as integers, a decimal
+    one digit by digit); a byte that is not UTF-8 and a NaN are reported with their line number.
+    """
+    exp = time_exponent(TIME_UNITS[mp.time_unit])
     temp = [] if mp.temp_col is None else [mp.temp_col]
-    cols = [mp.time_col, *mp.gyro_cols, *(mp.accel_cols or ()), *temp]
+    cols = [*mp.gyro_cols, *(mp.accel_cols or ()), *temp]
+    tc = mp.time_col
     ng, na = len(mp.gyro_cols), len(mp.accel_cols or ())
-    with open(path, encoding="utf-8") as fh:
-        if mp.header is not None:
-            for ln in fh:
-                if ln.strip() and not ln.lstrip().startswith("#"):
-                    break
-        lineno = 1 if mp.header is not None else 0
-        pos = 0
-        while True:
-            chunk = list(islice(fh, block))
-            if not chunk:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            yield from _blocks(path, fh, mp, block, exp, tc, cols, ng, na, bool(temp))
+    except UnicodeDecodeError:
+        raise InputError(_not_utf8(path)) from None
+
+
+def _blocks(path, fh, mp: TextMapping, block: int, exp: int, tc: int, cols: list[int], ng: int, na: int, temp: bool):
+    lineno = 0  # lines read so far: the comments and blank lines before the header count too
+    if mp.header is not None:
+        for ln in fh:
+            lineno += 1
+            if ln.strip() and not ln.lstrip().startswith("#"):
                 break
-            pos += sum(len(c) for c in chunk)
-            rows = []
-            for ln in chunk:
-                lineno += 1
-                if not ln.strip() or ln.lstrip().startswith("#"):
-                    continue
-                cells = _split(ln, mp.delimiter)
-                try:
-                    rows.append([float(cells[i]) for i in cols])
-                except (ValueError, IndexError):
-                    raise InputError(f"{path}: line {lineno}: unparsable row {ln.strip()[:60]!r}") from None
-            if not rows:
+    pos = 0
+    while True:
+        chunk = list(islice(fh, block))
+        if not chunk:
+            break
+        pos += sum(len(c) for c in chunk)
+        rows, stamps, lines = [], [], []
+        for ln in chunk:
+            lineno += 1
+            if not ln.strip() or ln.lstrip().startswith("#"):
                 continue
-            arr = np.asarray(rows)
-            if not np.isfinite(arr).all():
-                raise InputError(f"{path}: NaN/infinite values near line {lineno}")
-            t_ns = np.rint(arr[:, 0] * factor).astype(np.int64)
-            accel = arr[:, 1 + ng : 1 + ng + na] if mp.accel_cols else None
-            celsius = arr[:, 1 + ng + na] if temp else None
-            yield pos, (t_ns, arr[:, 1 : 1 + ng] * mp.gyro_scale, accel), celsius
+            cells = _split(ln, mp.delimiter)
+            try:
+                stamps.append(to_ns(cells[tc], exp))
+                rows.append([float(cells[i]) for i in cols])
+            except (ValueError, IndexError):
+                if len(cells) > tc and cells[tc].strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+                    raise InputError(f"{path}: line {lineno}: NaN/infinite time stamp") from None
+                raise InputError(f"{path}: line {lineno}: unparsable row {ln.strip()[:60]!r}") from None
+            lines.append(lineno)
+        if not rows:
+            continue
+        arr = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(cols))
+        finite = np.isfinite(arr).all(axis=1)
+        if not finite.all():
+            raise InputError(f"{path}: line {lines[int(np.argmin(finite))]}: NaN/infinite value")
+        try:
+            t_ns = np.array(stamps, dtype=np.int64)
+        except OverflowError:
+            raise InputError(f"{path}: a time stamp beyond the int64 ns range (year 2262) near line {lineno}") from None
+        accel = arr[:, ng : ng + na] * mp.accel_scale if mp.accel_cols else None
+        celsius = arr[:, ng + na] if temp else None
+        yield pos, (t_ns, arr[:, :ng] * mp.gyro_scale, accel), celsius
 
 
 def load_npy_log(path: str, time_unit: str | None = None) -> Rows:
@@ -291,8 +389,12 @@ def load_npy_log(path: str, time_unit: str | None = None) -> Rows:
     data = np.asarray(arr[:, 1:], dtype=np.float64)
     if not (np.isfinite(data).all() and np.isfinite(t).all()):
         raise InputError(f"{path}: NaN/infinite values")
+    if arr.dtype.kind in "iu":  # integer stamps stay integers (unix ns does not fit a float64's 53 bits)
+        t_ns = np.asarray(arr[:, 0], dtype=np.int64) * (10 ** time_exponent(TIME_UNITS[time_unit]))
+    else:
+        t_ns = np.rint(t * TIME_UNITS[time_unit]).astype(np.int64)
     return (
-        np.rint(t * TIME_UNITS[time_unit]).astype(np.int64),
+        t_ns,
         data[:, :3],
         data[:, 3:6] if data.shape[1] == 6 else None,
     )

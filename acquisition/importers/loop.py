@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,7 +21,8 @@ import numpy as np
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
 from imustation.acquisition.importers.sources import Recording, open_recording
 from imustation.acquisition.importers.timestamps import StampChecker, StampReport
-from imustation.runfile import RunWriter, utc_now_iso
+from imustation.acquisition.importers.units import implausible_means
+from imustation.runfile import DeviceSpec, RunWriter, utc_now_iso
 from imustation.sample_checks import refuse_impossible
 
 #: rows queued (all devices) before the run writer flushes: 2^16 rows = 3.7 MB (its default, 2^20, is 59 MB)
@@ -62,6 +64,9 @@ class _Sink:
         self.check = StampChecker(period_ns=period_ns)
         self._logged = 0
         self._prev_last = 0
+        self._sums: dict[str, np.ndarray] = {}
+        #: what the record's stamps and means say against it (printed and stored as notes)
+        self.warnings: list[str] = []
 
     def write(self, blk: Rows) -> None:
         t, gyro, accel = blk
@@ -72,6 +77,9 @@ class _Sink:
             refuse_impossible(f"{self.where} accel", accel, "m/s^2", start)
         rel = t - self.t0
         self.check.update(t)
+        for key, x in (("gyro", gyro), ("accel", accel)):
+            if x is not None and len(x):
+                self._sums[key] = self._sums.get(key, 0.0) + x.sum(axis=0, dtype=np.float64)
         chans = {"gyro": gyro}
         if self.with_accel:
             chans["accel"] = accel if accel is not None else np.zeros_like(gyro)
@@ -99,6 +107,10 @@ class _Sink:
                 f"stamps kept in file order: {r.backwards} non-monotonic, {r.duplicates} duplicated{first}",
             )
         self.w.event(t_end, self.name, "note", "import: " + r.summary())
+        means = {k: tuple((v / r.n).tolist()) for k, v in self._sums.items()} if r.n else {}
+        for why in r.warnings() + implausible_means(means.get("gyro"), means.get("accel")):
+            self.warnings.append(f"{self.name}: {why}")
+            self.w.event(t_end, self.name, "note", why[:256])
         return r
 
 
@@ -124,6 +136,7 @@ def feed(rec: Recording, target: Target, progress: Progress | None = None) -> Im
         if progress:
             progress(pos, rec.total)
     reports = {sink.name: sink.finish() for sink in sinks.values()}
+    warnings = [w for sink in sinks.values() for w in sink.warnings]
     for note in rec.notes:
         target.event(max(r.last_ns for r in reports.values()) - rec.t0, "station", "note", note[:256])
     return ImportResult(
@@ -134,8 +147,19 @@ def feed(rec: Recording, target: Target, progress: Progress | None = None) -> Im
         reports,
         rec.mapping,
         {name: (topic, readings[topic]) for topic, name in rec.thermometers.items()},
-        rec.notes,
+        rec.notes + warnings,
     )
+
+
+def fitted_rates(res: ImportResult, devices: dict[str, DeviceSpec]) -> dict[str, float]:
+    """Device name -> the rate its whole record's stamps give (:class:`.timestamps.StampReport`'s fit),
+    the device's ``rate_hz`` in the file; the probe's rate where the record has too few regular stamps."""
+    out = {}
+    for spec in devices.values():
+        rep = res.reports.get(spec.name)
+        fit = rep.true_rate_hz if rep is not None else math.nan
+        out[spec.name] = fit if math.isfinite(fit) and fit > 0 else spec.rate_hz
+    return out
 
 
 def import_recording(
@@ -174,16 +198,29 @@ def import_recording(
     # ended_utc is the end of the data, as for a capture; when the conversion ran is imported_utc
     attrs["imported_utc"] = utc_now_iso()
     last = max((r.last_ns for r in res.reports.values() if r.n), default=rec.t0)
-    writer.close(ended_utc=_iso(rec.t0, last - rec.t0), attrs=attrs)
+    rates = fitted_rates(res, rec.devices)
+    writer.close(
+        ended_utc=_iso(rec.t0, last - rec.t0), attrs=attrs, device_attrs={n: {"rate_hz": hz} for n, hz in rates.items()}
+    )
     res.path = out
     return res
 
 
 def _iso(ns: int, after_ns: int = 0) -> str:
-    """UTC time of the stamp ``ns`` plus ``after_ns`` (ns); stamps that do not look like Unix time
-    start at 1970-01-01 (``started_utc`` of such an import), so the end is that plus the span."""
+    """UTC time of the stamp ``ns`` plus ``after_ns`` (ns), to the stamp's own resolution: ms, us or ns
+    digits as the time needs (``t`` counts from ``started_utc``, so a started_utc cut to ms would date
+    every sample up to 1 ms early). Stamps that do not look like Unix time start at 1970-01-01
+    (``started_utc`` of such an import), so the end is that plus the span."""
     base = ns if ns > 10**17 else 0  # a Unix epoch in ns, or a clock of its own
-    return _dt.datetime.fromtimestamp((base + after_ns) / 1e9, _dt.UTC).isoformat(timespec="milliseconds")
+    return iso_ns(base + after_ns)
+
+
+def iso_ns(ns: int) -> str:
+    """ISO 8601 UTC of ``ns`` since the Unix epoch with 3, 6 or 9 fraction digits, the fewest that are exact."""
+    sec, frac = divmod(int(ns), 1_000_000_000)
+    stamp = _dt.datetime.fromtimestamp(sec, _dt.UTC).strftime("%Y-%m-%dT%H:%M:%S")
+    digits = 3 if frac % 1_000_000 == 0 else 6 if frac % 1000 == 0 else 9
+    return f"{stamp}.{frac // 10 ** (9 - digits):0{digits}d}+00:00"
 
 
 def _rep(reports: dict[str, StampReport]) -> str:

@@ -10,6 +10,7 @@ Messages come in rosbags' order (log time).
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -35,6 +36,32 @@ def _open_bag(path: str):
     except Exception as exc:  # rosbags raises several reader errors; all mean "not a readable bag"
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
     return reader
+
+
+def _reader_errors() -> tuple[type[BaseException], ...]:
+    """What rosbags' readers raise for a damaged file (a chunk failing its CRC, a corrupted record length,
+    a compressed block that does not decompress), besides their own ReaderErrors."""
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+    from rosbags.rosbag2 import ReaderError
+
+    return (ReaderError, Ros1ReaderError, AnyReaderError, struct.error, EOFError, OSError, ValueError, KeyError,
+            IndexError, RuntimeError, MemoryError, OverflowError)  # fmt: skip
+
+
+def _checked(path: str, messages: Iterator) -> Iterator:
+    """``messages`` of a rosbags reader; a damaged file is one InputError naming it, not a traceback."""
+    errors = _reader_errors()
+    it = iter(messages)
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except errors as exc:
+            text = str(exc).splitlines()[0][:200] if str(exc) else exc.__class__.__name__
+            raise InputError(f"{path}: damaged bag / MCAP file ({text})") from None
+        yield item
 
 
 def rosbags_connections(path: str) -> list[tuple[str, str, int]]:
@@ -67,7 +94,7 @@ def iter_rosbags(
         fill = dict.fromkeys(topics, 0)
         stamps = {t: np.empty(block, dtype=np.int64) for t in topics}
         seen = 0
-        for conn, _logtime, raw in bag.messages(connections=conns + tconns):
+        for conn, _logtime, raw in _checked(path, bag.messages(connections=conns + tconns)):
             t = conn.topic
             if conn.msgtype in TEMP_TYPES:
                 try:

@@ -8,153 +8,47 @@ message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
 O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
 with numpy, a chunk at a time (:func:`.messages.decode_imu_ros1`).
 
-Records: ``<header_len u32><header><data_len u32><data>``; the header is a list
-of ``<field_len u32>name=value`` fields, ``op`` tells the record type.
+The records and a chunk's contents are parsed by :mod:`.ros1records`.
 Messages inside a chunk are in the order they were recorded (receive time);
 they are returned in that order, never sorted.
 """
 
 from __future__ import annotations
 
-import bz2
 import os
-import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.acquisition.importers.messages import gather_u32 as _gather_u32
+from imustation.acquisition.importers.ros1records import (
+    MAGIC,
+    OP_BAGHEADER,
+    OP_CHUNK,
+    OP_CHUNK_INFO,
+    OP_CONNECTION,
+    OP_MSGDATA,
+    BagCutError,
+    BagFormatError,
+    ChunkMessages,
+    Connection,
+    connection,
+    decompress,
+    decompress_prefix,
+    int_field,
+    op_code,
+    op_of,
+    parse_fields,
+    split_chunk,
+    stamp,
+    u32,
+)
 
-OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
-MAGIC = b"#ROSBAG V2.0\n"
+__all__ = ["BagCutError", "BagFormatError", "ChunkMessages", "Connection", "Ros1Bag"]
 
-_u32 = struct.Struct("<I").unpack_from
-
-
-class BagFormatError(ValueError):
-    """Not a readable ROS 1 (v2.0) bag."""
-
-
-class BagCutError(BagFormatError):
-    """A record runs past the end of the file (the bag was cut short)."""
-
-
-@dataclass(frozen=True)
-class Connection:
-    id: int
-    topic: str
-    msgtype: str  # as in the bag: "sensor_msgs/Imu"
-    md5sum: str
-
-
-@dataclass
-class ChunkMessages:
-    """The messages of one chunk, in file order: ``buf[start[i]:start[i] + length[i]]`` is message i."""
-
-    buf: bytes
-    conn: np.ndarray  # int64 connection ids
-    time: np.ndarray  # int64 record (receive) time, ns
-    start: np.ndarray  # int64 offset of the serialised message in buf
-    length: np.ndarray  # int64
-
-
-def normalize_topic(name: str) -> str:
-    """As rosbags does: no doubled or trailing slashes."""
-    return f"{'/' * (name[:1] == '/')}{'/'.join(x for x in name.split('/') if x)}"
-
-
-def _fields(buf, pos: int, end: int) -> dict[str, bytes]:
-    out = {}
-    while pos < end:
-        if end - pos < 4:
-            raise BagFormatError("header field cut short")
-        (n,) = _u32(buf, pos)
-        pos += 4
-        if n > end - pos:
-            raise BagFormatError("header field longer than its header")
-        name, sep, value = bytes(buf[pos : pos + n]).partition(b"=")
-        if not sep:
-            raise BagFormatError("header field without '='")
-        out[name.decode("latin-1")] = value
-        pos += n
-    return out
-
-
-def _layout(buf, pos: int, n: int) -> dict[str, tuple[int, int]]:
-    """``name -> (value offset from the header start, value length)`` of the fields of a header."""
-    out, p, end = {}, pos, pos + n
-    while p < end:
-        (k,) = _u32(buf, p)
-        p += 4
-        name, _, value = bytes(buf[p : p + k]).partition(b"=")
-        out[name.decode("latin-1")] = (p + len(name) + 1 - pos, len(value))
-        p += k
-    return out
-
-
-def _int(fields: dict[str, bytes], name: str) -> int:
-    try:
-        return int.from_bytes(fields[name], "little")
-    except KeyError:
-        raise BagFormatError(f"record without {name!r} field") from None
-
-
-def _op(fields: dict[str, bytes]) -> int:
-    op = fields.get("op")
-    if op is None or len(op) != 1:
-        raise BagFormatError("record without op code")
-    return op[0]
-
-
-def _connection(fields: dict[str, bytes], data: bytes) -> Connection:
-    d = _fields(data, 0, len(data))
-    topic = fields.get("topic") or d.get("topic") or b""
-    return Connection(
-        _int(fields, "conn"),
-        normalize_topic(topic.decode()),
-        d.get("type", b"").decode(),
-        d.get("md5sum", b"").decode(),
-    )
-
-
-_DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
-
-
-def _decompress_prefix(kind: str, data: bytes) -> bytes:
-    """What the first bytes of a chunk cut short decompress to (b"" where nothing can be told).
-
-    bz2 and lz4 frames decompress block by block: the blocks complete before the cut come out.
-    """
-    try:
-        if kind == "none":
-            return data
-        if kind == "bz2":
-            return bz2.BZ2Decompressor().decompress(data)
-        if kind == "lz4":
-            import lz4.frame
-
-            return lz4.frame.LZ4FrameDecompressor().decompress(data)
-    except (OSError, ValueError, RuntimeError, EOFError):
-        pass
-    return b""
-
-
-def _decompress(kind: str, data: bytes, size: int) -> bytes:
-    if kind not in ("lz4", *_DECOMPRESS):
-        raise BagFormatError(f"chunk compression {kind!r} is not supported")
-    try:
-        if kind == "lz4":
-            import lz4.frame
-
-            out = lz4.frame.decompress(data)
-        else:
-            out = _DECOMPRESS[kind](data, size)
-    except (OSError, ValueError, RuntimeError, EOFError) as exc:
-        raise BagFormatError(f"{kind} chunk does not decompress ({exc})") from None
-    if len(out) != size:
-        raise BagFormatError(f"chunk holds {len(out)} bytes, its header says {size}")
-    return out
+#: decompressed chunk bytes split and handed out together (small chunks are batched up to it)
+BATCH_BYTES = 1 << 20
+#: file bytes read at a time while walking the records of the data section
+WALK_BYTES = 1 << 22
 
 
 class Ros1Bag:
@@ -162,16 +56,18 @@ class Ros1Bag:
 
     def __init__(self, path: str):
         self.path = str(path)
+        self._parsed: dict[bytes, dict[str, bytes]] = {}
+        self._walk_at = 0
         self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
         try:
             if self.fh.read(len(MAGIC)) != MAGIC:
                 raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
             hdr = self._header()
-            if _op(hdr) != OP_BAGHEADER:
+            if op_code(hdr) != OP_BAGHEADER:
                 raise BagFormatError("first record is not the bag header")
-            self.index_pos = _int(hdr, "index_pos")
-            self.conn_count = _int(hdr, "conn_count")
-            self.chunk_count = _int(hdr, "chunk_count")
+            self.index_pos = int_field(hdr, "index_pos")
+            self.conn_count = int_field(hdr, "conn_count")
+            self.chunk_count = int_field(hdr, "chunk_count")
             if hdr.get("encryptor"):
                 raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
             self._skip(self._u32())
@@ -203,7 +99,7 @@ class Ros1Bag:
         b = self.fh.read(4)
         if len(b) != 4:
             raise BagCutError("truncated record")
-        return _u32(b, 0)[0]
+        return u32(b, 0)[0]
 
     def _read(self, n: int) -> bytes:
         b = self.fh.read(n)
@@ -219,7 +115,15 @@ class Ros1Bag:
         if n > 1 << 20:
             raise BagFormatError(f"record header of {n} bytes")
         b = self._read(n)
-        return _fields(b, 0, n)
+        # the headers of a bag's chunks and index-data records repeat (same compression and size, same
+        # connection and count): parsed once (read-only dicts; callers only look fields up)
+        hit = self._parsed.get(b)
+        if hit is None:
+            hit = parse_fields(b, 0, n)
+            if len(self._parsed) >= 1024:
+                self._parsed.clear()
+            self._parsed[b] = hit
+        return hit
 
     # -- index
     def index(self) -> tuple[dict[int, Connection], dict[int, int]]:
@@ -248,25 +152,21 @@ class Ros1Bag:
 
     def _read_index(self) -> tuple[dict[int, Connection], dict[int, int]]:
         self.fh.seek(self.index_pos)
-        conns, counts = {}, {}
-        while self.fh.tell() < self.size:
-            hdr = self._header()
-            op = _op(hdr)
-            n = self._u32()
+        conns: dict[int, Connection] = {}
+        infos: list[bytes] = []
+        for _at, op, hdr, data in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
             if op == OP_CONNECTION:
-                c = _connection(hdr, self._read(n))
+                c = connection(hdr, data)
                 conns[c.id] = c
             elif op == OP_CHUNK_INFO:
-                data = self._read(n)
-                k = _int(hdr, "count")
-                if len(data) < 8 * k:
-                    raise BagFormatError("truncated chunk info record")
-                pairs = np.frombuffer(data, "<u4", 2 * k).reshape(k, 2)
-                for cid, m in pairs.tolist():
-                    counts[cid] = counts.get(cid, 0) + m
-            else:
-                self._skip(n)
-        return conns, counts
+                # (connection id u32, message count u32) pairs; the header's count is their number
+                if len(data) % 8:
+                    raise BagFormatError("chunk info record of a length that is not pairs of u32")
+                infos.append(data)
+        pairs = np.frombuffer(b"".join(infos), "<u4").reshape(-1, 2).astype(np.int64)
+        ids, where = np.unique(pairs[:, 0], return_inverse=True)
+        sums = np.bincount(where, pairs[:, 1], len(ids)) if len(ids) else np.zeros(0)
+        return conns, {int(i): int(n) for i, n in zip(ids, sums, strict=True)}
 
     # -- messages
     def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
@@ -282,48 +182,163 @@ class Ros1Bag:
         self.chunks_read = self.messages_read = self.salvaged = 0
         scan = self.index_pos == 0 or self.cut
         end = self.index_pos if 0 < self.index_pos <= self.size else self.size
-        while self.fh.tell() < end:
-            at = self.fh.tell()
+        # small chunks (a recorder that flushes every message) are split and decoded together: per chunk
+        # the cost is then a record read, not a numpy pass (one message per chunk: 0.6k -> tens of k msg/s)
+        batch: list[tuple[int, bytes]] = []
+        held = 0
+        failed: list[tuple[int, BagFormatError]] = []
+        walk = self._walk(end)
+        while True:
             try:
-                op, hdr, data = self._record()
+                item = next(walk, None)
+                if item is None:
+                    break
+                at, op, hdr, data = item
                 if op == OP_CHUNK:
-                    msgs = self._split(_decompress(hdr.get("compression", b"none").decode(), data,
-                                                   _int(hdr, "size")), conns)  # fmt: skip
-            except BagFormatError as exc:
+                    raw = decompress(hdr.get("compression", b"none").decode(), data, int_field(hdr, "size"))
+            except BagFormatError as err:
+                problem = err
+                at = self._walk_at
+                yield from self._flush(batch, conns, failed)
+                if failed:
+                    at, problem = failed[0]
                 if not scan:
-                    if not isinstance(exc, BagCutError):
-                        raise
+                    if not isinstance(problem, BagCutError):
+                        raise problem from None
                     self.cut = True  # the index says more than the file holds
-                self.unread_from = at
-                part = self._salvage(at, conns)
-                if part is not None:
-                    self.salvaged = len(part.conn)
-                    self.messages_read += self.salvaged
-                    yield part
+                yield from self._stop(at, conns)
                 return
             if op == OP_CHUNK:
-                self.chunks_read += 1
-                self.messages_read += len(msgs.conn)
-                yield msgs
-            elif op == OP_CONNECTION:
-                c = _connection(hdr, data)
+                batch.append((at, raw))
+                held += len(raw)
+                if held < BATCH_BYTES:
+                    continue
+            elif op not in (OP_CONNECTION, OP_MSGDATA):
+                continue  # index data after each chunk: nothing to hand out, the batch goes on
+            yield from self._flush(batch, conns, failed)
+            held = 0
+            if failed:
+                at, exc = failed[0]
+                if not scan:
+                    raise exc
+                yield from self._stop(at, conns)
+                return
+            if op == OP_CONNECTION:
+                c = connection(hdr, data)
                 conns[c.id] = c
             elif op == OP_MSGDATA:  # a message outside any chunk (not written by rosbag, but allowed)
                 one = np.ones(1, np.int64)
                 yield ChunkMessages(
-                    data, one * _int(hdr, "conn"), one * _time(hdr), np.zeros(1, np.int64), one * len(data)
+                    data, one * int_field(hdr, "conn"), one * stamp(hdr), np.zeros(1, np.int64), one * len(data)
                 )
+        yield from self._flush(batch, conns, failed)
+        if failed:
+            at, exc = failed[0]
+            if not scan:
+                raise exc
+            yield from self._stop(at, conns)
+
+    def _walk(
+        self, end: int, keep: tuple[int, ...] = (OP_CHUNK, OP_CONNECTION, OP_MSGDATA)
+    ) -> Iterator[tuple[int, int, dict[str, bytes], bytes]]:
+        """``(offset, op, header fields, data)`` of the top-level records from the file position up to
+        ``end``, read WALK_BYTES at a time (data ``b""`` and header fields ``{}`` for records whose op is
+        not in ``keep``, skipped): a chunk per message costs two small records, which read one by one
+        from the file cost more than the messages. The fields of a header seen before are not parsed
+        again. :attr:`_walk_at` is the offset of the record being read (where a BagFormatError stops)."""
+        pos = self.fh.tell()
+        base, buf = pos, b""
+
+        def fill(need: int) -> bytes:
+            self.fh.seek(pos)
+            got = self.fh.read(max(WALK_BYTES, need))
+            if len(got) < need:
+                raise BagCutError(f"truncated record ({len(got)} of {need} bytes)")
+            return got
+
+        while pos < end:
+            self._walk_at = pos
+            off = pos - base
+            if off + 4 > len(buf):
+                base, buf, off = pos, fill(4), 0
+            (hn,) = u32(buf, off)
+            if hn > 1 << 20:
+                raise BagFormatError(f"record header of {hn} bytes")
+            if off + 8 + hn > len(buf):
+                base, buf, off = pos, fill(8 + hn), 0
+            key = buf[off + 4 : off + 4 + hn]
+            hdr = self._parsed.get(key)
+            if hdr is not None:
+                op = op_code(hdr)
+            else:
+                op = op_of(key)
+                if op in keep and op != OP_CHUNK_INFO:
+                    hdr = parse_fields(key, 0, hn)
+                    if len(self._parsed) >= 1024:
+                        self._parsed.clear()
+                    self._parsed[key] = hdr
+                else:
+                    hdr = {}
+            (dn,) = u32(buf, off + 4 + hn)
+            total = 8 + hn + dn
+            data = b""
+            if op in keep:
+                if off + total > len(buf):
+                    base, buf, off = pos, fill(total), 0
+                data = buf[off + 8 + hn : off + total]
+            elif pos + total > self.size:
+                raise BagCutError("truncated record")
+            yield pos, op, hdr, data
+            pos += total
+        self.fh.seek(pos)
+
+    def _flush(
+        self, batch: list[tuple[int, bytes]], conns: dict[int, Connection], failed: list
+    ) -> Iterator[ChunkMessages]:
+        """The messages of the held chunks, split together; a chunk that does not split stops there
+        (``failed`` gets its offset and error, the chunks before it are handed out)."""
+        if not batch:
+            return
+        try:
+            msgs = split_chunk(b"".join(raw for _, raw in batch), conns) if len(batch) > 1 else None
+        except BagFormatError:
+            msgs = None
+        if msgs is not None:
+            self.chunks_read += len(batch)
+            self.messages_read += len(msgs.conn)
+            batch.clear()
+            yield msgs
+            return
+        for at, raw in batch:
+            try:
+                one = split_chunk(raw, conns)
+            except BagFormatError as exc:
+                failed.append((at, exc))
+                break
+            self.chunks_read += 1
+            self.messages_read += len(one.conn)
+            yield one
+        batch.clear()
+
+    def _stop(self, at: int, conns: dict[int, Connection]) -> Iterator[ChunkMessages]:
+        """Reading ends at the record at ``at``: the complete messages of a chunk cut there."""
+        self.unread_from = at
+        part = self._salvage(at, conns)
+        if part is not None:
+            self.salvaged = len(part.conn)
+            self.messages_read += self.salvaged
+            yield part
 
     def _salvage(self, at: int, conns: dict[int, Connection]) -> ChunkMessages | None:
         """The complete messages at the start of the chunk record at ``at``, cut short (None if none)."""
         try:
             self.fh.seek(at)
             hdr = self._header()
-            if _op(hdr) != OP_CHUNK:
+            if op_code(hdr) != OP_CHUNK:
                 return None
             self._u32()
-            raw = _decompress_prefix(hdr.get("compression", b"none").decode(), self.fh.read())
-            msgs = self._split(raw, conns, partial=True)
+            raw = decompress_prefix(hdr.get("compression", b"none").decode(), self.fh.read())
+            msgs = split_chunk(raw, conns, partial=True)
         except BagFormatError:
             return None
         return msgs if len(msgs.conn) else None
@@ -331,7 +346,7 @@ class Ros1Bag:
     def _record(self) -> tuple[int, dict[str, bytes], bytes]:
         """The next top-level record: op, header fields and data (b"" for index records, skipped)."""
         hdr = self._header()
-        op = _op(hdr)
+        op = op_code(hdr)
         n = self._u32()
         if op in (OP_CHUNK, OP_CONNECTION, OP_MSGDATA):
             return op, hdr, self._read(n)
@@ -339,55 +354,6 @@ class Ros1Bag:
             raise BagCutError("truncated record")
         self._skip(n)
         return op, hdr, b""
-
-    @staticmethod
-    def _split(raw: bytes, conns: dict[int, Connection], partial: bool = False) -> ChunkMessages:
-        """The records of a decompressed chunk: message data (vectorised header parse) and connection records.
-
-        ``partial``: ``raw`` is the start of a chunk cut short; its complete records only.
-        """
-        b = np.frombuffer(raw, np.uint8)
-        rec = _record_starts(raw, b, partial)
-        hl_a = _gather_u32(b, rec)
-        hs_a = rec + 4
-        dl_a = _gather_u32(b, hs_a + hl_a)
-        ds_a = hs_a + hl_a + 4
-        cid = np.full(len(hs_a), -1, np.int64)
-        tim = np.zeros(len(hs_a), np.int64)
-        is_msg = np.zeros(len(hs_a), bool)
-        done = np.zeros(len(hs_a), bool)
-        for n in np.unique(hl_a).tolist():
-            idx = np.flatnonzero(hl_a == n)
-            first = int(idx[0])
-            f = _fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
-            if _op(f) != OP_MSGDATA or len(f.get("conn", b"")) != 4 or len(f.get("time", b"")) != 8:
-                continue
-            # field layout of this header length: everything but the conn and time values must match
-            lay = _layout(raw, int(hs_a[first]), n)
-            hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
-            fixed = np.ones(n, bool)
-            fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
-            fixed[lay["time"][0] : lay["time"][0] + 8] = False
-            same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
-            ok = idx[same]
-            h = hdr[same]
-            c0, t0 = lay["conn"][0], lay["time"][0]
-            cid[ok] = h[:, c0 : c0 + 4].copy().view("<u4")[:, 0]
-            sec = h[:, t0 : t0 + 4].copy().view("<u4")[:, 0].astype(np.int64)
-            nsec = h[:, t0 + 4 : t0 + 8].copy().view("<u4")[:, 0].astype(np.int64)
-            tim[ok] = sec * 1_000_000_000 + nsec
-            is_msg[ok] = True
-            done[ok] = True
-        for i in np.flatnonzero(~done).tolist():  # connection records and unusual headers
-            h0 = int(hs_a[i])
-            hdr = _fields(raw, h0, h0 + int(hl_a[i]))
-            op = _op(hdr)
-            if op == OP_MSGDATA:
-                cid[i], tim[i], is_msg[i] = _int(hdr, "conn"), _time(hdr), True
-            elif op == OP_CONNECTION:
-                c = _connection(hdr, raw[int(ds_a[i]) : int(ds_a[i] + dl_a[i])])
-                conns[c.id] = c
-        return ChunkMessages(raw, cid[is_msg], tim[is_msg], ds_a[is_msg], dl_a[is_msg])
 
     def messages(self, topics=None) -> Iterator[tuple[str, str, int, bytes]]:
         """``(topic, msgtype, record time ns, raw bytes)`` of every message (of ``topics``) in file order."""
@@ -400,51 +366,3 @@ class Ros1Bag:
                     raise BagFormatError(f"message of unknown connection {cid}")
                 if topics is None or c.topic in topics:
                     yield c.topic, c.msgtype, t, ch.buf[s : s + n]
-
-
-def _time(hdr: dict[str, bytes]) -> int:
-    t = hdr.get("time")
-    if t is None or len(t) != 8:
-        raise BagFormatError("message record without time")
-    sec, nsec = struct.unpack("<II", t)
-    return sec * 1_000_000_000 + nsec
-
-
-def _record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarray:
-    """Offsets of the records of a chunk (``partial``: of its complete records, the chunk cut short).
-
-    Records are walked one by one, but runs of records of one size (a topic's
-    messages of constant length, the common case) are found with numpy.
-    """
-    out: list = []
-    pos, size = 0, len(raw)
-    plain = 0  # records to walk one by one before trying a run again
-    try:
-        while pos < size:
-            if partial and pos + 8 > size:
-                break
-            (hn,) = _u32(raw, pos)
-            if partial and pos + 8 + hn > size:
-                break
-            (dn,) = _u32(raw, pos + 4 + hn)
-            stride = 8 + hn + dn
-            if pos + stride > size:
-                if partial:
-                    break
-                raise BagFormatError("truncated record in chunk")
-            m = min((size - pos) // stride, 4096)
-            if plain or m < 4:
-                out.append(np.array([pos], np.int64))
-                pos += stride
-                plain = max(plain - 1, 0)
-                continue
-            cand = pos + stride * np.arange(m, dtype=np.int64)
-            good = (_gather_u32(b, cand) == hn) & (_gather_u32(b, cand + 4 + hn) == dn)
-            k = m if good.all() else int(np.argmin(good))
-            out.append(cand[:k])
-            pos += k * stride
-            if k < 4:
-                plain = 16
-    except struct.error:
-        raise BagFormatError("truncated record in chunk") from None
-    return np.concatenate(out) if out else np.empty(0, np.int64)

@@ -28,11 +28,15 @@ from imustation.acquisition.importers.bags import (
 )
 from imustation.acquisition.importers.logs import AXES, TEXT_EXTS, iter_text, load_npy_log, text_mapping
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
+from imustation.acquisition.importers.timestamps import check_stamps
 from imustation.errors import InputError
 from imustation.runfile import ChannelSpec, DeviceSpec
 
-#: samples read ahead to estimate a topic's nominal rate (the device's rate_hz)
+#: samples read ahead to estimate a topic's nominal rate (the device's rate_hz until the record is read)
 RATE_PROBE = 2048
+#: the units of sensor_msgs/Imu (REP 103) and of an imported .npy (docs/import.md), with where they come from
+ROS_UNITS = {"gyro": ("rad/s", "sensor_msgs/Imu (REP 103)"), "accel": ("m/s^2", "sensor_msgs/Imu (REP 103)")}
+NPY_UNITS = {"gyro": ("rad/s", ".npy import (SI by definition)"), "accel": ("m/s^2", ".npy import (SI by definition)")}
 
 
 def source_kind(path: str) -> str:
@@ -96,7 +100,11 @@ def open_recording(
         mp = text_mapping(source, time_unit=time_unit, **(text or {}))
         blocks: Iterator[tuple[int, Rows, np.ndarray | None]] = iter_text(source, mp, block)
         axes = (mp.gyro_axes, mp.accel_axes if mp.accel_cols is not None else None)
-        rec = _open_log(source, "text", mp.summary(), axes, blocks, os.path.getsize(source), mp.temp_col is not None)
+        units = {"gyro": (mp.gyro_unit, mp.gyro_unit_from)}
+        if mp.accel_cols is not None:
+            units["accel"] = (mp.accel_unit, mp.accel_unit_from)
+        rec = _open_log(source, "text", mp.summary(), axes, blocks, os.path.getsize(source), mp.temp_col is not None,
+                        units)  # fmt: skip
         rec.mapping = mp.summary()
         return rec
     t_all, g_all, a_all = load_npy_log(source, time_unit)
@@ -104,7 +112,8 @@ def open_recording(
     blocks = ((min(i + block, total), (t_all[i : i + block], g_all[i : i + block],
                None if a_all is None else a_all[i : i + block]), None) for i in range(0, total, block))  # fmt: skip
     ident = "columns t, gyro x,y,z" + (", accel x,y,z" if a_all is not None else "")
-    return _open_log(source, "npy", ident, (AXES, AXES if a_all is not None else None), blocks, total)
+    return _open_log(source, "npy", ident, (AXES, AXES if a_all is not None else None), blocks, total, False,
+                     NPY_UNITS)  # fmt: skip
 
 
 def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Recording:
@@ -118,12 +127,24 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
     ):
         probe[t].append(ts)
     heads = {t: np.concatenate(v) if v else np.empty(0, np.int64) for t, v in probe.items()}
+    notes: list[str] = []
+    # a topic with no messages (or too few to tell a rate) beside good ones is skipped, and said so
+    empty = {t: len(h) for t, h in heads.items() if _increasing(h) < 2}
+    if empty and len(empty) < len(heads):
+        for t, k in empty.items():
+            del heads[t]
+            notes.append(f"Imu topic {t} skipped: {k} message{'s' if k != 1 else ''}, too few to tell a sample rate")
+    elif empty:
+        listing = ", ".join(f"{t} ({k} messages)" for t, k in empty.items())
+        raise InputError(f"{source}: no Imu topic with two increasing stamps: {listing}")
     fmt = bag_format(source)
-    devices = {t: _device_spec(_device_name(t), _probe_rate(source, h), source, t, fmt, True) for t, h in heads.items()}
+    devices = {
+        t: _device_spec(_device_name(t), _probe_rate(source, h), source, t, fmt, True, units=ROS_UNITS)
+        for t, h in heads.items()
+    }
     t0 = min(int(v.min()) for v in heads.values())
     thermometers = {t: _device_name(t) for t in temps}
     _refuse_shared_names(source, {**{t: d.name for t, d in devices.items()}, **thermometers})
-    notes: list[str] = []
 
     def blocks() -> Iterator[tuple[str, int | None, Rows]]:
         done = 0
@@ -134,8 +155,13 @@ def _open_bag(source: str, topic: str | None, block: int, reader: str) -> Record
             done += len(blk[0])
             yield t, done, blk
 
-    total = sum(n for _, n in topics)
+    total = sum(n for t, n in topics if t in heads)
     return Recording(source, fmt, t0, devices, blocks(), total, thermometers, notes=notes)
+
+
+def _increasing(t_ns: np.ndarray) -> int:
+    """Stamps of ``t_ns`` that a rate can be told from: 0 or 1 without an increasing step, else 2."""
+    return 2 if len(t_ns) > 1 and bool((np.diff(t_ns) > 0).any()) else min(len(t_ns), 1)
 
 
 #: reader key of a log's temperature column (its device's key is "")
@@ -150,6 +176,7 @@ def _open_log(
     blocks: Iterator[tuple[int, Rows, np.ndarray | None]],
     total: int,
     with_temperature: bool = False,
+    units: dict[str, tuple[str, str]] | None = None,
 ) -> Recording:
     """A log or an array: one device ``imu`` with the gyro (and accel) ``axes`` (accel None: none);
     its first block gives the rate and the time origin. A temperature column becomes the
@@ -158,7 +185,9 @@ def _open_log(
     if first is None:
         raise InputError(f"{source}: no samples")
     t = first[1][0]
-    spec = _device_spec("imu", _probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, axes[1] is not None, axes)
+    spec = _device_spec(
+        "imu", _probe_rate(source, t[:RATE_PROBE]), source, ident, fmt, axes[1] is not None, axes, units
+    )
 
     def keyed() -> Iterator[tuple[str, int | None, Rows]]:
         for pos, blk, celsius in chain([first], blocks):
@@ -194,12 +223,20 @@ def _device_spec(
     fmt: str,
     with_accel: bool,
     axes: tuple[tuple[str, ...], tuple[str, ...] | None] = (AXES, AXES),
+    units: dict[str, tuple[str, str]] | None = None,
 ) -> DeviceSpec:
     """An imported device: ``gyro`` (and ``accel``) as float64 in SI units, ``driver = "import"``;
-    ``axes``: the gyro's and accel's axis names (a single-axis log: ``("z",)``)."""
+    ``axes``: the gyro's and accel's axis names (a single-axis log: ``("z",)``); ``units``: channel ->
+    (unit of the source, where it was read), stored as the settings ``source_<channel>_unit`` and
+    ``source_<channel>_unit_from`` (docs/runfile.md)."""
     chans = [ChannelSpec("gyro", "<f8", "rad/s", 1.0, axes=axes[0])]
     if with_accel:
         chans.append(ChannelSpec("accel", "<f8", "m/s^2", 1.0, axes=axes[1] or AXES))
+    stated = {}
+    for ch in chans:
+        unit, frm = (units or {}).get(ch.name, (ch.units, ""))
+        stated[f"source_{ch.name}_unit"] = unit
+        stated[f"source_{ch.name}_unit_from"] = frm
     return DeviceSpec(
         name=name,
         driver="import",
@@ -207,15 +244,16 @@ def _device_spec(
         bus=os.path.abspath(source),
         identity=ident,
         rate_hz=rate_hz,
-        settings={"source": os.path.abspath(source), "source_format": fmt, "source_stream": ident},
+        settings={"source": os.path.abspath(source), "source_format": fmt, "source_stream": ident, **stated},
         channels=tuple(chans),
     )
 
 
 def _probe_rate(path: str, t_ns: np.ndarray) -> float:
-    """Nominal rate, Hz: one over the median positive step of the stamps ``t_ns`` (ns)."""
-    d = np.diff(np.asarray(t_ns, dtype=np.int64))
-    d = d[d > 0]
-    if len(d) == 0:
+    """Nominal rate of the first stamps ``t_ns`` (ns), Hz: the least-squares fit over their regular steps
+    (:func:`.timestamps.check_stamps`; never the median step). The write loop replaces it with the fit
+    over the whole record when it ends (:func:`.loop.fitted_rates`); until then it sets the gap threshold."""
+    rate = check_stamps(np.asarray(t_ns, dtype=np.int64)).true_rate_hz
+    if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"{path}: fewer than two increasing stamps; cannot tell the sample rate")
-    return 1e9 / float(np.median(d))
+    return rate

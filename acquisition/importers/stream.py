@@ -10,11 +10,11 @@ and stamp, plus one axis while its array grows.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from imustation.acquisition.importers.loop import ImportResult, Progress, feed
+from imustation.acquisition.importers.loop import ImportResult, Progress, feed, fitted_rates
 from imustation.acquisition.importers.messages import BLOCK_ROWS
 from imustation.acquisition.importers.sources import open_recording
 from imustation.runfile import DeviceSpec, Event
@@ -111,4 +111,7 @@ def stream_recording(
     rec = open_recording(source, topic=topic, text=text, time_unit=time_unit, block=block, bag_reader=bag_reader)
     target = _Memory(list(rec.devices.values()))
     res = feed(rec, target, progress)
+    # as the import stores it: the rate fitted over the whole record
+    for name, hz in fitted_rates(res, rec.devices).items():
+        target.specs[name] = replace(target.specs[name], rate_hz=hz)
     return StreamedRecording(res, target.devices())

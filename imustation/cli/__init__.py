@@ -16,11 +16,12 @@ checks this.
 from __future__ import annotations
 
 import sys
+import warnings
 
 import click
 
 from imustation import __version__
-from imustation.errors import ImustationError
+from imustation.errors import ImustationError, RateCorrected
 
 
 class _Group(click.Group):
@@ -59,6 +60,26 @@ def cli(ctx: click.Context, debug: bool) -> None:
     """
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
+    _show_rate_corrections()
+
+
+def _show_rate_corrections() -> None:
+    """Print each :class:`RateCorrected` of this command once, as one ``imustation: warning:`` line
+    (a run file is opened several times by one command; other warnings keep Python's handling)."""
+    seen: set[str] = set()
+    previous = getattr(warnings.showwarning, "previous", warnings.showwarning)  # not chained per command
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not issubclass(category, RateCorrected):
+            return previous(message, category, filename, lineno, file, line)
+        if str(message) not in seen:
+            seen.add(str(message))
+            click.echo(f"imustation: warning: {message}", err=True)
+        return None
+
+    show.previous = previous
+    warnings.filterwarnings("always", category=RateCorrected)
+    warnings.showwarning = show
 
 
 def main() -> None:

@@ -63,10 +63,16 @@ def field_options(f):
             ),  # fmt: skip
             click.option(
                 "--gyro-unit",
-                type=click.Choice(["rad/s", "deg/s"]),
-                default="rad/s",
-                show_default=True,
-                help="Text logs: unit of the gyro columns.",
+                default=None,
+                metavar="UNIT",
+                help="Text logs: unit of the gyro columns: rad/s, deg/s, mrad/s, mdeg/s or deg/h (default: "
+                "from the column names or a header comment; a log stating none is refused).",
+            ),  # fmt: skip
+            click.option(
+                "--accel-unit",
+                default=None,
+                metavar="UNIT",
+                help="Text logs: unit of the accel columns: m/s^2, g or mg (default: as --gyro-unit).",
             ),  # fmt: skip
         ]
     ):
@@ -74,8 +80,9 @@ def field_options(f):
     return f
 
 
-def text_options(time_column, gyro_columns, accel_columns, gyro_unit) -> dict:
-    return {"time_col": time_column, "gyro_cols": gyro_columns, "accel_cols": accel_columns, "gyro_unit": gyro_unit}
+def text_options(time_column, gyro_columns, accel_columns, gyro_unit, accel_unit=None) -> dict:
+    return {"time_col": time_column, "gyro_cols": gyro_columns, "accel_cols": accel_columns, "gyro_unit": gyro_unit,
+            "accel_unit": accel_unit}  # fmt: skip
 
 
 def run_import(source: str, out: str, *, quiet: bool, overwrite: bool, topic, time_unit, text: dict):

@@ -112,7 +112,8 @@ def analyze(
     gyro_columns: str | None,
     accel_columns: str | None,
     time_unit: str | None,
-    gyro_unit: str,
+    gyro_unit: str | None,
+    accel_unit: str | None,
 ) -> None:
     """Allan deviation and noise-model fit (ML_i-F; ML_i and/or GMWM beside it) of every channel of INPUTS.
 
@@ -135,7 +136,7 @@ def analyze(
     from imustation.analysis.estimators.ml.mli import DEFAULT_COMPARISON
     from imustation.analysis.pipeline.parallel import AnalysisOptions
 
-    text = text_options(time_column, gyro_columns, accel_columns, gyro_unit)
+    text = text_options(time_column, gyro_columns, accel_columns, gyro_unit, accel_unit)
     # field recordings are streamed into memory (no run file); other inputs are read by their tasks
     tasks, failures = plan_inputs(inputs, globs, rate_hz, quiet=as_json, topic=topic, time_unit=time_unit, text=text)
     opts = AnalysisOptions(

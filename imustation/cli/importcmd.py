@@ -15,7 +15,9 @@ from imustation.outputs import check_file
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 @click.option("--quiet", is_flag=True, help="No progress bar or summary.")
 @field_options
-def import_(source, out, overwrite, quiet, topic, time_column, gyro_columns, accel_columns, time_unit, gyro_unit):
+def import_(
+    source, out, overwrite, quiet, topic, time_column, gyro_columns, accel_columns, time_unit, gyro_unit, accel_unit
+):
     """Convert a field recording SOURCE into a run file (format v1).
 
     SOURCE: ROS 1 .bag, ROS 2 bag folder, .mcap, CSV/TSV/whitespace text log with a
@@ -26,7 +28,7 @@ def import_(source, out, overwrite, quiet, topic, time_column, gyro_columns, acc
     check_file(out, overwrite=overwrite)
     res = run_import(
         source, out, quiet=quiet, overwrite=overwrite, topic=topic, time_unit=time_unit,
-        text=text_options(time_column, gyro_columns, accel_columns, gyro_unit),
+        text=text_options(time_column, gyro_columns, accel_columns, gyro_unit, accel_unit),
     )  # fmt: skip
     parts = [f"{n} ({r.n} samples)" for n, r in res.reports.items()]
     parts += [f"thermometer {n} ({k} readings)" for n, (_topic, k) in res.thermometers.items()]

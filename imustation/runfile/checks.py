@@ -23,6 +23,7 @@ import numpy as np
 from h5py import h5d
 
 from imustation.errors import RunFileError
+from imustation.runfile.rate import stamp_rate
 from imustation.runfile.schema import (
     CELSIUS,
     COUNTER,
@@ -31,6 +32,7 @@ from imustation.runfile.schema import (
     EVENTS,
     FORMAT,
     FORMAT_VERSION,
+    IMPORT_DRIVER,
     THERMOMETERS,
     TIME,
     Event,
@@ -41,12 +43,25 @@ from imustation.runfile.schema import (
 TORN_ROWS_MAX = 1 << 21
 #: highest sample rate a run file may state, Hz (no inertial sensor comes near it)
 MAX_RATE_HZ = 1e6
-#: rate_hz and the rate its first timestamps show may differ by at most this factor (a
-#: chip's clock is off by a few %; stamps of imported logs are coarse)
+#: rate_hz and the rate its first timestamps show may differ by at most this factor; beyond it the
+#: file is refused (the stamps or the rate are not what the file says)
 RATE_TOLERANCE = 1.33
-#: timestamps compared with rate_hz, and the window (samples) over which their steps are averaged
+#: within it, a rate the stamps contradict by more than RATE_SIGMAS standard errors of their fit and
+#: more than RATE_FLOOR (relative) is corrected to the stamps' rate, with a RateCorrected warning (a
+#: deviation below the floor moves a noise density by less than 0.05 %)
+RATE_SIGMAS = 5.0
+RATE_FLOOR = 1e-3
+#: timestamps compared with rate_hz; fewer than RATE_MIN_ROWS are not checked
 RATE_PROBE_ROWS = 4096
-RATE_WINDOW = 16
+RATE_MIN_ROWS = 64
+#: a rate whose period fewer than this fraction of the positive steps are near contradicts the stamps
+RATE_MIN_REGULAR = 0.1
+#: largest |scale| and |offset| of a data channel (value = raw * scale + offset): far beyond any
+#: sensor's range in SI units, and small enough that no reader overflows converting a value
+SCALE_MAX = 1e6
+OFFSET_MAX = 1e6
+#: largest loss an event may state, samples (a day at MAX_RATE_HZ)
+LOST_MAX = 86_400 * 10**6
 #: root attributes that are text when present
 ROOT_TEXT = ("config", "software_version", "host", "ended_utc", "stopped", "run_id", "previous_part", "next_part",
              "part_started_utc", "source", "source_format", "import_report")  # fmt: skip
@@ -189,11 +204,19 @@ def _check_utc(path: str, where: str, attrs: dict[str, Any], key: str) -> None:
             raise RunFileError(f"{path}: {where} attribute {key!r} is {attrs[key]!r}, not an ISO 8601 time") from None
 
 
+def _utc(text: str) -> _dt.datetime:
+    """An ISO 8601 time as an aware datetime (a time without zone is UTC, as the writer means it)."""
+    t = _dt.datetime.fromisoformat(text)
+    return t if t.tzinfo is not None else t.replace(tzinfo=_dt.UTC)
+
+
 def _check_root(path: str, attrs: dict[str, Any]) -> None:
     _require_text(path, "the root", attrs, ("station", "started_utc"))
     _require_text(path, "the root", attrs, ROOT_TEXT, optional=True)
     for key in ("started_utc", "ended_utc", "part_started_utc"):
         _check_utc(path, "the root", attrs, key)
+    if "ended_utc" in attrs and _utc(attrs["ended_utc"]) < _utc(attrs["started_utc"]):
+        raise RunFileError(f"{path}: ended_utc {attrs['ended_utc']} is before started_utc {attrs['started_utc']}")
     if "simulated" in attrs and not isinstance(attrs["simulated"], bool):
         raise RunFileError(f"{path}: root attribute 'simulated' is {attrs['simulated']!r}, expected true/false")
     part = attrs.get("part")
@@ -246,22 +269,54 @@ def _check_rate_attr(path: str, where: str, attrs: dict[str, Any]) -> float:
     return float(rate)
 
 
-def _check_rate(path: str, where: str, t: h5py.Dataset, n: int, rate_hz: float) -> None:
-    """``rate_hz`` must agree with the spacing of the first timestamps (see RATE_TOLERANCE)."""
+def _check_rate(
+    path: str, where: str, t: h5py.Dataset, n: int, rate_hz: float, monotonic: bool
+) -> tuple[float, str] | None:
+    """``rate_hz`` against the first RATE_PROBE_ROWS timestamps (:func:`.rate.stamp_rate`: a fit over
+    the runs of regular steps, holes excluded, so a file whose every loss is logged reads).
+
+    Refused: stamps stepping back where ``monotonic`` (every capture; an import keeps file order and
+    says so in its events), a rate the stamps contradict beyond RATE_TOLERANCE or near whose period
+    too few steps lie. Returns ``(the stamps' rate, Hz; why)`` when they contradict it beyond their
+    jitter (RATE_SIGMAS, RATE_FLOOR), else None.
+    """
     k = min(n, RATE_PROBE_ROWS + 1)
-    if k <= 4 * RATE_WINDOW:
-        return
+    if k < 2:
+        return None
     with damaged_file(path, f"{where}/t rows 0:{k}", t):
-        d = np.diff(np.asarray(t[:k], dtype=np.int64)).astype(np.float64)
-    w = len(d) // RATE_WINDOW
-    # median of window means: robust to a gap (one window) and to coarse stamp resolution (averaged)
-    period_ns = float(np.median(d[: w * RATE_WINDOW].reshape(w, RATE_WINDOW).mean(axis=1)))
-    ratio = period_ns * rate_hz / 1e9
-    if not 1 / RATE_TOLERANCE <= ratio <= RATE_TOLERANCE:
-        seen = f"{1e9 / period_ns:.6g} Hz" if period_ns > 0 else "times that do not increase"
+        stamps = np.asarray(t[:k], dtype=np.int64)
+    d = np.diff(stamps)
+    if monotonic and (d < 0).any():
+        i = int(np.argmax(d < 0))
         raise RunFileError(
-            f"{path}: {where}: rate_hz {rate_hz:g} contradicts its timestamps ({seen} over the first {k} samples)"
+            f"{path}: {where}/t steps back at row {i + 1} ({int(stamps[i])} -> {int(stamps[i + 1])} ns); "
+            "a capture's times only increase"
         )
+    if k < RATE_MIN_ROWS:
+        return None
+    sr = stamp_rate(stamps, rate_hz)
+    head = f"{path}: {where}: rate_hz {rate_hz:g} contradicts its timestamps"
+    if sr.regular < max(8, RATE_MIN_REGULAR * sr.steps):
+        pos = d[d > 0]
+        seen = (
+            f"median step {np.median(pos) / 1e6:.6g} ms: {1e9 / np.median(pos):.6g} Hz"
+            if len(pos)
+            else "times that do not increase"
+        )
+        raise RunFileError(
+            f"{head} ({sr.regular} of {sr.steps} steps within 1.5 periods of it over the first {k} samples; {seen})"
+        )
+    ratio = rate_hz / sr.rate_hz
+    if not 1 / RATE_TOLERANCE <= ratio <= RATE_TOLERANCE:
+        raise RunFileError(f"{head} ({sr.rate_hz:.6g} Hz over the first {k} samples)")
+    off = abs(ratio - 1.0)
+    if off > RATE_FLOOR and off > RATE_SIGMAS * sr.sigma_hz / sr.rate_hz:
+        return sr.rate_hz, (
+            f"{path}: {where}: rate_hz {rate_hz:g} contradicts its timestamps "
+            f"({sr.rate_hz:.6g} +- {sr.sigma_hz:.2g} Hz fitted over the first {k} samples, {off:.2%} off); "
+            f"using {sr.rate_hz:.6g} Hz"
+        )
+    return None
 
 
 def _check_dataset(path: str, where: str, ds: Any, kinds: str, ndims: tuple[int, ...]) -> None:
@@ -282,13 +337,18 @@ def _check_channel(path: str, where: str, ds: h5py.Dataset) -> None:
             raise RunFileError(f"{path}: {where} attribute {key!r} is {attrs[key]!r}, expected a finite number")
     if attrs["scale"] == 0:
         raise RunFileError(f"{path}: {where} has scale 0")
+    for key, limit in (("scale", SCALE_MAX), ("offset", OFFSET_MAX)):
+        if abs(attrs[key]) > limit:
+            raise RunFileError(
+                f"{path}: {where} attribute {key!r} is {attrs[key]!r}, beyond any sensor's (|{key}| <= {limit:g})"
+            )
     _require_text(path, where, attrs, ("units", "axes"))
     axes = attrs["axes"].split(",") if attrs["axes"] else []
     if (ds.ndim == 2 and len(axes) != ds.shape[1]) or (ds.ndim == 1 and axes):
         raise RunFileError(f"{path}: {where} has shape {ds.shape} but axes {attrs['axes']!r}")
 
 
-def _check_device(path: str, name: str, g: Any, complete: bool) -> None:
+def _check_device(path: str, name: str, g: Any, complete: bool) -> tuple[float, str] | None:
     where = f"devices/{name}"
     if not isinstance(g, h5py.Group):
         raise RunFileError(f"{path}: {where} is a dataset, expected a device group")
@@ -309,7 +369,7 @@ def _check_device(path: str, name: str, g: Any, complete: bool) -> None:
         else:
             _check_channel(path, f"{where}/{key}", ds)
     n = _check_extents(path, where, dsets, complete)
-    _check_rate(path, where, dsets[TIME], n, rate)
+    return _check_rate(path, where, dsets[TIME], n, rate, attrs["driver"] != IMPORT_DRIVER)
 
 
 def _check_thermometer(path: str, name: str, g: Any, complete: bool) -> None:
@@ -325,7 +385,8 @@ def _check_thermometer(path: str, name: str, g: Any, complete: bool) -> None:
     # the poll rate, stored since it is checked against (files written before have none: not checked)
     attrs = _attrs(path, g, where)
     if "rate_hz" in attrs:
-        _check_rate(path, where, dsets[TIME], n, _check_rate_attr(path, where, attrs))
+        # readings are dated when taken (late polls, then prompt ones): refused on a gross contradiction only
+        _check_rate(path, where, dsets[TIME], n, _check_rate_attr(path, where, attrs), False)
 
 
 def _check_events(path: str, ds: Any, complete: bool) -> None:
@@ -337,10 +398,14 @@ def _check_events(path: str, ds: Any, complete: bool) -> None:
     _check_extents(path, "events", {"": ds}, complete)
 
 
-def check_structure(h5: h5py.File, path: str) -> dict[str, Any]:
+def check_structure(
+    h5: h5py.File, path: str, corrections: dict[str, tuple[float, str]] | None = None
+) -> dict[str, Any]:
     """Refuse a damaged or contradictory run file with one line (see the module docstring).
 
-    Returns the root attributes as plain Python values.
+    Returns the root attributes as plain Python values. ``corrections`` (filled when given): device
+    name -> (the rate its stamps show, Hz; the reason) for each device whose ``rate_hz`` they
+    contradict beyond their jitter (:func:`_check_rate`).
     """
     attrs = _attrs(path, h5, "root")
     fmt = attrs.get("format")
@@ -373,7 +438,9 @@ def check_structure(h5: h5py.File, path: str) -> dict[str, Any]:
         if not isinstance(grp, h5py.Group):
             raise RunFileError(f"{path}: /{gname} is a dataset, expected a group")
         for name, sub in _members(path, grp, gname).items():
-            check(path, name, sub, complete)
+            note = check(path, name, sub, complete)
+            if note and corrections is not None:
+                corrections[name] = (float(note[0]), note[1])
     _check_events(path, root[EVENTS], complete)
     return attrs
 
@@ -391,6 +458,11 @@ def parse_events(path: str, rows: np.ndarray) -> list[Event]:
     if np.any(lost < 0):
         i = int(np.argmax(lost < 0))
         raise RunFileError(f"{path}: event {i} has a negative loss ({int(lost[i])} samples)")
+    if np.any(lost > LOST_MAX):
+        i = int(np.argmax(lost > LOST_MAX))
+        raise RunFileError(
+            f"{path}: event {i} states a loss of {int(lost[i])} samples, more than any run holds ({LOST_MAX:.3g})"
+        )
     kinds = np.isin(rows["kind"], [k.encode() for k in EVENT_KINDS])
     if not kinds.all():
         i = int(np.argmin(kinds))

@@ -38,8 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imustation.errors import RunFileError
 from imustation.runfile.reader import Event, RunFile
-from imustation.runfile.schema import COUNTER, TIME
+from imustation.runfile.schema import COUNTER, IMPORT_DRIVER, TIME
 
 #: a step longer than this many output periods between two samples is a hole
 HOLE_STEPS = 1.5
@@ -139,6 +140,8 @@ def holes_in_run(run: RunFile, device: str, rows: int = _ROWS) -> Holes:
     n = info.n
     t_ds = run.dataset(device, TIME)
     c_ds = run.dataset(device, COUNTER) if info.has_counter else None
+    # an import keeps its source's stamps in file order (and notes those that step back); a capture's increase
+    monotonic = info.driver != IMPORT_DRIVER
     fields: dict[str, list[np.ndarray]] = {f: [] for f in ("at", "lost", "t_before", "t_after")}
     short = 0
     for i in range(0, max(n - 1, 0), rows):
@@ -149,6 +152,9 @@ def holes_in_run(run: RunFile, device: str, rows: int = _ROWS) -> Holes:
         for f, values in fields.items():
             values.append(getattr(piece, f)[mine])
         steps = np.diff(np.asarray(t_ds[i : min(n, i + rows + 1)], dtype=np.int64))
+        if monotonic and (steps < 0).any():
+            j = i + 1 + int(np.argmax(steps < 0))
+            raise RunFileError(f"{run.path}: devices/{device}/t steps back at row {j}; a capture's times only increase")
         short += int(np.count_nonzero(steps <= 0.5 * period))
     if not fields["at"]:
         empty = np.zeros(0, dtype=np.int64)

@@ -9,6 +9,7 @@ shortest dataset.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -16,8 +17,14 @@ from typing import Any
 import h5py
 import numpy as np
 
-from imustation.errors import RunFileError
-from imustation.runfile.checks import CheckedDataset, check_structure, damaged_file, plain_value, read_events
+from imustation.errors import RateCorrected, RunFileError
+from imustation.runfile.checks import (
+    CheckedDataset,
+    check_structure,
+    damaged_file,
+    plain_value,
+    read_events,
+)
 from imustation.runfile.schema import CELSIUS, COUNTER, DEVICES, EVENTS, THERMOMETERS, TIME, Event
 from imustation.runfile.swmr import open_swmr_reader
 
@@ -49,6 +56,10 @@ class DeviceInfo:
     #: rows per dataset; they differ only in a file cut off while a flush was
     #: being written (a torn last block), and readers use the first ``n`` rows
     rows: dict[str, int] = field(default_factory=dict)
+    #: the ``rate_hz`` the file states; ``rate_hz`` is the stamps' rate where they contradict it beyond
+    #: their jitter, and ``rate_note`` then says so (docs/runfile.md, "Validation on read")
+    stated_rate_hz: float = float("nan")
+    rate_note: str = ""
 
     @property
     def torn(self) -> bool:
@@ -65,6 +76,9 @@ class RunFile:
     path: str
     h5: h5py.File
     attrs: dict[str, Any] = field(default_factory=dict)
+    #: device -> (the rate its timestamps show, Hz; why) where they contradict its rate_hz beyond their
+    #: jitter (:func:`~imustation.runfile.checks.check_structure`): ``devices`` gives that rate
+    rate_corrections: dict[str, tuple[float, str]] = field(default_factory=dict)
 
     @property
     def complete(self) -> bool:
@@ -91,18 +105,21 @@ class RunFile:
                     n=ds.shape[0],
                 )
             settings = {k: v for k, v in attrs.items() if k not in _DEVICE_CORE_ATTRS}
+            stated = float(attrs.get("rate_hz", float("nan")))
             out[name] = DeviceInfo(
                 name=name,
                 driver=attrs.get("driver", ""),
                 model=attrs.get("model", ""),
                 bus=attrs.get("bus", ""),
                 identity=str(attrs.get("identity", "")),
-                rate_hz=float(attrs.get("rate_hz", float("nan"))),
+                rate_hz=self.rate_corrections.get(name, (stated, ""))[0],
                 settings=settings,
                 channels=channels,
                 n=min((ds.shape[0] for ds in g.values()), default=0),
                 has_counter=COUNTER in g,
                 rows={k: ds.shape[0] for k, ds in g.items()},
+                stated_rate_hz=stated,
+                rate_note=self.rate_corrections.get(name, (0.0, ""))[1],
             )
         return out
 
@@ -202,9 +219,13 @@ def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
             h5 = h5py.File(p, "r")
         except OSError as exc:
             raise RunFileError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__})") from None
+    corrections: dict[str, tuple[float, str]] = {}
     try:
-        attrs = check_structure(h5, p)
+        attrs = check_structure(h5, p, corrections)
     except RunFileError:
         h5.close()
         raise
-    return RunFile(path=p, h5=h5, attrs=attrs)
+    for _, reason in corrections.values():
+        # every reader (analyze, export, report, fleet, inspect) uses the corrected rate; the CLI prints this
+        warnings.warn(reason, RateCorrected, stacklevel=2)
+    return RunFile(path=p, h5=h5, attrs=attrs, rate_corrections=corrections)

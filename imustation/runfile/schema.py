@@ -26,6 +26,8 @@ TIME = "t"  # int64 ns since started_utc, host monotonic clock
 COUNTER = "counter"  # int64 device sample counter, where the device has one
 CELSIUS = "celsius"
 
+#: the ``driver`` of an imported device (its stamps are the source's, kept in file order)
+IMPORT_DRIVER = "import"
 #: kinds of event a run file may hold (docs/runfile.md)
 EVENT_KINDS = ("gap", "resync", "reconnect", "overrun", "checksum", "config", "note", "fault")
 #: event kinds that count as gaps of a device's record, their ``lost`` as samples lost

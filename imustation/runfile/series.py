@@ -387,7 +387,7 @@ def _layout(run: RunFile) -> tuple:
         (
             name,
             info.driver,
-            info.rate_hz,
+            info.stated_rate_hz,  # as the files state it (each part's stamps may correct it by a hair)
             tuple((c, str(ch.dtype), ch.scale, ch.offset, ch.axes) for c, ch in info.channels.items()),
         )
         for name, info in sorted(run.devices.items())

@@ -464,8 +464,15 @@ class RunWriter:
         except OSError:
             return 0
 
-    def close(self, ended_utc: str | None = None, attrs: Mapping[str, Any] | None = None) -> None:
-        """Flush, close, and mark the file complete with ``ended_utc`` (plus ``attrs``)."""
+    def close(
+        self,
+        ended_utc: str | None = None,
+        attrs: Mapping[str, Any] | None = None,
+        device_attrs: Mapping[str, Mapping[str, Any]] | None = None,
+    ) -> None:
+        """Flush, close, and mark the file complete with ``ended_utc`` (plus root ``attrs``, and
+        ``device_attrs``: device name -> attributes to set on its group, e.g. an import's rate fitted
+        over the whole record)."""
         if self.closed:
             return
         try:
@@ -484,6 +491,9 @@ class RunWriter:
             with h5py.File(self.path, "r+", libver="latest", locking=False) as f:
                 for key, value in (attrs or {}).items():
                     f.attrs[key] = _attr_value(value)
+                for dev, values in (device_attrs or {}).items():
+                    for key, value in values.items():
+                        f[DEVICES][dev].attrs[key] = _attr_value(value)
                 f.attrs["ended_utc"] = ended_utc or utc_now_iso()
         finally:
             self._release_tail()

@@ -1,0 +1,257 @@
+"""ROS 1 bag format 2.0 (http://wiki.ros.org/Bags/Format/2.0): records, header fields, chunk contents.
+
+Records: ``<header_len u32><header><data_len u32><data>``; the header is a list
+of ``<field_len u32>name=value`` fields, ``op`` tells the record type. A chunk's
+data (decompressed: none / bz2 / lz4) is a sequence of records again: message
+data and connections. :func:`split_chunk` parses one with numpy (runs of records
+of one size found at once); :class:`.rosbag1.Ros1Bag` walks a file of them.
+"""
+
+from __future__ import annotations
+
+import bz2
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from imustation.acquisition.importers.messages import gather_u32 as _gather_u32
+
+OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
+MAGIC = b"#ROSBAG V2.0\n"
+
+u32 = struct.Struct("<I").unpack_from
+
+
+class BagFormatError(ValueError):
+    """Not a readable ROS 1 (v2.0) bag."""
+
+
+class BagCutError(BagFormatError):
+    """A record runs past the end of the file (the bag was cut short)."""
+
+
+@dataclass(frozen=True)
+class Connection:
+    id: int
+    topic: str
+    msgtype: str  # as in the bag: "sensor_msgs/Imu"
+    md5sum: str
+
+
+@dataclass
+class ChunkMessages:
+    """The messages of one chunk, in file order: ``buf[start[i]:start[i] + length[i]]`` is message i."""
+
+    buf: bytes
+    conn: np.ndarray  # int64 connection ids
+    time: np.ndarray  # int64 record (receive) time, ns
+    start: np.ndarray  # int64 offset of the serialised message in buf
+    length: np.ndarray  # int64
+
+
+def normalize_topic(name: str) -> str:
+    """As rosbags does: no doubled or trailing slashes."""
+    return f"{'/' * (name[:1] == '/')}{'/'.join(x for x in name.split('/') if x)}"
+
+
+def parse_fields(buf, pos: int, end: int) -> dict[str, bytes]:
+    out = {}
+    while pos < end:
+        if end - pos < 4:
+            raise BagFormatError("header field cut short")
+        (n,) = u32(buf, pos)
+        pos += 4
+        if n > end - pos:
+            raise BagFormatError("header field longer than its header")
+        name, sep, value = bytes(buf[pos : pos + n]).partition(b"=")
+        if not sep:
+            raise BagFormatError("header field without '='")
+        out[name.decode("latin-1")] = value
+        pos += n
+    return out
+
+
+def layout(buf, pos: int, n: int) -> dict[str, tuple[int, int]]:
+    """``name -> (value offset from the header start, value length)`` of the fields of a header."""
+    out, p, end = {}, pos, pos + n
+    while p < end:
+        (k,) = u32(buf, p)
+        p += 4
+        name, _, value = bytes(buf[p : p + k]).partition(b"=")
+        out[name.decode("latin-1")] = (p + len(name) + 1 - pos, len(value))
+        p += k
+    return out
+
+
+def int_field(fields: dict[str, bytes], name: str) -> int:
+    try:
+        return int.from_bytes(fields[name], "little")
+    except KeyError:
+        raise BagFormatError(f"record without {name!r} field") from None
+
+
+def op_code(fields: dict[str, bytes]) -> int:
+    op = fields.get("op")
+    if op is None or len(op) != 1:
+        raise BagFormatError("record without op code")
+    return op[0]
+
+
+def connection(fields: dict[str, bytes], data: bytes) -> Connection:
+    d = parse_fields(data, 0, len(data))
+    topic = fields.get("topic") or d.get("topic") or b""
+    return Connection(
+        int_field(fields, "conn"),
+        normalize_topic(topic.decode()),
+        d.get("type", b"").decode(),
+        d.get("md5sum", b"").decode(),
+    )
+
+
+_DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
+
+
+def decompress_prefix(kind: str, data: bytes) -> bytes:
+    """What the first bytes of a chunk cut short decompress to (b"" where nothing can be told).
+
+    bz2 and lz4 frames decompress block by block: the blocks complete before the cut come out.
+    """
+    try:
+        if kind == "none":
+            return data
+        if kind == "bz2":
+            return bz2.BZ2Decompressor().decompress(data)
+        if kind == "lz4":
+            import lz4.frame
+
+            return lz4.frame.LZ4FrameDecompressor().decompress(data)
+    except (OSError, ValueError, RuntimeError, EOFError):
+        pass
+    return b""
+
+
+def decompress(kind: str, data: bytes, size: int) -> bytes:
+    if kind not in ("lz4", *_DECOMPRESS):
+        raise BagFormatError(f"chunk compression {kind!r} is not supported")
+    try:
+        if kind == "lz4":
+            import lz4.frame
+
+            out = lz4.frame.decompress(data)
+        else:
+            out = _DECOMPRESS[kind](data, size)
+    except (OSError, ValueError, RuntimeError, EOFError) as exc:
+        raise BagFormatError(f"{kind} chunk does not decompress ({exc})") from None
+    if len(out) != size:
+        raise BagFormatError(f"chunk holds {len(out)} bytes, its header says {size}")
+    return out
+
+
+def split_chunk(raw: bytes, conns: dict[int, Connection], partial: bool = False) -> ChunkMessages:
+    """The records of a decompressed chunk: message data (vectorised header parse) and connection records.
+
+    ``partial``: ``raw`` is the start of a chunk cut short; its complete records only.
+    """
+    b = np.frombuffer(raw, np.uint8)
+    rec = record_starts(raw, b, partial)
+    hl_a = _gather_u32(b, rec)
+    hs_a = rec + 4
+    dl_a = _gather_u32(b, hs_a + hl_a)
+    ds_a = hs_a + hl_a + 4
+    cid = np.full(len(hs_a), -1, np.int64)
+    tim = np.zeros(len(hs_a), np.int64)
+    is_msg = np.zeros(len(hs_a), bool)
+    done = np.zeros(len(hs_a), bool)
+    for n in np.unique(hl_a).tolist():
+        idx = np.flatnonzero(hl_a == n)
+        first = int(idx[0])
+        f = parse_fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
+        if op_code(f) != OP_MSGDATA or len(f.get("conn", b"")) != 4 or len(f.get("time", b"")) != 8:
+            continue
+        # field layout of this header length: everything but the conn and time values must match
+        lay = layout(raw, int(hs_a[first]), n)
+        hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
+        fixed = np.ones(n, bool)
+        fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
+        fixed[lay["time"][0] : lay["time"][0] + 8] = False
+        same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
+        ok = idx[same]
+        h = hdr[same]
+        c0, t0 = lay["conn"][0], lay["time"][0]
+        cid[ok] = h[:, c0 : c0 + 4].copy().view("<u4")[:, 0]
+        sec = h[:, t0 : t0 + 4].copy().view("<u4")[:, 0].astype(np.int64)
+        nsec = h[:, t0 + 4 : t0 + 8].copy().view("<u4")[:, 0].astype(np.int64)
+        tim[ok] = sec * 1_000_000_000 + nsec
+        is_msg[ok] = True
+        done[ok] = True
+    for i in np.flatnonzero(~done).tolist():  # connection records and unusual headers
+        h0 = int(hs_a[i])
+        hdr = parse_fields(raw, h0, h0 + int(hl_a[i]))
+        op = op_code(hdr)
+        if op == OP_MSGDATA:
+            cid[i], tim[i], is_msg[i] = int_field(hdr, "conn"), stamp(hdr), True
+        elif op == OP_CONNECTION:
+            c = connection(hdr, raw[int(ds_a[i]) : int(ds_a[i] + dl_a[i])])
+            conns[c.id] = c
+    return ChunkMessages(raw, cid[is_msg], tim[is_msg], ds_a[is_msg], dl_a[is_msg])
+
+
+def op_of(header: bytes) -> int:
+    """The op code of a record header, found without decoding its other fields (the fields of a chunk info
+    record differ in every record: its position and times)."""
+    pos, end = 0, len(header)
+    while pos + 4 <= end:
+        (n,) = u32(header, pos)
+        if n == 4 and header[pos + 4 : pos + 7] == b"op=":
+            return header[pos + 7]
+        pos += 4 + n
+    raise BagFormatError("record without op code")
+
+
+def stamp(hdr: dict[str, bytes]) -> int:
+    t = hdr.get("time")
+    if t is None or len(t) != 8:
+        raise BagFormatError("message record without time")
+    sec, nsec = struct.unpack("<II", t)
+    return sec * 1_000_000_000 + nsec
+
+
+def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarray:
+    """Offsets of the records of a chunk (``partial``: of its complete records, the chunk cut short).
+
+    Records are walked one by one, but runs of records of one size (a topic's
+    messages of constant length, the common case) are found with numpy.
+    """
+    out: list = []
+    pos, size = 0, len(raw)
+    plain = 0  # records to walk one by one before trying a run again
+    try:
+        while pos < size:
+            if partial and pos + 8 > size:
+                break
+            (hn,) = u32(raw, pos)
+            if partial and pos + 8 + hn > size:
+                break
+            (dn,) = u32(raw, pos + 4 + hn)
+            stride = 8 + hn + dn
+            if pos + stride > size:
+                if partial:
+                    break
+                raise BagFormatError("truncated record in chunk")
+            m = min((size - pos) // stride, 4096)
+            if plain or m < 4:
+                out.append(np.array([pos], np.int64))
+                pos += stride
+                plain = max(plain - 1, 0)
+                continue
+            cand = pos + stride * np.arange(m, dtype=np.int64)
+            good = (_gather_u32(b, cand) == hn) & (_gather_u32(b, cand + 4 + hn) == dn)
+            k = m if good.all() else int(np.argmin(good))
+            out.append(cand[:k])
+            pos += k * stride
+            if k < 4:
+                plain = 16
+    except struct.error:
+        raise BagFormatError("truncated record in chunk") from None
+    return np.concatenate(out) if out else np.empty(0, np.int64)

@@ -1,0 +1,189 @@
+"""A run file's rate against its timestamps, and attribute values out of physical range (issue 33):
+a file whose every loss is logged reads, a rate the stamps contradict is refused or corrected the
+same way by every reader, impossible values are refused on read."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from fuzz_corpus import base_run
+from test_bad_input import assert_one_line_error
+
+from imustation.analysis.pipeline.loaders import load_run
+from imustation.channels import ChannelSpec
+from imustation.cli import cli
+from imustation.errors import RateCorrected, RunFileError
+from imustation.runfile import DeviceSpec, RunWriter, open_run
+from imustation.runfile.rate import stamp_rate
+
+RATE = 409.6  # ADIS16448
+PERIOD_NS = 1e9 / RATE
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def _write(path, kept: np.ndarray, rate_hz: float, *, driver="adis16448", log_losses=True, seed=1) -> None:
+    """A gyro record of the sample indices ``kept`` at ``rate_hz``, each hole logged as a gap event."""
+    rng = np.random.default_rng(seed)
+    t = np.rint(kept * 1e9 / rate_hz).astype(np.int64)
+    counts = rng.normal(0, 40, (len(kept), 3)).astype(np.int16)
+    spec = DeviceSpec(
+        "imu", driver, "ADIS16448", "spi:0", "sim", rate_hz, {},
+        (ChannelSpec("gyro", "<i2", "rad/s", 1e-4, axes=("x", "y", "z")),),
+    )  # fmt: skip
+    with RunWriter(path, station="t", config_text="", simulated=True, devices=[spec], ballast_bytes=0) as w:
+        w.append("imu", t, {"gyro": counts})
+        if log_losses:
+            jumps = np.flatnonzero(np.diff(kept) > 1)
+            for j in jumps:
+                lost = int(kept[j + 1] - kept[j] - 1)
+                w.event(int(t[j] + 1e9 / rate_hz), "imu", "gap", "not read for ...", lost=lost)
+
+
+def _lossy(n: int, frac: float, seed: int = 2) -> np.ndarray:
+    """Indices kept of ``n`` when ``frac`` of them are lost in holes every 16 to 32 samples (a host that
+    misses a read now and then: most 16-sample windows hold a hole)."""
+    rng = np.random.default_rng(seed)
+    keep = np.ones(n, bool)
+    at = 0
+    while at < n:
+        run_ = int(rng.integers(16, 33))
+        hole = int(round(run_ * frac / (1 - frac) * rng.uniform(0.5, 1.5)))
+        keep[at + run_ : at + run_ + hole] = False
+        at += run_ + hole
+    return np.flatnonzero(keep)
+
+
+def test_a_file_with_40_percent_lost_in_small_logged_holes_reads(tmp_path):
+    kept = _lossy(60_000, 0.40)
+    assert 0.38 < 1 - len(kept) / (kept[-1] + 1) < 0.42
+    p = tmp_path / "holes.h5"
+    _write(p, kept, RATE)
+    with open_run(p) as r:  # before: "rate_hz 409.6 contradicts its timestamps (299 Hz ...)"
+        assert r.devices["imu"].rate_hz == RATE and not r.devices["imu"].rate_note
+    res = run("inspect", p)
+    assert res.exit_code == 0, res.output
+    chans = load_run(str(p))
+    assert chans[0].fs_hz == RATE and len(chans[0].segments) > 1000  # split at every hole
+    assert "every one logged" in res.output and "contradicts" not in res.output
+    # the reader no longer refuses it; the analysis judges segments of 16-32 samples on its own terms
+    res = run("analyze", p, "--channel", "imu/gyro/x", "-m", "20")
+    assert "contradicts" not in res.output and "Traceback" not in res.output
+
+
+def test_the_stamp_rate_ignores_holes_but_not_a_wrong_rate():
+    kept = _lossy(20_000, 0.40)
+    t = np.rint(kept * PERIOD_NS).astype(np.int64)
+    assert stamp_rate(t, RATE).rate_hz == pytest.approx(RATE, rel=1e-6)
+    assert stamp_rate(t, RATE * 1.25).rate_hz == pytest.approx(RATE, rel=1e-6)  # still near enough to fit
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    return base_run(tmp_path_factory.mktemp("rates"))
+
+
+def _edited(base, tmp_path, edit, name="edited.h5"):
+    p = tmp_path / name
+    shutil.copyfile(base, p)
+    with h5py.File(p, "r+") as f:
+        edit(f)
+    return p
+
+
+def _set_rate(hz):
+    def edit(f):
+        f["devices/gyro"].attrs["rate_hz"] = hz
+
+    return edit
+
+
+def test_a_rate_the_stamps_contradict_is_corrected_the_same_everywhere(base, tmp_path):
+    """A 100 Hz record stating rate_hz 125: before, analyze and export used 125 Hz (sigma_w -10.6 %)."""
+    p = _edited(base, tmp_path, _set_rate(125.0))
+    with pytest.warns(RateCorrected, match="rate_hz 125 contradicts its timestamps"):
+        r = open_run(p)
+    with r:
+        dev = r.devices["gyro"]
+        assert dev.rate_hz == pytest.approx(100.0, rel=1e-4) and dev.stated_rate_hz == 125.0
+        assert "using 100 Hz" in dev.rate_note
+    with pytest.warns(RateCorrected):
+        assert {c.fs_hz for c in load_run(str(p))} == {dev.rate_hz}
+    res = run("analyze", p, "--channel", "gyro/gyro/x", "-m", "20", "--json")
+    assert res.exit_code == 0, res.output
+    assert res.output.count("imustation: warning:") == 1 and "rate_hz 125 contradicts" in res.output
+    doc = json.loads(res.output[res.output.index("{") :])
+    assert doc["channels"][0]["fs_hz"] == pytest.approx(100.0, rel=1e-4)
+    out = tmp_path / "kalibr.yaml"
+    res = run("export", p, "--format", "kalibr", "--gyro-only", "-o", out)
+    assert res.exit_code == 0, res.output
+    rate = next(ln for ln in out.read_text().splitlines() if ln.startswith("update_rate:"))
+    assert float(rate.split(":")[1]) == pytest.approx(100.0, rel=1e-4) and "rate_hz 125 contradicts" in res.output
+
+
+@pytest.mark.parametrize("hz", [200.0, 50.0, 140.0])
+def test_a_rate_the_stamps_contradict_grossly_is_refused(base, tmp_path, hz):
+    p = _edited(base, tmp_path, _set_rate(hz))
+    assert_one_line_error(run("analyze", p), "edited.h5", f"rate_hz {hz:g} contradicts its timestamps", "100 Hz")
+
+
+def test_a_small_clock_offset_is_believed(base, tmp_path):
+    p = _edited(base, tmp_path, _set_rate(100.05))  # 0.05 %: below RATE_FLOOR
+    with open_run(p) as r:
+        assert r.devices["gyro"].rate_hz == 100.05 and not r.devices["gyro"].rate_note
+
+
+def _event_lost(value):
+    def edit(f):
+        ev = f["events"][()]
+        i = int(np.flatnonzero(ev["kind"] == b"gap")[0])
+        ev["lost"][i] = value
+        f["events"][...] = ev
+
+    return edit
+
+
+def _attr(obj, key, value):
+    def edit(f):
+        f[obj].attrs[key] = value
+
+    return edit
+
+
+def _step_back(f):
+    t = f["devices/gyro/t"]
+    t[10] = t[8]
+
+
+def _step_back_late(f):
+    t = f["devices/gyro/t"]
+    t[7000] = t[6990]
+
+
+@pytest.mark.parametrize(
+    "name, edit, needles",
+    [
+        ("lost=2**62", _event_lost(2**62), ("event", "loss of 4611686018427387904")),
+        ("ended-before-started", _attr("/", "ended_utc", "2001-01-01T00:00:00.000+00:00"), ("ended_utc", "before")),
+        ("t-steps-back", _step_back, ("gyro/t steps back at row 10",)),
+        ("t-steps-back-later", _step_back_late, ("gyro/t steps back at row 7000",)),
+        ("offset=1e300", _attr("devices/gyro/gyro", "offset", 1e300), ("'offset' is 1e+300",)),
+        ("scale=1e300", _attr("devices/gyro/gyro", "scale", 1e300), ("'scale' is 1e+300",)),
+        ("scale=-inf", _attr("devices/gyro/gyro", "scale", -np.inf), ("'scale' is -inf",)),
+    ],
+)
+def test_values_out_of_physical_range_are_refused(base, tmp_path, name, edit, needles):
+    p = _edited(base, tmp_path, edit)
+    for cmd in (["analyze", p, "-m", "20"], ["export", p, "--format", "kalibr", "--gyro-only", "-o", tmp_path / "k"]):
+        assert_one_line_error(run(*cmd), "edited.h5", *needles)
+    if name != "t-steps-back-later":  # found on open; a later step back when the record is read
+        with pytest.raises(RunFileError):
+            with open_run(p) as r:
+                r.events()
