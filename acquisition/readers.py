@@ -51,6 +51,8 @@ from imustation.clock import MonotonicClock
 #: a reader hands over what it has at least this often (wall s), or when this many items wait
 SEND_INTERVAL_S = 0.02
 SEND_ITEMS = 512
+#: while waiting for the run to start, a reader empties its devices' buffers this often, s
+WAIT_DRAIN_S = 0.1
 #: pipe capacity asked for (Linux F_SETPIPE_SZ; /proc/sys/fs/pipe-max-size caps it, 1 MiB by default)
 PIPE_BYTES = 2**20
 F_SETPIPE_SZ = 1031  # <linux/fcntl.h>: F_LINUX_SPECIFIC_BASE + 7
@@ -166,6 +168,10 @@ def reader_main(
         scheduling = request_scheduling(priority=priority, cpus=options.cpus)
         thermometers = {n: (th.identity, th.period_ns) for n, th in station.thermometers.items()}
         conn.send(("opened", devices, thermometers, scheduling))
+        # the other readers open and the file is created meanwhile (seconds): what the devices make
+        # until the run starts is dropped, before it overflows a buffer (a cut line, a resync)
+        while not conn.poll(WAIT_DRAIN_S):
+            station.discard()
         msg = conn.recv()
         if msg[0] != "run":
             return

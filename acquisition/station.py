@@ -434,6 +434,20 @@ class Station:
                 self._fault(sink, st, str(exc))
         self.t0 = self.clock.now_ns()
 
+    def discard(self) -> None:
+        """Empty every device's buffer, errors ignored: a reader process waiting to start keeps its
+        devices' buffers (a tty's 4 kB) from overflowing; :meth:`start` then reports what fails."""
+        for st in self.devices.values():
+            if st.driver is None:
+                continue
+            try:
+                st.driver.read_block()
+                drain = getattr(st.driver, "drain", None)
+                if drain is not None:
+                    drain()
+            except (BusError, DeviceError):
+                pass
+
     def summary(self, reason: str = "") -> CaptureSummary:
         devices, thermometers = self.counts()
         return CaptureSummary(

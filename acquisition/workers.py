@@ -371,18 +371,10 @@ class Worker:
         for name in self.names:
             sink.event(t, name, "fault", detail)
         devices, thermometers = self._counts
-        failed = {
-            n: dataclasses.replace(devices.get(n) or DeviceStatus(rate_cfg_hz=r), state="failed")
-            for n, r in self.rates.items()
-        }
         mirror(
             (
-                {n: dataclasses.replace(c, faults=c.faults + 1) for n, c in failed.items()},
-                {
-                    n: dataclasses.replace(thermometers.get(n) or ThermometerStatus(), state="failed", faults=1)
-                    for n in self.names
-                    if n not in self.rates
-                },
+                {n: _failed(devices.get(n) or DeviceStatus(rate_cfg_hz=r)) for n, r in self.rates.items()},
+                {n: _failed(thermometers.get(n) or ThermometerStatus()) for n in self.names if n not in self.rates},
             )
         )
 
@@ -413,6 +405,11 @@ class Worker:
         self.conn.close()
         if self.data is not self.conn:
             self.data.close()
+
+
+def _failed(counts: Any) -> Any:
+    """A device's or thermometer's counts, failed with one fault more (its reader process is gone)."""
+    return dataclasses.replace(counts, state="failed", faults=counts.faults + 1)
 
 
 def shifted(message: tuple, offset_ns: int) -> tuple:

@@ -265,3 +265,20 @@ def test_reader_messages_pickle_as_the_main_side_expects():
     assert isinstance(r, Connection) and pickle.loads(pickle.dumps(msg)) == msg
     for c in (r, w, ctl_a, ctl_b):
         c.close()
+
+
+def test_rotation_with_reader_processes_keeps_every_sample(tmp_path):
+    """Parts are cut at the time every reader has reached: 2.5 s in parts of 1 s are three complete
+    files holding every sample the summary counts."""
+    from imustation.acquisition.recorder import part_path
+
+    cfg = _config([{"name": "a", "bus": "i2c:1", **GYRO}])
+    out = tmp_path / "rot.h5"
+    summary = capture(cfg, out, 2.5, simulate=True, real_time=True, reader_priority=0, rotate_s=1.0)
+    assert summary.paths == [part_path(str(out), k) for k in (1, 2, 3)]
+    total = 0
+    for path in summary.paths:
+        with open_run(path) as run:
+            assert run.complete
+            total += run.devices["a"].n
+    assert total == summary.samples["a"] > 0
