@@ -30,6 +30,7 @@ capture (:class:`~imustation.acquisition.workers.WorkerPool`).
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import gc
 import os
@@ -45,8 +46,9 @@ from typing import Any
 
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.realtime import READER_PRIORITY, reader_priority, release_scheduling, request_scheduling
-from imustation.acquisition.sinks import MessageSink
+from imustation.acquisition.sinks import MessageSink, Sink
 from imustation.clock import MonotonicClock
+from imustation.status import DeviceStatus, ThermometerStatus
 
 #: a reader hands over what it has at least this often (wall s), or when this many items wait
 SEND_INTERVAL_S = 0.02
@@ -206,3 +208,33 @@ def reader_main(
             station.close()
         conn.close()
         data.close()
+
+
+# -- a reader lost mid-run (the main process's side) ------------------------------------------
+def failed_counts(counts: tuple, rates: dict[str, float], names: list[str]) -> tuple:
+    """A lost reader's last counts (devices, thermometers), each failed with one fault more; ``rates``:
+    its devices' output rates, Hz (the others of ``names`` are thermometers)."""
+    devices, thermometers = counts
+    return (
+        {n: _failed(devices.get(n) or DeviceStatus(rate_cfg_hz=r)) for n, r in rates.items()},
+        {n: _failed(thermometers.get(n) or ThermometerStatus()) for n in names if n not in rates},
+    )
+
+
+def _failed(counts: Any) -> Any:
+    return dataclasses.replace(counts, state="failed", faults=counts.faults + 1)
+
+
+def lost_to_end(sink: Sink, what: str, rates: dict[str, float], last_t: dict[str, int], end_ns: int) -> dict[str, int]:
+    """Log for each device of a lost reader one ``gap`` after its last sample (``last_t``, station ns) with
+    the samples its rate (Hz) fits from there to ``end_ns``; return them by device (written + logged
+    losses = produced, as for every other loss)."""
+    out = {}
+    for name, rate in rates.items():
+        period = 1e9 / rate
+        last = last_t.get(name, -period)
+        lost = int((end_ns - last) // period)
+        if lost > 0:
+            sink.event(int(last + period), name, "gap", f"{what} lost: not read to the end", lost=lost)
+            out[name] = lost
+    return out

@@ -422,6 +422,16 @@ class Station:
         """
         self.t0 = self.clock.now_ns()
         self._started = True
+        self._empty(lambda st, exc: self._fault(sink, st, str(exc)))
+        self.t0 = self.clock.now_ns()
+
+    def discard(self) -> None:
+        """Empty every device's buffer, errors ignored: a reader process waiting to start keeps its
+        devices' buffers (a tty's 4 kB) from overflowing; :meth:`start` then reports what fails."""
+        self._empty(lambda st, exc: None)
+
+    def _empty(self, failed: Callable[[DeviceState, Exception], None]) -> None:
+        """Read and drop what every device of this process holds; ``failed(state, error)`` for each that fails."""
         for st in self.devices.values():
             if st.driver is None:
                 continue  # a worker process starts its own
@@ -431,22 +441,7 @@ class Station:
                 if drain is not None:
                     drain()
             except (BusError, DeviceError) as exc:
-                self._fault(sink, st, str(exc))
-        self.t0 = self.clock.now_ns()
-
-    def discard(self) -> None:
-        """Empty every device's buffer, errors ignored: a reader process waiting to start keeps its
-        devices' buffers (a tty's 4 kB) from overflowing; :meth:`start` then reports what fails."""
-        for st in self.devices.values():
-            if st.driver is None:
-                continue
-            try:
-                st.driver.read_block()
-                drain = getattr(st.driver, "drain", None)
-                if drain is not None:
-                    drain()
-            except (BusError, DeviceError):
-                pass
+                failed(st, exc)
 
     def summary(self, reason: str = "") -> CaptureSummary:
         devices, thermometers = self.counts()

@@ -41,8 +41,8 @@ from multiprocessing.connection import Connection
 from typing import Any, Protocol
 
 from imustation.acquisition.config import StationConfig
-from imustation.acquisition.readers import ReaderOptions, reader_main
-from imustation.acquisition.sinks import APPEND, EVENT, TEMPERATURE, MessageSink, Sink, deliver
+from imustation.acquisition.readers import ReaderOptions, failed_counts, lost_to_end, reader_main
+from imustation.acquisition.sinks import APPEND, MessageSink, Sink, deliver, shifted
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate
 from imustation.errors import ImustationError
@@ -282,6 +282,8 @@ class Worker:
         #: station time of each device's last sample handed over, ns; output rates, Hz
         self.last_t: dict[str, int] = {}
         self.rates: dict[str, float] = {}
+        #: the run's planned end, station ns
+        self.end_ns = 0
         #: CPU time the process used, s (reader processes, when done)
         self.cpu_s: float | None = None
 
@@ -302,6 +304,7 @@ class Worker:
 
     def start(self, duration_s: float, pace: float | None, t0: int | None = None) -> None:
         """Tell the worker to record; ``t0``: the run's origin on the host clock (reader processes)."""
+        self.end_ns = round(duration_s * 1e9)
         if self.host is None:
             self.conn.send(("run", duration_s, pace))
         else:
@@ -367,16 +370,11 @@ class Worker:
         self.lost_reason = why
         t = time.monotonic_ns() - (self.t0 or 0)
         self.t_ns = t
-        detail = f"{self.what} ended during the run ({why}); not read for the rest of the capture"
         for name in self.names:
-            sink.event(t, name, "fault", detail)
-        devices, thermometers = self._counts
-        mirror(
-            (
-                {n: _failed(devices.get(n) or DeviceStatus(rate_cfg_hz=r)) for n, r in self.rates.items()},
-                {n: _failed(thermometers.get(n) or ThermometerStatus()) for n in self.names if n not in self.rates},
+            sink.event(
+                t, name, "fault", f"{self.what} ended during the run ({why}); not read for the rest of the capture"
             )
-        )
+        mirror(failed_counts(self._counts, self.rates, self.names))
 
     def _recv(self, conn: Connection) -> tuple:
         try:
@@ -405,21 +403,6 @@ class Worker:
         self.conn.close()
         if self.data is not self.conn:
             self.data.close()
-
-
-def _failed(counts: Any) -> Any:
-    """A device's or thermometer's counts, failed with one fault more (its reader process is gone)."""
-    return dataclasses.replace(counts, state="failed", faults=counts.faults + 1)
-
-
-def shifted(message: tuple, offset_ns: int) -> tuple:
-    """A sink message with its times moved by ``offset_ns`` (a reader's origin onto the run's)."""
-    tag = message[0]
-    if tag in (APPEND, TEMPERATURE):
-        return (tag, message[1], message[2] + offset_ns, *message[3:])
-    if tag == EVENT:
-        return (tag, message[1] + offset_ns, *message[2:])
-    return message
 
 
 class WorkerPool:
@@ -569,13 +552,8 @@ class WorkerPool:
         for w in self.workers:
             if not w.lost_reason or w.t0 is None:
                 continue
-            end = time.monotonic_ns() - w.t0
-            for name, rate in w.rates.items():
-                period = 1e9 / rate
-                last = w.last_t.get(name, -period)
-                lost = int((end - last) // period)
-                if lost > 0:
-                    sink.event(int(last + period), name, "gap", f"{w.what} lost: not read to the end", lost=lost)
-                    c = self.devices.get(name)
-                    if c is not None:
-                        self.devices[name] = dataclasses.replace(c, gaps=c.gaps + 1, lost=c.lost + lost)
+            end = min(time.monotonic_ns() - w.t0, w.end_ns)
+            for name, lost in lost_to_end(sink, w.what, w.rates, w.last_t, end).items():
+                c = self.devices.get(name)
+                if c is not None:
+                    self.devices[name] = dataclasses.replace(c, gaps=c.gaps + 1, lost=c.lost + lost)

@@ -22,8 +22,7 @@ from imustation.acquisition import capture, realtime
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.readers import HostOutbox
 from imustation.acquisition.scheduler import Poller, run_deadline
-from imustation.acquisition.sinks import APPEND, EVENT, MessageSink
-from imustation.acquisition.workers import shifted
+from imustation.acquisition.sinks import APPEND, EVENT, MessageSink, shifted
 from imustation.clock import VirtualClock
 from imustation.errors import InputError
 from imustation.runfile import open_run
