@@ -11,7 +11,8 @@ simulators' own cost inside each poll - for ``--duration`` seconds in each of:
 
 each idle and with ``--busy`` busy-loop processes beside it (started and stopped
 here). Prints per device the samples written and lost (and per 10,000), the CPU
-per sample of each reader process and of the writer, and the machine's load.
+each reader process used per sample of its devices while recording, the writer's
+CPU per sample, and the machine's load (1-minute load average after each case).
 
 Targets (issue 36): readers, idle: 0 lost; beside two busy loops: at most 1 in
 10,000 per device.
@@ -59,7 +60,7 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
             p.wait()
     os.unlink(out)
     main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
-    return {"summary": summary, "main_cpu": main_cpu, "wall": wall, "load": os.getloadavg()[0]}
+    return {"summary": summary, "main_cpu": main_cpu, "wall": wall, "load": os.getloadavg()[0], "config": cfg}
 
 
 def report(mode: str, busy: int, res: dict) -> bool:
@@ -75,7 +76,8 @@ def report(mode: str, busy: int, res: dict) -> bool:
         print(f"  {name:14s} {n:9d} {lost:6d} {per10k:8.2f}")
     if s.reader_cpu_s:
         for bus, cpu in s.reader_cpu_s.items():
-            print(f"  reader {bus}: {cpu:.2f} s CPU")
+            n_bus = sum(s.samples[d.name] for d in res["config"].devices if d.bus == bus)
+            print(f"  reader {bus}: {cpu:.2f} s CPU, {1e6 * cpu / max(1, n_bus):.0f} us per sample of its devices")
         readers = sum(s.reader_cpu_s.values())
         print(
             f"  CPU per sample: readers {1e6 * readers / max(1, total):.1f} us, "
