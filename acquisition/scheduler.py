@@ -200,8 +200,9 @@ def run_deadline(
     Each poller is polled at its own interval, or every ``hold_ns / POLLS_PER_HOLD`` if
     that is shorter; of those due, the one whose hold time runs out first is polled
     first. A poll late by more than its interval is not made up for: the next one is
-    an interval after it. ``between(t_ns)`` (the reader's hand-over to the writer) runs
-    whenever nothing is due, and at least every ``BETWEEN_NS`` while polls are due.
+    an interval after it; each poller's last poll is at ``end``. ``between(t_ns)`` (the
+    reader's hand-over to the writer) runs whenever nothing is due, and at least every
+    ``BETWEEN_NS`` while polls are due.
     ``sleep(seconds)`` waits for the next due poll (tests pass a virtual clock's).
     """
     n = len(pollers)
@@ -233,7 +234,9 @@ def run_deadline(
         t = clock.now_ns()
         step[i] = _step(p, interval)
         nxt = due[i] + step[i]
-        due[i] = nxt if nxt > t else t + step[i]
+        nxt = nxt if nxt > t else t + step[i]
+        # the last poll is at the end, wherever late polls moved the others: what was made until then is read
+        due[i] = end if nxt > end > t else nxt
         deadline[i] = t + (p.hold_ns or step[i])
     return ""
 

@@ -95,6 +95,31 @@ def test_a_late_poll_is_not_made_up_for_and_a_stop_is_seen():
     assert [t for _, t in log] == [1_250_000, 9_500_000, 17_750_000]
 
 
+def test_the_last_poll_is_at_the_end_wherever_a_late_poll_moved_the_others():
+    """A first poll of 150 ms moves the 100 ms grid (350, 450 ms); the capture ends at 500 ms, and its
+    last poll is there, not at 450 ms with 50 ms of samples left unread."""
+    clock = VirtualClock()
+    log: list[tuple[str, int]] = []
+    costs = iter([150.0])
+
+    def poll(sink) -> int:
+        log.append(("fifo", clock.now_ns()))
+        clock.advance_to(clock.now_ns() + int(next(costs, 0.0) * 1e6))
+        return 100_000_000
+
+    run_deadline(
+        clock,
+        [Poller("fifo", "bus", 100_000_000, poll, 250_000_000)],
+        MessageSink(lambda m: None),
+        t0=0,
+        end=500_000_000,
+        between=lambda t: None,
+        should_stop=lambda: False,
+        sleep=clock.sleep,
+    )
+    assert [t // 1_000_000 for _, t in log] == [100, 350, 450, 500]
+
+
 # -- the hand-off ---------------------------------------------------------------------------------
 def test_the_outbox_never_blocks_on_a_full_pipe_and_delivers_every_message_in_order():
     """Nobody reads the pipe while the reader sends 16 MiB: every send returns at once (the pipe is
