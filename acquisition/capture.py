@@ -18,10 +18,12 @@ from typing import Any
 from imustation.acquisition.clocksync import ClockWatch
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.modes import check_options
+from imustation.acquisition.readers import ReaderOptions
+from imustation.acquisition.realtime import READER_PRIORITY
 from imustation.acquisition.recorder import Recorder, reserve_resumed
 from imustation.acquisition.resume import resumed_nothing
 from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
-from imustation.clock import Clock
+from imustation.clock import Clock, MonotonicClock
 from imustation.drivers.bus.trace import Trace, TraceWriter
 from imustation.errors import DiskFullError
 from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
@@ -69,6 +71,10 @@ def capture(
     resume: bool = False,
     resume_now: Callable[[], Any] | None = None,
     clock_watch: ClockWatch | None = None,
+    real_time: bool = False,
+    reader_priority: int = READER_PRIORITY,
+    reader_cpus: Sequence[int] | None = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -86,6 +92,12 @@ def capture(
         the drivers must ask exactly what they asked when it was recorded.
     workers : simulation on the virtual clock only: processes to poll the bus
         groups in (see :mod:`~imustation.acquisition.workers`); 1 = this one.
+    real_time : simulation only: the chip simulators on the host clock, each bus polled by
+        a reader process as in a capture of real devices (a rehearsal: what this host loses).
+    reader_priority : host clock: the SCHED_FIFO priority the reader processes ask for
+        (:mod:`~imustation.acquisition.realtime`; 0 asks for nothing); ``reader_cpus``: the CPUs
+        they run on (None: the kernel places them).
+    on_note : called with each line the operator should read (e.g. scheduling the OS refused).
     early_stop : SIGINT/SIGTERM received before this call (the CLI records them from its
         start, read once the capture's own handlers are in place): the capture opens its
         devices, creates its file and finishes it at once, with the stop's note.
@@ -99,6 +111,16 @@ def capture(
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
     when the disk filled up.
     """
+    check_options(
+        simulate=simulate,
+        sim_level=sim_level,
+        workers=workers,
+        virtual_clock=clock is None,  # an imposed clock is a test's
+        trace=trace is not None,
+        replay=replay is not None,
+        rotate=rotate_s is not None,
+        real_time=real_time,
+    )
     lock, point = (
         reserve_resumed(output, config, duration_s, simulated=simulate, now=resume_now) if resume else (None, None)
     )
@@ -124,15 +146,12 @@ def capture(
         ballast_bytes=ballast_bytes,
         note=MODEL_LEVEL_NOTE if simulate and sim_level == "model" else "",
     )
-    check_options(
-        simulate=simulate,
-        sim_level=sim_level,
-        workers=workers,
-        virtual_clock=clock is None,  # an imposed clock is a test's
-        trace=trace is not None,
-        replay=replay is not None,
-        rotate=rotate_s is not None,
-    )
+    readers = None
+    if real_time or (not simulate and clock is None and trace is None and replay is None):
+        # the host clock: every bus in a reader process of its own (a trace is recorded in one process)
+        cpus = tuple(reader_cpus) if reader_cpus is not None else None
+        readers = ReaderOptions(simulate=simulate, priority=reader_priority, cpus=cpus)
+        clock = MonotonicClock()
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()
     try:
@@ -141,7 +160,14 @@ def capture(
         recorder.lock.release()
         raise
     station = Station(
-        config, simulate=simulate, clock=clock, trace=tracer, replay=replayed, workers=workers, sim_level=sim_level
+        config,
+        simulate=simulate,
+        clock=clock,
+        trace=tracer,
+        replay=replayed,
+        workers=workers,
+        sim_level=sim_level,
+        readers=readers,
     )
     stop = _StopFlag()
     previous = {}
@@ -165,6 +191,7 @@ def capture(
         specs = station.open()
         recorder.start(specs, {name: th.rate_hz for name, th in station.thermometers.items()})
         started = True
+        _note_scheduling(station, recorder, on_note)
         try:
             summary = station.run(
                 recorder,
@@ -197,6 +224,19 @@ def capture(
             signal.signal(sig, handler)
         if final and on_status is not None:
             on_status({**final[-1], **recorder.status()})
+
+
+def _note_scheduling(station: Station, recorder: Recorder, on_note: Callable[[str], None] | None) -> None:
+    """What each reader process obtained from the OS, as a note in the run file; what it was refused,
+    once, to the operator too."""
+    said = set()
+    for bus, scheduling in station.scheduling().items():
+        recorder.event(0, "station", "note", f"reader process for {bus}: {scheduling.describe()}")
+        if scheduling.missing and scheduling.missing not in said:
+            said.add(scheduling.missing)
+            recorder.event(0, "station", "note", scheduling.missing)
+            if on_note is not None:
+                on_note(scheduling.missing)
 
 
 def _finish_after_disk_full(recorder: Recorder, station: Station) -> None:

@@ -42,16 +42,31 @@ def check_options(
     replay: bool = False,
     rotate: bool = False,
     cli: bool = False,
+    real_time: bool = False,
 ) -> None:
     """Refuse a combination of capture options that cannot work, with one line naming the options.
 
     ``virtual_clock``: the capture runs on a virtual clock of its own (a caller that
     imposes a clock says False); ``trace``, ``replay``, ``rotate``: those options are
     given. ``cli``: the caller is the command line, where a simulation level without
-    ``--simulate`` is a missing option. Raises :class:`~imustation.errors.InputError`.
+    ``--simulate`` is a missing option. ``real_time``: a simulation on the host clock
+    (``--real-time``). Raises :class:`~imustation.errors.InputError`.
     """
     if trace and replay:
         raise InputError("--trace and --replay exclude each other")
+    if real_time:
+        if not simulate:
+            raise InputError("--real-time: needs --simulate (a capture of real devices runs on the host clock anyway)")
+        if trace or replay:
+            raise InputError("--real-time with --trace/--replay: a trace is recorded and replayed in one process")
+        if workers > 1:
+            raise InputError(
+                f"--real-time with --workers {workers}: on the host clock every bus has a reader process of its own"
+            )
+        if sim_level != "bus":
+            raise InputError(
+                f"--real-time with --sim-level {sim_level}: only bus-level simulators run on the host clock"
+            )
     if workers < 1:
         raise InputError(f"--workers {workers}: at least 1")
     if workers > 1 and rotate:
@@ -62,7 +77,7 @@ def check_options(
     if workers > 1 and not own:
         raise InputError(
             f"--workers {workers}: only a simulated capture on its virtual clock, without --trace/--replay, "
-            "uses worker processes (a real capture has a reader thread per bus)"
+            "uses worker processes (a capture on the host clock has a reader process per bus)"
         )
     if sim_level not in SIM_LEVELS:
         raise InputError(f"--sim-level {sim_level!r}: {' or '.join(SIM_LEVELS)}")

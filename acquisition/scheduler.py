@@ -1,4 +1,4 @@
-"""When each device and thermometer is polled: two schedulers over the same per-device polls.
+"""When each device and thermometer is polled: three schedulers over the same per-device polls.
 
 * :func:`run_virtual` (simulation, replay): one thread and one event queue (a heap
   of due times) for every device; sleeping only advances the clock, so hours are
@@ -7,7 +7,14 @@
   one I2C adapter share the thread, hence the bus; other buses run in parallel,
   so a slow bus cannot starve another) and the calling thread as the single
   writer that owns the HDF5 file (h5py is not thread-safe): readers hand their
-  data over a queue as :mod:`~imustation.acquisition.sinks` messages.
+  data over a queue as :mod:`~imustation.acquisition.sinks` messages (a host-clock
+  capture with ``--trace``, and tests that impose a clock).
+* :func:`run_deadline` (host clock, a reader process of
+  :mod:`~imustation.acquisition.readers`): one bus in one thread, polled against
+  each device's hold time: the time its oldest unread sample stays before it is
+  overwritten (one output period for a chip without a FIFO, its buffer for the
+  others). A device is polled at least twice per hold time, and when several are
+  due the one whose hold runs out first goes first (earliest deadline first).
 
 A :class:`Poller` is one device or thermometer: ``poll(sink)`` reads it once and
 returns the interval to its next poll. Times are ns on the station clock.
@@ -27,6 +34,12 @@ from imustation.clock import Clock
 
 #: how long the writer thread waits for data before doing its periodic work, s
 WRITER_WAKEUP_S = 0.05
+#: run_deadline: polls per hold time at least (a poll up to half a hold late still reads every sample)
+POLLS_PER_HOLD = 2
+#: run_deadline: its ``between`` hook runs at least this often (ns) even while polls are due
+BETWEEN_NS = 20_000_000
+#: run_deadline: longest sleep (s), so a stop is seen promptly even with nothing due
+MAX_SLEEP_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -38,6 +51,9 @@ class Poller:
     interval_ns: int
     #: read the device once into the sink; return the interval to its next poll, ns
     poll: Callable[[Sink], int]
+    #: how long a sample waits in the device before it is overwritten or dropped, ns (0: unknown,
+    #: nothing is lost by a late poll - a thermometer); only :func:`run_deadline` uses it
+    hold_ns: int = 0
 
 
 def _heap(pollers: Sequence[Poller], t0: int) -> list[tuple[int, int]]:
@@ -166,3 +182,67 @@ def _reader(clock: Clock, pollers: list[Poller], sink: MessageSink, t0: int, end
             heapq.heappush(heap, (max(due + interval, clock.now_ns()), i))
     except BaseException as exc:  # noqa: BLE001 - a bug in a reader must stop the capture, not vanish
         sink.error(exc)
+
+
+def run_deadline(
+    clock: Clock,
+    pollers: Sequence[Poller],
+    sink: Sink,
+    *,
+    t0: int,
+    end: int,
+    between: Callable[[int], None],
+    should_stop: Callable[[], bool],
+    sleep: Callable[[float], None] = time.sleep,
+) -> str:
+    """Poll one bus's devices in this thread on the host clock until ``end`` (ns); return why it stopped early.
+
+    Each poller is polled at its own interval, or every ``hold_ns / POLLS_PER_HOLD`` if
+    that is shorter; of those due, the one whose hold time runs out first is polled
+    first. A poll late by more than its interval is not made up for: the next one is
+    an interval after it; each poller's last poll is at ``end``. ``between(t_ns)`` (the
+    reader's hand-over to the writer) runs whenever nothing is due, and at least every
+    ``BETWEEN_NS`` while polls are due.
+    ``sleep(seconds)`` waits for the next due poll (tests pass a virtual clock's).
+    """
+    n = len(pollers)
+    step = [_step(p, p.interval_ns) for p in pollers]
+    due = [t0 + s for s in step]
+    deadline = [t0 + (p.hold_ns or s) for p, s in zip(pollers, step, strict=True)]
+    last_between = t0
+    while n:
+        if should_stop():
+            return "stopped by signal"
+        now = clock.now_ns()
+        ready = [i for i in range(n) if due[i] <= now]
+        if not ready or now - last_between >= BETWEEN_NS:
+            between(now - t0)
+            last_between = now
+        if not ready:
+            nxt = min(due)
+            if nxt > end:
+                return ""
+            wait = (nxt - clock.now_ns()) / 1e9
+            if wait > 0:
+                sleep(min(wait, MAX_SLEEP_S))
+            continue
+        i = min(ready, key=lambda k: (deadline[k], k))
+        if due[i] > end:
+            return ""
+        p = pollers[i]
+        interval = p.poll(sink)
+        t = clock.now_ns()
+        step[i] = _step(p, interval)
+        nxt = due[i] + step[i]
+        nxt = nxt if nxt > t else t + step[i]
+        # the last poll is at the end, wherever late polls moved the others: what was made until then is read
+        due[i] = end if nxt > end > t else nxt
+        deadline[i] = t + (p.hold_ns or step[i])
+    return ""
+
+
+def _step(p: Poller, interval_ns: int) -> int:
+    """The interval to a poller's next poll: its own, or less to poll at least POLLS_PER_HOLD times a hold."""
+    if p.hold_ns > 0:
+        return max(1, min(interval_ns, p.hold_ns // POLLS_PER_HOLD))
+    return max(1, interval_ns)

@@ -79,6 +79,16 @@ def deliver(sink: Sink, message: tuple) -> None:
         raise ValueError(f"unknown sink message {tag!r}")
 
 
+def shifted(message: tuple, offset_ns: int) -> tuple:
+    """A sink message with its times moved by ``offset_ns`` (a reader's origin onto the run's)."""
+    tag = message[0]
+    if tag in (APPEND, TEMPERATURE):
+        return (tag, message[1], message[2] + offset_ns, *message[3:])
+    if tag == EVENT:
+        return (tag, message[1] + offset_ns, *message[2:])
+    return message
+
+
 def tick_of(recorder: Any) -> Callable[[int], None] | None:
     """The recorder's between-polls hook: its ``tick(t_ns)``, or a plain run-file writer's ``flush_if_due``."""
     tick = getattr(recorder, "tick", None)

@@ -5,9 +5,11 @@ simulated bus) and reports it (:class:`OpenedDevice`); the run file's device
 description is made from that report (:func:`~imustation.acquisition.recorder.run_file_device`).
 
 Running: every device is polled at its own interval (about 40 % of its FIFO
-depth), every thermometer at its ``rate_hz``, by one of the two schedulers of
-:mod:`~imustation.acquisition.scheduler` (a virtual-clock event queue in
-simulations and replays, a reader thread per bus on the real clock). Times are
+depth; on the host clock also against its hold time), every thermometer at its
+``rate_hz``, by one of the schedulers of :mod:`~imustation.acquisition.scheduler`
+(a virtual-clock event queue in simulations and replays; on the host clock a
+reader process per bus, :mod:`~imustation.acquisition.readers`, or reader
+threads in this process where a capture asks for them). Times are
 ns since the start of the run on the station clock. Each device's
 :class:`~imustation.acquisition.timeline.Timeline` dates its samples and
 accounts its losses, which are logged as events with their sample count (FIFO
@@ -36,7 +38,8 @@ import numpy as np
 from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
 from imustation.acquisition.modes import check_options
-from imustation.acquisition.scheduler import Poller, run_threaded, run_virtual
+from imustation.acquisition.readers import ReaderOptions
+from imustation.acquisition.scheduler import Poller, run_deadline, run_threaded, run_virtual
 from imustation.acquisition.sinks import Sink, tick_of
 from imustation.acquisition.timeline import Timeline
 from imustation.acquisition.workers import WorkerPool, bus_groups, partition
@@ -51,6 +54,9 @@ from imustation.status import DeviceStatus, ThermometerStatus, capture_status, f
 STATUS_INTERVAL_S = 1.0
 #: a thermometer's poll rate when its config gives none, Hz
 DEFAULT_THERMOMETER_RATE_HZ = 1.0
+#: FIFO drivers poll at about this fill (drivers' ``poll_interval_s``): their FIFO holds the samples of
+#: about 1/this intervals, the hold time of a device whose driver reports no finite ``buffer_s``
+FIFO_POLL_FILL = 0.4
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,8 @@ class DeviceState:
     window_samples: int = 0
     #: station time of the last poll, ns (what a driver's ``drain`` dates its samples from)
     last_poll_ns: int = 0
+    #: polled by a reader process: its samples as last reported at a status (for the recent rate)
+    reported_samples: int = 0
 
     @property
     def samples(self) -> int:
@@ -107,6 +115,15 @@ class DeviceState:
             temp_c=finite(self.temp_c),
             state="failed" if self.failed else "stalled" if tl.stalled else "ok",
         )
+
+
+def _hold_ns(st: DeviceState) -> int:
+    """How long a sample waits in the device before it is overwritten or dropped, ns: the driver's
+    ``buffer_s`` (one period for a chip without a FIFO), else its FIFO from its poll interval."""
+    buffer_s = st.info.buffer_s
+    if buffer_s is not None and buffer_s < float("inf"):
+        return max(1, int(buffer_s * 1e9))
+    return int(st.poll_ns / FIFO_POLL_FILL)
 
 
 def _device_state(config: DeviceConfig, driver: Any, info: DriverInfo) -> DeviceState:
@@ -157,6 +174,8 @@ class CaptureSummary:
     #: why the capture ended before its duration ("signal SIGTERM", "disk full"), else ""
     stop_reason: str = ""
     paths: list[str] = field(default_factory=list)
+    #: host clock: CPU time each reader process used while recording, s, by bus URL
+    reader_cpu_s: dict[str, float] = field(default_factory=dict)
 
 
 class Station:
@@ -171,6 +190,10 @@ class Station:
         queue, any other clock the threaded readers.
     trace, replay : record every bus transaction / answer the drivers from a trace.
     workers : processes a simulated capture may poll its bus groups in.
+    readers : host clock: poll every bus group in a reader process of its own
+        (:mod:`~imustation.acquisition.readers`); this station only writes.
+    reader_process : this station is such a reader: one bus group, polled in one thread
+        against the devices' hold times.
     sim_level : ``"bus"`` (chip simulators behind the real bus code) or ``"model"``
         (devices polled at the noise-model level, :mod:`~imustation.acquisition.modelsim`).
         :func:`~imustation.acquisition.modes.check_options` says what combines.
@@ -186,6 +209,8 @@ class Station:
         replay: Trace | None = None,
         workers: int = 1,
         sim_level: str = "bus",
+        readers: ReaderOptions | None = None,
+        reader_process: bool = False,
     ):
         self.config = config
         self.simulate = simulate
@@ -201,6 +226,8 @@ class Station:
         )
         self.sim_level = sim_level
         self.workers = workers
+        self.readers = readers
+        self.reader_process = reader_process
         self._pool: WorkerPool | None = None
         self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed, trace=trace, replay=replay)
         self.devices: dict[str, DeviceState] = {}
@@ -229,7 +256,11 @@ class Station:
         opened (and later polled) by worker processes.
         """
         local = None
-        if self.workers > 1 and len(bus_groups(self.config)) > 1:
+        if self.readers is not None:
+            local = set()
+            groups = list(bus_groups(self.config).values())
+            self._pool = WorkerPool(self.config, groups, self.sim_level, type(self), host=self.readers)
+        elif self.workers > 1 and len(bus_groups(self.config)) > 1:
             shares = partition(self.config, self.workers, self.sim_level)
             local = set(shares[0])
             self._pool = WorkerPool(self.config, shares[1:], self.sim_level, type(self))
@@ -275,6 +306,18 @@ class Station:
             info = driver.open()
         return driver, info
 
+    def shortest_hold_s(self) -> float:
+        """The shortest hold time of the devices this process polls, s (inf without any)."""
+        holds = [_hold_ns(st) for st in self.devices.values() if st.driver is not None]
+        return min(holds) / 1e9 if holds else float("inf")
+
+    def scheduling(self) -> dict[str, Any]:
+        """What each reader process obtained from the OS (:class:`~imustation.acquisition.realtime.Scheduling`),
+        by bus URL; empty without reader processes."""
+        if self._pool is None or self._pool.host is None:
+            return {}
+        return {w.config_bus: w.scheduling for w in self._pool.workers if w.scheduling is not None}
+
     def close(self) -> None:
         for obj in [*self.devices.values(), *self.thermometers.values()]:
             if obj.driver is None:
@@ -319,11 +362,15 @@ class Station:
         reason = ""
         pool = self._pool
         if pool is not None:
-            pool.start(duration_s, pace)
+            pool.start(duration_s, pace, None if self.virtual else self.t0)
         tick = tick_of(recorder)
         pollers = self._pollers()
         try:
-            if self.virtual:
+            if pool is not None and pool.host is not None:
+                # every bus has its reader process: this one writes what they send until they are done
+                reason = pool.finish(recorder, should_stop, "", tick, self._status_if_due)
+                pool = None
+            elif self.virtual:
                 hook = pool.keep_pace(recorder, tick, should_stop) if pool is not None else tick
                 reason = run_virtual(
                     self.clock,
@@ -334,6 +381,16 @@ class Station:
                     between=self._between(hook),
                     should_stop=should_stop,
                     pace=pace,
+                )
+            elif self.reader_process:
+                reason = run_deadline(
+                    self.clock,
+                    pollers,
+                    recorder,
+                    t0=self.t0,
+                    end=end,
+                    between=self._between(tick),
+                    should_stop=should_stop,
                 )
             else:
                 reason = run_threaded(
@@ -365,6 +422,16 @@ class Station:
         """
         self.t0 = self.clock.now_ns()
         self._started = True
+        self._empty(lambda st, exc: self._fault(sink, st, str(exc)))
+        self.t0 = self.clock.now_ns()
+
+    def discard(self) -> None:
+        """Empty every device's buffer, errors ignored: a reader process waiting to start keeps its
+        devices' buffers (a tty's 4 kB) from overflowing; :meth:`start` then reports what fails."""
+        self._empty(lambda st, exc: None)
+
+    def _empty(self, failed: Callable[[DeviceState, Exception], None]) -> None:
+        """Read and drop what every device of this process holds; ``failed(state, error)`` for each that fails."""
         for st in self.devices.values():
             if st.driver is None:
                 continue  # a worker process starts its own
@@ -374,8 +441,7 @@ class Station:
                 if drain is not None:
                     drain()
             except (BusError, DeviceError) as exc:
-                self._fault(sink, st, str(exc))
-        self.t0 = self.clock.now_ns()
+                failed(st, exc)
 
     def summary(self, reason: str = "") -> CaptureSummary:
         devices, thermometers = self.counts()
@@ -388,12 +454,17 @@ class Station:
             stopped_early=bool(reason),
             readings={n: t.readings for n, t in thermometers.items()},
             stop_reason=reason,
+            reader_cpu_s={
+                w.config_bus: w.cpu_s
+                for w in (self._pool.workers if self._pool is not None else ())
+                if w.cpu_s is not None
+            },
         )
 
     def _pollers(self) -> list[Poller]:
         """This process's devices and thermometers (not those a worker process polls), in config order."""
         return [
-            Poller(n, st.config.bus, st.poll_ns, partial(self._poll_device, st=st))
+            Poller(n, st.config.bus, st.poll_ns, partial(self._poll_device, st=st), _hold_ns(st))
             for n, st in self.devices.items()
             if st.driver is not None
         ] + [
@@ -553,6 +624,9 @@ class Station:
         for name, st in self.devices.items():
             # a simulation's wall-clock rate says nothing about the device
             recent = None if self.virtual else st.window_samples
+            if st.driver is None and not self.virtual:  # a reader process's: from its counts
+                recent = counts[name].samples - st.reported_samples
+                st.reported_samples = counts[name].samples
             st.window_samples = 0
             devices[name] = counts[name].live(station_s.get(name, own_s), recent, window)
         self._window_wall = wall_now

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing as mp
+import multiprocessing.connection
 import os
 import pickle
 import signal
@@ -40,7 +41,8 @@ from multiprocessing.connection import Connection
 from typing import Any, Protocol
 
 from imustation.acquisition.config import StationConfig
-from imustation.acquisition.sinks import MessageSink, Sink, deliver
+from imustation.acquisition.readers import ReaderOptions, failed_counts, lost_to_end, reader_main
+from imustation.acquisition.sinks import APPEND, MessageSink, Sink, deliver, shifted
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate
 from imustation.errors import ImustationError
@@ -228,19 +230,32 @@ class WorkerError(ImustationError):
 
 # -- main-process side ---------------------------------------------------------------------
 class Worker:
-    """One worker process as the main station sees it."""
+    """One worker process as the main station sees it: a simulation worker, or with ``host`` a
+    reader process of a host-clock capture (:mod:`~imustation.acquisition.readers`)."""
 
-    def __init__(self, config: StationConfig, index: int, sim_level: str, station_cls: Callable[..., LocalStation]):
+    def __init__(
+        self,
+        config: StationConfig,
+        index: int,
+        sim_level: str,
+        station_cls: Callable[..., LocalStation],
+        host: ReaderOptions | None = None,
+    ):
         ctx = mp.get_context("spawn")  # nothing of the parent's open files, threads or HDF5 state
         self.config = config
+        self.host = host
         self.names = [d.name for d in config.devices] + [t.name for t in config.thermometers]
+        #: the bus URL(s) it polls
+        self.config_bus = ", ".join(dict.fromkeys(d.bus for d in (*config.devices, *config.thermometers)))
         self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(
-            target=worker_main,
-            args=(child, config, sim_level, station_cls),
-            name=f"imustation-sim-{index}",
-            daemon=True,
-        )
+        data_w = None
+        if host is None:
+            target, args, kind = worker_main, (child, config, sim_level, station_cls), "sim"
+        else:
+            # the data come on a one-way pipe of their own, which the reader writes without blocking
+            self.data, data_w = ctx.Pipe(duplex=False)
+            target, args, kind = reader_main, (child, data_w, config, station_cls, host), "reader"
+        self.process = ctx.Process(target=target, args=args, name=f"imustation-{kind}-{index}", daemon=True)
         # the child inherits the mask: no stop signal can kill it before it ignores them
         old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
         try:
@@ -248,22 +263,53 @@ class Worker:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
         child.close()
+        if data_w is not None:
+            data_w.close()
+        else:
+            self.data = self.conn
         self.stop_sent: float | None = None
         #: station time the worker has reached, ns
         self.t_ns: int = 0
         self.done = False
         self.reason = ""
+        #: host clock: the run's origin (ns), and the reader's own origin less it (its times are moved by it)
+        self.t0: int | None = None
+        self.offset_ns = 0
+        #: what a reader process obtained from the OS (readers.Scheduling), when it opened
+        self.scheduling: Any = None
+        #: a reader process lost during the run: why ("" while it runs)
+        self.lost_reason = ""
+        #: station time of each device's last sample handed over, ns; output rates, Hz
+        self.last_t: dict[str, int] = {}
+        self.rates: dict[str, float] = {}
+        #: the run's planned end, station ns
+        self.end_ns = 0
+        #: CPU time the process used, s (reader processes, when done)
+        self.cpu_s: float | None = None
+
+    @property
+    def what(self) -> str:
+        kind = "simulation worker" if self.host is None else "reader process"
+        return f"{kind} for {', '.join(self.names)}"
 
     def opened(self) -> tuple[list, dict[str, tuple[str, int]]]:
         """Wait for the worker to open its devices: (its opened devices, thermometer (identity, period ns))."""
         if not self.conn.poll(OPEN_TIMEOUT_S):
-            who = ", ".join(self.names)
-            raise WorkerError(f"simulation worker for {who} did not open them in {OPEN_TIMEOUT_S:g} s")
-        msg = self._recv()
+            raise WorkerError(f"{self.what} did not open them in {OPEN_TIMEOUT_S:g} s")
+        msg = self._recv(self.conn)
+        if len(msg) > 3:
+            self.scheduling = msg[3]
+        self.rates = {od.name: od.info.rate_hz for od in msg[1]}
         return msg[1], msg[2]
 
-    def start(self, duration_s: float, pace: float | None) -> None:
-        self.conn.send(("run", duration_s, pace))
+    def start(self, duration_s: float, pace: float | None, t0: int | None = None) -> None:
+        """Tell the worker to record; ``t0``: the run's origin on the host clock (reader processes)."""
+        self.end_ns = round(duration_s * 1e9)
+        if self.host is None:
+            self.conn.send(("run", duration_s, pace))
+        else:
+            self.t0 = t0
+            self.conn.send(("run", duration_s, pace, t0))
 
     def stop(self) -> None:
         if not self.done and self.stop_sent is None:
@@ -279,41 +325,72 @@ class Worker:
 
     def pump(self, sink: Sink, mirror: Callable[[tuple], None], timeout: float = 0.0) -> bool:
         """Hand what the worker sent to ``sink`` and its counts to ``mirror`` (waiting up to ``timeout`` s
-        for something); True if anything came."""
+        for something); True if anything came.
+
+        A reader process that fails or ends without a word is a fault of its devices
+        (:meth:`lose`); a simulation worker's failure is raised.
+        """
         got = False
-        while not self.done and self.conn.poll(timeout):
+        while not self.done and self.data.poll(timeout):
             try:
-                msg = self._recv()
-            except WorkerError:
-                if self.stop_sent is None:
+                msg = self._recv(self.data)
+            except Exception as exc:  # noqa: BLE001 - a reader's failure is logged, not raised
+                if self.stop_sent is not None and isinstance(exc, WorkerError):
+                    self.done, self.reason = True, "stopped"  # told to stop, and gone: that is an end too
+                    return got
+                if self.host is None:
                     raise
-                self.done, self.reason = True, "stopped"  # told to stop, and gone: that is an end too
+                self.lose(sink, mirror, str(exc) if isinstance(exc, WorkerError) else f"{type(exc).__name__}: {exc}")
                 return got
             got = True
             timeout = 0.0
+            if msg[0] == "started" and self.t0 is not None:
+                self.offset_ns = msg[4] - self.t0
+            off = self.offset_ns
+            last_t = self.last_t
             for item in msg[1]:
+                if off:
+                    item = shifted(item, off)
+                if item[0] == APPEND and len(item[2]):
+                    last_t[item[1]] = int(item[2][-1])
                 deliver(sink, item)
             mirror(msg[2])
-            self.t_ns = msg[3]
+            self.t_ns = msg[3] + off
             if msg[0] == "done":
                 self.done = True
                 self.reason = msg[4]
+                if len(msg) > 5:
+                    self.cpu_s = msg[5]
         return got
 
-    def _recv(self) -> tuple:
+    def lose(self, sink: Sink, mirror: Callable[[tuple], None], why: str) -> None:
+        """A reader process is gone mid-run: each of its devices and thermometers gets a ``fault`` event
+        and is ``failed`` in the status; the capture goes on with the other buses."""
+        self.done = True
+        self.lost_reason = why
+        t = time.monotonic_ns() - (self.t0 or 0)
+        self.t_ns = t
+        for name in self.names:
+            sink.event(
+                t, name, "fault", f"{self.what} ended during the run ({why}); not read for the rest of the capture"
+            )
+        mirror(failed_counts(self._counts, self.rates, self.names))
+
+    def _recv(self, conn: Connection) -> tuple:
         try:
-            msg = self.conn.recv()
+            msg = conn.recv()
         except (EOFError, OSError):
             self.process.join(timeout=1.0)
-            raise WorkerError(
-                f"simulation worker for {', '.join(self.names)} ended without a word"
-                f" (exit code {self.process.exitcode})"
-            ) from None
+            raise WorkerError(f"{self.what} ended without a word (exit code {self.process.exitcode})") from None
         if msg[0] == "error":
             exc = msg[1]
-            exc.add_note(f"in the simulation worker for {', '.join(self.names)}:\n{msg[2]}")
+            exc.add_note(f"in the {self.what}:\n{msg[2]}")
             raise exc
+        if len(msg) > 2 and isinstance(msg[2], tuple):
+            self._counts = msg[2]
         return msg
+
+    _counts: tuple = ({}, {})
 
     def close(self) -> None:
         self.stop()
@@ -324,10 +401,12 @@ class Worker:
             self.process.kill()
             self.process.join(timeout=5.0)
         self.conn.close()
+        if self.data is not self.conn:
+            self.data.close()
 
 
 class WorkerPool:
-    """The worker processes of a simulated capture: start, take in their data, keep pace, finish.
+    """The worker processes of a capture: start, take in their data, keep pace, finish.
 
     Parameters
     ----------
@@ -335,6 +414,8 @@ class WorkerPool:
     shares : device/thermometer names per worker process (see :func:`partition`).
     sim_level : the capture's simulation level.
     station_cls : the station class each worker runs over its share.
+    host : reader processes of a host-clock capture (:mod:`~imustation.acquisition.readers`);
+        None: simulation workers, each on its virtual clock.
 
     The pool keeps the latest counts each worker sent (``devices``,
     ``thermometers``: :class:`~imustation.status.DeviceStatus` and
@@ -347,11 +428,14 @@ class WorkerPool:
         shares: list[list[str]],
         sim_level: str,
         station_cls: Callable[..., LocalStation],
+        host: ReaderOptions | None = None,
     ):
+        self.host = host
         self.workers: list[Worker] = []
         try:
             for i, share in enumerate(shares, 1):
-                self.workers.append(Worker(subset(config, share), i, sim_level, station_cls))
+                options = None if host is None else dataclasses.replace(host, index=i - 1)
+                self.workers.append(Worker(subset(config, share), i, sim_level, station_cls, options))
         except BaseException:
             self.close()
             raise
@@ -362,9 +446,9 @@ class WorkerPool:
         """Wait for every worker to open its share: (worker, opened devices, thermometers) each."""
         return [(w, *w.opened()) for w in self.workers]
 
-    def start(self, duration_s: float, pace: float | None) -> None:
+    def start(self, duration_s: float, pace: float | None, t0: int | None = None) -> None:
         for w in self.workers:
-            w.start(duration_s, pace)
+            w.start(duration_s, pace, t0)
 
     def stop(self) -> None:
         for w in self.workers:
@@ -387,10 +471,14 @@ class WorkerPool:
         return {n: w.t_ns / 1e9 for w in self.workers for n in w.names}
 
     def pump(self, sink: Sink, timeout: float = 0.0) -> bool:
-        """Hand what the workers sent to ``sink``; True if anything came."""
+        """Hand what the workers sent to ``sink`` (waiting up to ``timeout`` s for any); True if anything came."""
+        if timeout > 0:
+            waiting = [w.data for w in self.workers if not w.done]
+            if waiting:
+                multiprocessing.connection.wait(waiting, timeout)
         got = False
         for w in self.workers:
-            got |= w.pump(sink, self._mirror, timeout)
+            got |= w.pump(sink, self._mirror)
         return got
 
     def _mirror(self, counts: tuple[dict[str, DeviceStatus], dict[str, ThermometerStatus]]) -> None:
@@ -436,6 +524,8 @@ class WorkerPool:
         ``reason``: why the main process stopped early ("" at the end of the duration);
         ``tick``: the recorder's hook, at the slowest worker's time; ``waiting``: called
         at every wait (status). Returns why the capture stopped, "" when it did not.
+        A host-clock capture (reader processes, nothing polled by the main process)
+        spends its whole run here.
         """
         stopping = bool(reason)
         if stopping:
@@ -447,15 +537,23 @@ class WorkerPool:
             for w in self.workers:
                 if w.overdue():
                     w.done, w.reason = True, "stopped"
-                    sink.event(
-                        self.t_ns() or 0,
-                        "station",
-                        "note",
-                        f"simulation worker for {', '.join(w.names)} did not stop in time: killed",
-                    )
+                    sink.event(self.t_ns() or w.t_ns, "station", "note", f"{w.what} did not stop in time: killed")
             self.pump(sink, timeout=PUMP_S)
             behind = self.t_ns()
             if tick is not None and behind is not None:
                 tick(behind)
             waiting()
+        self._count_lost_readers(sink)
         return reason or next((w.reason for w in self.workers if w.reason), "")
+
+    def _count_lost_readers(self, sink: Sink) -> None:
+        """Each device of a reader lost mid-run: one ``gap`` after its last sample with the samples its
+        rate fits from there to the end of the capture (written + logged losses = produced)."""
+        for w in self.workers:
+            if not w.lost_reason or w.t0 is None:
+                continue
+            end = min(time.monotonic_ns() - w.t0, w.end_ns)
+            for name, lost in lost_to_end(sink, w.what, w.rates, w.last_t, end).items():
+                c = self.devices.get(name)
+                if c is not None:
+                    self.devices[name] = dataclasses.replace(c, gaps=c.gaps + 1, lost=c.lost + lost)

@@ -10,6 +10,7 @@ import threading
 
 import click
 
+from imustation import stopsignals
 from imustation.cli import cli
 from imustation.cli.statusview import StatusView
 from imustation.errors import InputError
@@ -18,7 +19,13 @@ from imustation.units import format_duration, parse_duration
 
 
 def _record_stop_signals() -> list[int]:
-    """SIGINT/SIGTERM received from now until the command ends, in order (handlers restored then)."""
+    """SIGINT/SIGTERM received from now until the command ends, in order (handlers restored then).
+
+    The entry point (``imustation.__main__``) records them from the process's first moments;
+    its list is taken over then (called in-process, e.g. by tests, the recording starts here).
+    """
+    if stopsignals.recording():
+        return stopsignals.received
     early: list[int] = []
     if threading.current_thread() is not threading.main_thread():
         return early
@@ -35,6 +42,26 @@ def _write_status_file(path: str, status: dict) -> None:
         json.dump(status, fh)
         fh.write("\n")
     os.replace(tmp, path)
+
+
+def _cpus(value: str | None) -> tuple[int, ...] | None:
+    """``--reader-cpus``: CPU numbers and ranges (``2,3`` or ``1-3``) this process may use, or None."""
+    if value is None:
+        return None
+    usable = os.sched_getaffinity(0)
+    cpus: set[int] = set()
+    try:
+        for part in value.split(","):
+            lo, _, hi = part.partition("-")
+            cpus.update(range(int(lo), int(hi or lo) + 1))
+    except ValueError:
+        cpus = set()
+    if not cpus or not cpus <= usable:
+        raise InputError(
+            f"--reader-cpus {value!r}: CPU numbers or ranges (e.g. 2,3 or 1-3) among those usable here:"
+            f" {','.join(map(str, sorted(usable)))}"
+        )
+    return tuple(sorted(cpus))
 
 
 def _workers(value: str, cfg, can: bool) -> int:
@@ -139,6 +166,20 @@ def _bring_up_check(cfg, seconds: float, *, simulate: bool, sim_level: str, fsyn
     "noise-model level without bus transport (same noise sources and seeds; faults: disconnect, checksum; "
     "hundreds of times real time). docs/capture.md.",
 )
+@click.option(
+    "--real-time",
+    is_flag=True,
+    help="--simulate: run the chip simulators on the host clock, each bus polled by a reader process as "
+    "in a capture of real devices: a rehearsal of a night on this machine (samples it would lose are "
+    "logged). docs/capture.md.",
+)
+@click.option(
+    "--reader-cpus",
+    default=None,
+    metavar="LIST",
+    help="Host clock: run the bus reader processes on these CPUs (e.g. 2,3 or 1-3; default: where the "
+    "kernel puts them).",
+)
 @click.option("--sim-speed", default=None, type=float, hidden=True, help="Simulation: max virtual s per wall s.")
 @click.option("--no-fsync", is_flag=True, hidden=True, help="Skip fsync after flushes (tests on slow disks).")
 def capture(
@@ -159,6 +200,8 @@ def capture(
     monitor_port: int,
     workers: str,
     sim_level: str,
+    real_time: bool,
+    reader_cpus: str | None,
     sim_speed: float | None,
     no_fsync: bool,
     resume: bool,
@@ -168,7 +211,9 @@ def capture(
 
     Data are on disk at least every flush_interval_s of the config. Ctrl-C or
     SIGTERM stops the capture cleanly and finishes the file; after a crash the
-    file holds every sample up to the last flush (see docs/capture.md).
+    file holds every sample up to the last flush (see docs/capture.md). On the
+    host clock (real devices, or --simulate --real-time) each bus is polled by a
+    reader process of its own, at real-time priority where the system permits.
     """
     # a stop asked for while the imports, the config and the devices take their time must
     # still give a finished file (capture() reads it), not a process killed with nothing left
@@ -197,8 +242,9 @@ def capture(
     if sim_speed is not None and not sim_speed > 0:
         raise InputError(f"--sim-speed {sim_speed}: must be > 0")
     given = {"trace": trace_file is not None, "replay": replay_file is not None, "rotate": rotate_s is not None}
-    n_workers = _workers(workers, cfg, workers_possible(simulate=simulate, **given))
-    check_options(simulate=simulate, sim_level=sim_level, workers=n_workers, cli=True, **given)
+    n_workers = _workers(workers, cfg, workers_possible(simulate=simulate, virtual_clock=not real_time, **given))
+    check_options(simulate=simulate, sim_level=sim_level, workers=n_workers, cli=True, real_time=real_time, **given)
+    cpus = _cpus(reader_cpus)
     live = not quiet and not json_status
     view = StatusView(sys.stderr) if live else None
     # the monitor's notes go through the view, so they never land inside the status block
@@ -234,6 +280,9 @@ def capture(
             sim_level=sim_level,
             early_stop=early,
             resume=resume,
+            real_time=real_time,
+            reader_cpus=cpus,
+            on_note=view.note if view is not None else lambda msg: click.echo(msg, err=True),
         )
     finally:
         launcher.stop()

@@ -1,0 +1,117 @@
+"""Host-clock capture: samples lost per device and CPU per sample, idle and beside busy loops.
+
+Records the lab (``configs/lab-example.toml``) with its chips simulated at the bus
+level on the host clock - the path a capture of real devices takes, with the
+simulators' own cost inside each poll - for ``--duration`` seconds in each of:
+
+* ``readers``: every bus in a reader process of its own (``capture --simulate
+  --real-time``, acquisition/readers.py), scheduled as the OS permits;
+* ``threads``: the same-run reference, one process with a reader thread per bus
+  (the station before reader processes; ``capture(..., clock=MonotonicClock())``);
+
+each idle and with ``--busy`` busy-loop processes beside it (started and stopped
+here). Prints per device the samples written and lost (and per 10,000), the CPU
+each reader process used per sample of its devices while recording, the writer's
+CPU per sample, and the machine's load (1-minute load average after each case).
+
+Targets (issue 36): readers, idle: 0 lost; beside two busy loops: at most 1 in
+10,000 per device.
+
+    python benchmarks/bench_hostclock.py                   # 60 s per case, 4 cases
+    python benchmarks/bench_hostclock.py --duration 600 --only readers
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+from imustation.acquisition import capture, load_config
+from imustation.clock import MonotonicClock
+from imustation.configs import config_path
+
+TARGET_BUSY_PER_10K = 1.0
+
+
+def busy_loops(n: int) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
+    loops = busy_loops(busy)
+    try:
+        out = os.path.join(folder, f"{mode}-{busy}.h5")
+        self0 = resource.getrusage(resource.RUSAGE_SELF)
+        wall0 = time.monotonic()
+        if mode == "readers":
+            summary = capture(cfg, out, duration_s, simulate=True, real_time=True, overwrite=True)
+        else:
+            summary = capture(cfg, out, duration_s, simulate=True, clock=MonotonicClock(), overwrite=True)
+        wall = time.monotonic() - wall0
+        self1 = resource.getrusage(resource.RUSAGE_SELF)
+    finally:
+        for p in loops:
+            p.kill()
+            p.wait()
+    os.unlink(out)
+    main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
+    return {"summary": summary, "main_cpu": main_cpu, "wall": wall, "load": os.getloadavg()[0], "config": cfg}
+
+
+def report(mode: str, busy: int, res: dict) -> bool:
+    s = res["summary"]
+    total = sum(s.samples.values())
+    print(f"\n{mode}, {busy} busy loop(s) beside it: {s.duration_s:.0f} s recorded, load {res['load']:.1f}")
+    print(f"  {'device':14s} {'samples':>9s} {'lost':>6s} {'per 10k':>8s}")
+    ok = True
+    for name, n in s.samples.items():
+        lost = s.lost[name]
+        per10k = 1e4 * lost / max(1, n + lost)
+        ok &= per10k <= (TARGET_BUSY_PER_10K if busy else 0.0)
+        print(f"  {name:14s} {n:9d} {lost:6d} {per10k:8.2f}")
+    if s.reader_cpu_s:
+        for bus, cpu in s.reader_cpu_s.items():
+            n_bus = sum(s.samples[d.name] for d in res["config"].devices if d.bus == bus)
+            print(f"  reader {bus}: {cpu:.2f} s CPU, {1e6 * cpu / max(1, n_bus):.0f} us per sample of its devices")
+        readers = sum(s.reader_cpu_s.values())
+        print(
+            f"  CPU per sample: readers {1e6 * readers / max(1, total):.1f} us, "
+            f"writer (main process) {1e6 * res['main_cpu'] / max(1, total):.1f} us"
+        )
+    else:
+        print(f"  CPU per sample (one process, readers and writer): {1e6 * res['main_cpu'] / max(1, total):.1f} us")
+    return ok
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds per case (default 60)")
+    ap.add_argument("--busy", type=int, default=2, help="busy-loop processes in the loaded cases (default 2)")
+    ap.add_argument("--config", default="lab-example.toml")
+    ap.add_argument("--only", choices=["readers", "threads"], default=None, help="run one mode only")
+    args = ap.parse_args()
+    cfg = load_config(config_path(args.config))
+    print(f"{args.config}: {len(cfg.devices)} devices, {os.cpu_count()} CPUs; uptime: ", end="", flush=True)
+    subprocess.run(["uptime"], check=False)
+    modes = [args.only] if args.only else ["readers", "threads"]
+    verdicts = {}
+    with tempfile.TemporaryDirectory() as folder:
+        for mode in modes:
+            for busy in (0, args.busy):
+                res = run_case(cfg, mode, busy, args.duration, folder)
+                verdicts[(mode, busy)] = report(mode, busy, res)
+    if "readers" in modes:
+        idle, loaded = verdicts[("readers", 0)], verdicts[("readers", args.busy)]
+        print(
+            f"\ntargets (readers): idle 0 lost: {'met' if idle else 'NOT met'}; "
+            f"{args.busy} busy loops <= {TARGET_BUSY_PER_10K:g} in 10,000 per device: {'met' if loaded else 'NOT met'}"
+        )
+
+
+if __name__ == "__main__":
+    main()
