@@ -93,6 +93,8 @@ LAYOUT = (ID_PACKET_COUNTER, ID_SAMPLE_TIME_FINE, ID_TEMPERATURE, ID_ACCELERATIO
 # --- timing ------------------------------------------------------------------------
 REPLY_TIMEOUT_S = 1.0
 REPLY_POLL_S = 0.01
+#: reads that empty the tty before a request (each takes all that waits; the line refills it slowly)
+DISCARD_READS = 8
 COMMAND_TRIES = 3  # GoToConfig may be lost in a full line of MTData2 [XS-DEV] retries
 BITS_PER_BYTE = 10  # 8N1
 #: the MTi's factory baud rate, which the driver assumes when the bus URL names none ([XS-DEV] driver default)
@@ -317,6 +319,10 @@ class XsensMTi:
         """Send a message and return the payload of its acknowledgement (MID + 1)."""
         want = mid + 1
         for _ in range(tries):
+            # What waits in the tty is stale stream data, and after an overflow (a host that did not
+            # read for a while: the kernel dropped the rest) it ends in a cut frame whose length
+            # field would swallow the acknowledgement; a reply is looked for in fresh bytes only.
+            self._discard_input()
             self.port.write(encode(mid, payload))
             for _ in range(int(REPLY_TIMEOUT_S / REPLY_POLL_S)):
                 self._sleep(REPLY_POLL_S)
@@ -333,6 +339,13 @@ class XsensMTi:
                             f"{self.port.where}: MTi answered message 0x{mid:02X} with error {code} ({text})"
                         )
         raise DeviceError(f"{self.port.where}: no acknowledgement of message 0x{mid:02X} from the MTi")
+
+    def _discard_input(self) -> None:
+        """Drop what the tty holds and any partial message kept from it."""
+        for _ in range(DISCARD_READS):
+            if not self.port.read_available():
+                break
+        self._buf = b""
 
     def open(self) -> DriverInfo:
         rate = int(self.settings["rate_hz"])

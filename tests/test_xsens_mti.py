@@ -231,3 +231,20 @@ def test_sim_reset_sends_wakeup_and_waits_for_the_ack(answer):
     clock.sleep(1.0)
     packets = [m for m in xb.parse_stream(sim.produce())[0] if m.mid == xb.MID_MTDATA2]
     assert (not packets) is answer and sim.measuring is not answer
+
+
+@pytest.mark.parametrize("stall_s", [1.0, 5.0])
+def test_open_after_the_tty_overflowed_finds_the_acknowledgement(stall_s):
+    """A port opened, then not read for a while (a loaded host starting its reader processes): the
+    tty keeps 4096 bytes and drops the rest, so what waits ends in a cut MTData2 frame whose length
+    field swallowed GoToConfig's acknowledgement on every try (seen as an intermittent open failure
+    of 'capture --simulate --real-time' under load)."""
+    drv, sim, clock = rig(name="mti-stall", settings={"rate_hz": 400})
+    try:
+        drv.port.ensure_open()
+        clock.sleep(stall_s)  # streaming at the power-on configuration, nobody reading
+        info = drv.open()
+        assert info.rate_hz == 400 and sim.measuring
+        assert drv.port._port.sim_dropped > 0  # the overflow really happened
+    finally:
+        unregister("mti-stall")
