@@ -135,7 +135,7 @@ def run_one(job: tuple) -> dict:
     # above ADEV(1 s) by more than its 90 % sampling error: impossible, every other term adds variance
     high = math.isfinite(ie.adev_1s) and ie.N > ie.adev_1s + 1.645 * (ie.adev_1s_stderr or 0.0)
     row["ieee_bad"] = (not ie.N > 0) or high
-    row["ieee_flag"] = bool(getattr(ie, "unusable", ""))
+    row["ieee_flag"] = bool(ie.N_unusable)
     return row
 
 

@@ -312,7 +312,11 @@ def fine_statistics(
     tau_lp, z = _angle(got, chosen, n, fs_hz)
     # a filter the settings announce needs less evidence than one nobody announced
     lp_z = HINTED_Z if hint is not None and hint.on else ANGLE_Z
-    term = "lp" if z > lp_z else ("wa" if z < -ANGLE_Z else "")
+    # behind a low-pass filter the settings announce there is no white angle noise (the filter removes
+    # its rising spectrum): a fall faster than 1/tau there is the slow terms' onset, and a "wa" term
+    # took the white noise's place (MPU-6500 datasheet gyro z: sigma_w -96 %, issue 32)
+    wa_ok = not (hint is not None and hint.on)
+    term = "lp" if z > lp_z else ("wa" if z < -ANGLE_Z and wa_ok else "")
     slow = _slow(got, chosen, n, fs_hz)
     if slow:  # the slow terms show at the fine scales: several octaves, their floor and rise left free
         scales = [chosen * 2**j for j in range(STAT_OCTAVES)]
@@ -444,6 +448,26 @@ def _gls(
     beta = cov @ (X.T @ Ci @ y)
     r = y - X @ beta
     return beta, cov, float(r @ Ci @ r)
+
+
+def white_by_scale(fine: FineStatistic, fs_hz: float) -> list[tuple[float, float, float]]:
+    """The white-noise level sigma_w^2 ((rate unit)^2 s) the test's fit (:func:`_gls`: white noise, angle
+    term, floor and rise) reads from each starting cluster size beyond the statistic's first, with its
+    standard error: ``(tau, a, se)`` for n = 2, 4, 8 ... times ``fine.samples`` while the record's
+    octaves reach 16 n. Where these disagree with the fit's sigma_w, the shape below them (a resonance,
+    the slow terms' onset, a filter's tail) is not what the fit assumed (:mod:`.model_choice`)."""
+    if fine.octaves is None:
+        return []
+    got, n = fine.octaves.avar, fine.octaves.n
+    out = []
+    k = 2 * fine.samples
+    while True:
+        fit = _gls(got, k, n, fs_hz)
+        if fit is None:
+            return out
+        se = math.sqrt(fit[1][0, 0]) if fit[1][0, 0] > 0 else math.inf
+        out.append((k / fs_hz, float(fit[0][0]), se))
+        k *= 2
 
 
 def _first_linear(got: dict[int, float], sizes: list[int], start: int, n: int, fs_hz: float) -> int | None:
