@@ -89,6 +89,11 @@ def test_json_states_k_bounds_where_there_is_no_walk():
     s = channel_document(res)["noise_model"]["ieee952"]
     assert s["K"] is None and not s["K_detected"] and s["K_upper90"] > 0 and s["K_upper90_tau_s"] > 0
     assert s["B_upper90"] > 0
+    from imustation.analysis.estimators.allan_bounds import with_bounds
+
+    # a model with no bias term: its "model floor" B is no measurement, the bound is the statement
+    floor_only = with_bounds({"B": 1e-5, "B_from": "model floor", "gauss_markov": [], "K": 1e-7}, res.allan)
+    assert floor_only["B_detected"] is False and floor_only["K_detected"] is False
 
 
 def test_classic_ieee_n_that_no_noise_allows_is_marked_unusable():
@@ -115,6 +120,8 @@ def test_no_white_angle_noise_behind_an_announced_filter():
     x = _white(n, 1e-3, 9) + np.diff(angle) * FS  # white angle noise, strong at the fine scales
     assert fine_statistics(x, FS).term == "wa"
     assert fine_statistics(x, FS, hint=FilterHint(True, 0.01, "bandwidth_hz 42")).term != "wa"
+    # a band reaching the output Nyquist frequency folds the band above it onto its top: angle-like, kept
+    assert fine_statistics(x, FS, hint=FilterHint(True, 0.5 / 100.0, "bandwidth_hz 100")).term == "wa"
 
 
 def test_the_verdict_judges_n_b_k_not_tau_b_of_the_chosen_model():

@@ -312,10 +312,12 @@ def fine_statistics(
     tau_lp, z = _angle(got, chosen, n, fs_hz)
     # a filter the settings announce needs less evidence than one nobody announced
     lp_z = HINTED_Z if hint is not None and hint.on else ANGLE_Z
-    # behind a low-pass filter the settings announce there is no white angle noise (the filter removes
-    # its rising spectrum): a fall faster than 1/tau there is the slow terms' onset, and a "wa" term
-    # took the white noise's place (MPU-6500 datasheet gyro z: sigma_w -96 %, issue 32)
-    wa_ok = not (hint is not None and hint.on)
+    # behind a low-pass filter the settings announce well below the output Nyquist frequency there is
+    # no white angle noise (the filter removes its rising spectrum): a fall faster than 1/tau there is
+    # the slow terms' onset, and a "wa" term took the white noise's place (MPU-6500 datasheet gyro z:
+    # sigma_w -96 %, issue 32). A band that reaches the Nyquist frequency folds what lies above it onto
+    # the top of the band (BMX055 accelerometer, 62.5 Hz at 125 Hz): that output is blue, angle-like
+    wa_ok = not (hint is not None and hint.on and hint.memory_s * fs_hz > WA_MEMORY_SAMPLES)
     term = "lp" if z > lp_z else ("wa" if z < -ANGLE_Z and wa_ok else "")
     slow = _slow(got, chosen, n, fs_hz)
     if slow:  # the slow terms show at the fine scales: several octaves, their floor and rise left free
@@ -425,6 +427,9 @@ SLOW_SHARE = 0.05
 SLOW_Z = 3.0
 #: ... and the filter deficit is carried from this z on when the device's settings announce a filter
 HINTED_Z = 2.0
+#: an announced filter whose memory exceeds this many output samples (a band well below the Nyquist
+#: frequency) rules out white angle noise at the output
+WA_MEMORY_SAMPLES = 1.5
 
 
 def _gls(

@@ -28,16 +28,43 @@ import math
 from dataclasses import replace
 
 from imustation.analysis.estimators.composite import CompositeResult
-from imustation.analysis.estimators.finescale import FineStatistic, white_by_scale
+from imustation.analysis.estimators.finescale import FineStatistic, allan_corr, white_by_scale
 from imustation.analysis.estimators.fitting import Z90
 
 #: a later scale's sigma_w^2 disagrees with the model's when this many of its standard errors away
 DISAGREE_Z = 3.0
 
 
+def white_floor(fine: FineStatistic, fs_hz: float) -> tuple[float, float]:
+    """A lower bound on sigma_w^2 ((rate unit)^2 s) from the Allan variances at the pair of
+    :func:`~.finescale.white_bound` (k and 2k samples, beyond the filter's memory), and its standard
+    error; (NaN, NaN) without that pair.
+
+    ``L = 2 tau (AVAR(tau) - AVAR(2 tau))`` is ``sigma_w^2 (1 - 2.25 tau_lp / tau)`` for white noise behind
+    a filter and adds ``2 tau (s(tau) - s(2 tau)) <= 0`` for any slow term whose Allan variance does not
+    fall from tau to 2 tau (a bias instability's floor, a random walk, a Gauss-Markov term before its
+    correlation time): a bound from below that needs no model of them. White angle noise and
+    resonances fall as tau^-2 and break it: not used where the fine scales carry an angle term ``wa``.
+    """
+    k = fine.bound_samples
+    if k <= 0 or fine.octaves is None or fine.term == "wa":
+        return (math.nan, math.nan)
+    got = fine.octaves
+    if k not in got.avar or 2 * k not in got.avar:
+        return (math.nan, math.nan)
+    tau = k / fs_hz
+    (a1, e1), (a2, e2) = got.statistic(k), got.statistic(2 * k)
+    s1, s2 = a1 * math.sqrt(2.0 / e1), a2 * math.sqrt(2.0 / e2)
+    var = s1 * s1 + s2 * s2 - 2.0 * allan_corr(k, 2 * k) * s1 * s2
+    return (2.0 * tau * (a1 - a2), 2.0 * tau * math.sqrt(max(var, 0.0)))
+
+
 def guard_white(res: CompositeResult, fine: FineStatistic, fs_hz: float) -> CompositeResult:
     """``res`` with its ``sigma_w`` 90 % interval widened to take in every later scale's estimate that
-    disagrees with it (module docstring), and ``message`` saying so; ``res`` itself otherwise."""
+    disagrees with it and to reach the bound U (module docstring), and ``message`` saying so; ``res``
+    itself otherwise. A point below :func:`white_floor` (by its 90 % error) is replaced by the
+    geometric middle of the floor and the bound, the interval by their range (the model's curve,
+    ``noise_model``, is left as fitted; ``message`` says so)."""
     ci = res.ci90.get("sigma_w")
     if ci is None or not res.sigma_w > 0:
         return res
@@ -73,7 +100,23 @@ def guard_white(res: CompositeResult, fine: FineStatistic, fs_hz: float) -> Comp
             f"sigma_w read from {tau:g} s on is {s:.4g} ({100 * (s / res.sigma_w - 1):+.1f} %): the shape below "
             "that scale is not the model's (a resonance, the slow terms' onset); interval widened to cover it"
         )
+    point, params = res.sigma_w, res.params
+    low, low_se = white_floor(fine, fs_hz)
+    if math.isfinite(low) and low > 0 and res.sigma_w**2 < low - Z90 * low_se:
+        # the model's white noise lies below what the fine scales allow: a slow term (at its bound, or a
+        # Gauss-Markov term short enough to act as white noise) took its place. The point becomes the
+        # middle of what the data allow, the interval their range
+        bottom = math.sqrt(max(low - Z90 * low_se, 0.0))
+        top = hi if math.isfinite(hi) else math.sqrt(u + Z90 * u_se) if math.isfinite(u) else math.nan
+        point = math.sqrt(math.sqrt(low) * math.sqrt(u)) if math.isfinite(u) and u > low else math.sqrt(low)
+        lo, hi = bottom, max(top, point) if math.isfinite(top) else top
+        params = {**res.params, "sigma_w": point}
+        notes.append(
+            f"the model's sigma_w {res.sigma_w:.3g} lies below the {math.sqrt(low):.4g} the Allan variances at "
+            f"{fine.bound_samples} and {2 * fine.bound_samples} samples allow (a slow term took the white noise's "
+            f"place): stated as the middle {point:.4g} of the range the fine scales allow"
+        )
     if not notes:
         return res
     message = "; ".join([res.message, *notes])
-    return replace(res, ci90={**res.ci90, "sigma_w": (lo, hi)}, message=message)
+    return replace(res, sigma_w=point, params=params, ci90={**res.ci90, "sigma_w": (lo, hi)}, message=message)

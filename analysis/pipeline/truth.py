@@ -42,6 +42,8 @@ def nbk_rows(res: ChannelAnalysis, truth: tuple[float, float, float], drift_note
         sim = {"N": n_true, "B": b_true, "K": k_true}[name]
         value, ci = s.get(name), s.get(f"{name}_ci90")
         note = ""
+        if name == "B" and s.get("B_detected") is False and s.get("B_upper90") is not None:
+            value, ci = None, None  # the model's floor is no measurement of B: the upper bound is the statement
         if value is None:  # not detected: the upper bound is the statement
             lo, hi, value = 0.0, s.get(f"{name}_upper90") or math.nan, math.nan
             note = f"not detected: {name} < {hi:.3g} at 90 %"
