@@ -33,6 +33,11 @@ from imustation.analysis.estimators.fitting import Z90
 
 #: a later scale's sigma_w^2 disagrees with the model's when this many of its standard errors away
 DISAGREE_Z = 3.0
+#: the floor L overstates sigma_w^2 where a bias instability's Allan variance still falls at the finest
+#: scales (a discrete 1/f spectrum up to the Nyquist frequency: Kasdin's flicker at 118 deg/h over
+#: 0.3 deg/sqrt(h) gave L 1.2 x sigma_w^2, a DLPF'd one more): only a model sigma_w^2 below L / 4 is
+#: overruled, and the stated range starts at L / 4
+FLOOR_MARGIN = 4.0
 
 
 def white_floor(fine: FineStatistic, fs_hz: float) -> tuple[float, float]:
@@ -62,8 +67,9 @@ def white_floor(fine: FineStatistic, fs_hz: float) -> tuple[float, float]:
 def guard_white(res: CompositeResult, fine: FineStatistic, fs_hz: float) -> CompositeResult:
     """``res`` with its ``sigma_w`` 90 % interval widened to take in every later scale's estimate that
     disagrees with it and to reach the bound U (module docstring), and ``message`` saying so; ``res``
-    itself otherwise. A point below :func:`white_floor` (by its 90 % error) is replaced by the
-    geometric middle of the floor and the bound, the interval by their range (the model's curve,
+    itself otherwise. A point below :func:`white_floor` / :data:`FLOOR_MARGIN` (by its 90 % error) is
+    replaced by the geometric middle of the floor and the bound, the interval by their range (from the
+    floor / :data:`FLOOR_MARGIN`) (the model's curve,
     ``noise_model``, is left as fitted; ``message`` says so)."""
     ci = res.ci90.get("sigma_w")
     if ci is None or not res.sigma_w > 0:
@@ -102,11 +108,11 @@ def guard_white(res: CompositeResult, fine: FineStatistic, fs_hz: float) -> Comp
         )
     point, params = res.sigma_w, res.params
     low, low_se = white_floor(fine, fs_hz)
-    if math.isfinite(low) and low > 0 and res.sigma_w**2 < low - Z90 * low_se:
+    if math.isfinite(low) and low > 0 and res.sigma_w**2 < (low - Z90 * low_se) / FLOOR_MARGIN:
         # the model's white noise lies below what the fine scales allow: a slow term (at its bound, or a
         # Gauss-Markov term short enough to act as white noise) took its place. The point becomes the
         # middle of what the data allow, the interval their range
-        bottom = math.sqrt(max(low - Z90 * low_se, 0.0))
+        bottom = math.sqrt(max(low - Z90 * low_se, 0.0) / FLOOR_MARGIN)
         top = hi if math.isfinite(hi) else math.sqrt(u + Z90 * u_se) if math.isfinite(u) else math.nan
         point = math.sqrt(math.sqrt(low) * math.sqrt(u)) if math.isfinite(u) and u > low else math.sqrt(low)
         lo, hi = bottom, max(top, point) if math.isfinite(top) else top
