@@ -455,15 +455,19 @@ def _gls(
     return beta, cov, float(r @ Ci @ r)
 
 
-def white_by_scale(fine: FineStatistic, fs_hz: float) -> list[tuple[float, float, float]]:
+def white_by_scale(
+    fine: FineStatistic, fs_hz: float, octaves: Octaves | None = None
+) -> list[tuple[float, float, float]]:
     """The white-noise level sigma_w^2 ((rate unit)^2 s) the test's fit (:func:`_gls`: white noise, angle
     term, floor and rise) reads from each starting cluster size beyond the statistic's first, with its
     standard error: ``(tau, a, se)`` for n = 2, 4, 8 ... times ``fine.samples`` while the record's
     octaves reach 16 n. Where these disagree with the fit's sigma_w, the shape below them (a resonance,
-    the slow terms' onset, a filter's tail) is not what the fit assumed (:mod:`.model_choice`)."""
-    if fine.octaves is None:
+    the slow terms' onset, a filter's tail) is not what the fit assumed (:mod:`.white_guard`).
+    ``octaves``: Allan variances reaching further than ``fine.octaves`` (the same record)."""
+    octaves = octaves or fine.octaves
+    if octaves is None:
         return []
-    got, n = fine.octaves.avar, fine.octaves.n
+    got, n = octaves.avar, octaves.n
     out = []
     k = 2 * fine.samples
     while True:

@@ -62,7 +62,7 @@ from imustation.analysis.estimators.fitting import Z90, MLiResult
 from imustation.analysis.estimators.paramspec import ParamSpec
 from imustation.analysis.estimators.pattern import check_rate, integrate
 from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, flicker_times
-from imustation.analysis.estimators.white_guard import guard_white
+from imustation.analysis.estimators.white_guard import guard_white, later_octaves
 from imustation.errors import InputError
 
 #: bias structures of the family, in stages of growing size
@@ -404,7 +404,8 @@ def choose_model(
             for c in cands
             if c is not best and c.result.converged and c.result.bic <= best.result.bic + BIC_STRONG and c.passes
         )
-        chosen = guard_white(_join_intervals(best.result, close), fine, fs_hz)
+        more = later_octaves(fine, rate, fs_hz, scale=scale, segments=segments)
+        chosen = guard_white(_join_intervals(best.result, close), fine, fs_hz, more)
         return ModelChoice(chosen, True, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0, close)
     if not cands:
         raise InputError("no model of the family could be fitted")
@@ -414,7 +415,8 @@ def choose_model(
         f"no model of the family fits the Allan deviation ({worst.check.summary()}); "
         f"{worst.result.model} has the smallest BIC"
     )
-    chosen = guard_white(worst.result, fine, fs_hz)
+    more = later_octaves(fine, rate, fs_hz, scale=scale, segments=segments)
+    chosen = guard_white(worst.result, fine, fs_hz, more)
     return ModelChoice(chosen, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
 
 

@@ -27,8 +27,16 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
+
 from imustation.analysis.estimators.composite import CompositeResult
-from imustation.analysis.estimators.finescale import FineStatistic, allan_corr, white_by_scale
+from imustation.analysis.estimators.finescale import (
+    FineStatistic,
+    Octaves,
+    allan_corr,
+    octave_avars,
+    white_by_scale,
+)
 from imustation.analysis.estimators.fitting import Z90
 
 #: a later scale's sigma_w^2 disagrees with the model's when this many of its standard errors away
@@ -64,13 +72,42 @@ def white_floor(fine: FineStatistic, fs_hz: float) -> tuple[float, float]:
     return (2.0 * tau * (a1 - a2), 2.0 * tau * math.sqrt(max(var, 0.0)))
 
 
-def guard_white(res: CompositeResult, fine: FineStatistic, fs_hz: float) -> CompositeResult:
+#: octaves of later starting points wanted beyond the statistic's first scale
+LATER_OCTAVES = 3
+
+
+def later_octaves(
+    fine: FineStatistic,
+    rate: np.ndarray,
+    fs_hz: float,
+    *,
+    scale: float = 1.0,
+    segments: list[tuple[int, int]] | None = None,
+) -> Octaves | None:
+    """``fine.octaves`` extended to the cluster sizes the later starting points need (up to
+    ``16 * 2**LATER_OCTAVES`` times the statistic's first size, as the record allows); ``None`` when
+    ``fine.octaves`` already reach them. ``rate`` as for :func:`~.finescale.fine_statistics`."""
+    have = fine.octaves
+    if have is None:
+        return None
+    top = 16 * fine.samples * 2**LATER_OCTAVES
+    want = tuple(k for k in (2**j for j in range(31)) if max(have.avar) < k <= top and 2 * k < have.n)
+    if not want:
+        return None
+    more = octave_avars(rate, fs_hz, want, scale=scale, segments=segments)
+    return Octaves(have.n, have.fs_hz, {**have.avar, **more.avar}, {**have.edf, **more.edf})
+
+
+def guard_white(
+    res: CompositeResult, fine: FineStatistic, fs_hz: float, octaves: Octaves | None = None
+) -> CompositeResult:
     """``res`` with its ``sigma_w`` 90 % interval widened to take in every later scale's estimate that
     disagrees with it and to reach the bound U (module docstring), and ``message`` saying so; ``res``
     itself otherwise. A point below :func:`white_floor` / :data:`FLOOR_MARGIN` (by its 90 % error) is
     replaced by the geometric middle of the floor and the bound, the interval by their range (from the
     floor / :data:`FLOOR_MARGIN`) (the model's curve,
-    ``noise_model``, is left as fitted; ``message`` says so)."""
+    ``noise_model``, is left as fitted; ``message`` says so). ``octaves``: Allan variances of the
+    record reaching further than ``fine.octaves`` (:func:`later_octaves`)."""
     ci = res.ci90.get("sigma_w")
     if ci is None or not res.sigma_w > 0:
         return res
@@ -87,25 +124,34 @@ def guard_white(res: CompositeResult, fine: FineStatistic, fs_hz: float) -> Comp
             )
     s2 = res.sigma_w**2
     wider = []
-    for tau, a, se in white_by_scale(fine, fs_hz):
-        if not (math.isfinite(se) and se > 0) or abs(a - s2) <= DISAGREE_Z * se:
+    for i, (tau, a, se) in enumerate(white_by_scale(fine, fs_hz, octaves)):
+        # white angle noise and a resonance beyond its correlation time look alike only beyond it: with an
+        # angle term "wa" the next octave's estimate always belongs in the interval (a 20 Hz, Q 2 resonance:
+        # sigma_w -1.2 % with an interval ending at -0.4 %, the next octave's -0.4 +- 1.4 %)
+        always = i == 0 and fine.term == "wa"
+        if not (math.isfinite(se) and se > 0) or (abs(a - s2) <= DISAGREE_Z * se and not always):
             continue
         a_lo, a_hi = a - Z90 * se, a + Z90 * se
         if a_hi <= 0:
             continue
         new_lo = math.sqrt(a_lo) if a_lo > 0 else 0.0
         new_hi = math.sqrt(a_hi)
-        wider.append((tau, math.sqrt(max(a, 0.0))))
+        wider.append((tau, math.sqrt(max(a, 0.0)), always and abs(a - s2) <= DISAGREE_Z * se))
         lo = min(lo, new_lo) if math.isfinite(lo) else new_lo
         hi = max(hi, new_hi) if math.isfinite(hi) else new_hi
     if math.isfinite(u) and math.isfinite(u_se) and u > 0:  # an upper bound no shape below it can break
         hi = max(ci[1], min(hi, math.sqrt(u + Z90 * u_se)))
-    if wider:
-        tau, s = wider[0]
-        notes.append(
-            f"sigma_w read from {tau:g} s on is {s:.4g} ({100 * (s / res.sigma_w - 1):+.1f} %): the shape below "
-            "that scale is not the model's (a resonance, the slow terms' onset); interval widened to cover it"
-        )
+    for tau, s, agreed in wider[:1]:
+        if agreed:
+            notes.append(
+                f"with a white angle term (a resonance looks alike only beyond its correlation time) the interval "
+                f"takes in sigma_w read from {tau:g} s on ({s:.4g})"
+            )
+        else:
+            notes.append(
+                f"sigma_w read from {tau:g} s on is {s:.4g} ({100 * (s / res.sigma_w - 1):+.1f} %): the shape below "
+                "that scale is not the model's (a resonance, the slow terms' onset); interval widened to cover it"
+            )
     point, params = res.sigma_w, res.params
     low, low_se = white_floor(fine, fs_hz)
     if math.isfinite(low) and low > 0 and res.sigma_w**2 < (low - Z90 * low_se) / FLOOR_MARGIN:
