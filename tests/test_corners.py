@@ -154,3 +154,16 @@ def test_a_resonance_read_as_white_angle_noise_widens_sigma_w_to_the_next_octave
     assert res.choice.fine.term == "wa"
     assert "white angle term" in res.noise_model.message
     assert lo <= sigma_w <= hi and hi / lo < 1.5  # an octave later on 1 h: +-16 %
+
+
+def test_the_choice_says_when_it_cannot_tell_two_structures_apart():
+    from dataclasses import replace as dc_replace
+
+    from imustation.analysis.estimators.model_choice import choose_model
+
+    n = int(0.5 * 3600 * FS)
+    choice = choose_model(_white(n, 1e-3, 12), FS)
+    assert choice.indistinct() is None or "cannot tell" in choice.indistinct()
+    other = dc_replace(choice.chosen, model="wn+gm" if "gm" not in choice.chosen.model else "wn+fl+rw")
+    told = dc_replace(choice, close=(other,))
+    assert "cannot tell" in told.indistinct() and told.selection_dict()["indistinct"] == told.indistinct()

@@ -156,6 +156,19 @@ class ModelChoice:
     #: chosen model's intervals are mixed with theirs (:func:`mixed_interval`)
     close: tuple[CompositeResult, ...] = ()
 
+    def indistinct(self) -> str | None:
+        """A sentence when the models that fit nearly as well have another bias structure (a Gauss-Markov
+        term against flicker and random walk): the data cannot tell them apart, and N, B, K's intervals
+        are mixed over them; None otherwise."""
+        mine = set(_bias_of(self.chosen.model).split("+"))
+        other = [r.model for r in self.close if set(_bias_of(r.model).split("+")) != mine]
+        if not other:
+            return None
+        return (
+            f"the data cannot tell {self.chosen.model} from {', '.join(other)} (BIC within {BIC_STRONG:g}, both fit): "
+            "N, B, K and the parameters they share have intervals mixed over them"
+        )
+
     def selection_dict(self) -> dict:
         """The ``selection`` object of the JSON document (docs/analysis-json.md)."""
         f = self.fine
@@ -170,6 +183,7 @@ class ModelChoice:
             "memory_s": f.memory_s if f.term else 0.0,
             "flicker_cut_s": flicker_cut(self.chosen) or None,
             "close_models": [r.model for r in self.close],
+            "indistinct": self.indistinct(),
             "candidates": [c.as_dict() for c in self.candidates],
         }
 
