@@ -84,8 +84,11 @@ def demo(
     sources and seeds without the bus transport (a few minutes in all; see
     docs/reports.md); --through-drivers runs the byte-level capture instead.
     --profile datasheet simulates the lab as the parts behave (docs/simulation.md):
-    bias instability, rate random walk, temperature, output filters; the table then
-    compares sigma_w with the datasheet white noise and shows the rest as identified.
+    bias instability, rate random walk, temperature, output filters; for such devices the
+    analysis is analyze's own (the automatic model choice) and the table compares N, B, K
+    with the simulated ones (N with the filter's folding and the counts' rounding); a row
+    whose interval misses the truth, or a term not detected (its 90 % upper bound), says
+    why in the table's note column (docs/noise-model.md, "The corners").
     """
     if profile is not None and (not lab or config_file):
         raise click.UsageError("--profile chooses the lab's config: use it with --lab and without --config")
