@@ -8,7 +8,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imustation.analysis.estimators.classical.allan import AllanResult, oadev
+from imustation.analysis.estimators.classical.allan_bounds import ieee_usability, with_bounds
 from imustation.analysis.estimators.classical.ieee import IEEECoefficients, ieee_coefficients
+from imustation.analysis.estimators.classical.periodic import Component, find_sinusoids, remove_sinusoids
 from imustation.analysis.estimators.engine.fitting import MLiResult
 from imustation.analysis.estimators.engine.pattern import integrate
 from imustation.analysis.estimators.ml.composite import fit_composite
@@ -54,6 +56,8 @@ class ChannelAnalysis:
     adequacy: dict[str, Adequacy] = field(default_factory=dict)
     #: ``--model auto``: the candidates, the check of each and the paper's wn+gm fit
     choice: ModelChoice | None = None
+    #: spectral peaks found (:mod:`.periodic`): sinusoids were removed before every fit, resonances named
+    periodic: tuple[Component, ...] = ()
 
     def adequacy_of(self, fit: MLiResult | None) -> Adequacy | None:
         """The adequacy of one of this channel's fits (None for a fit without one)."""
@@ -67,9 +71,11 @@ class ChannelAnalysis:
     def ieee952(self, fit: MLiResult) -> dict:
         """N, B, K and the Gauss-Markov terms of ``fit`` (:func:`ieee952_summary`); for the automatic
         choice's own fit, B's interval mixed with the models that fit nearly as well (not for another
-        fit, e.g. ``--estimator mli``'s or the model ``fleet`` keeps for a device)."""
+        fit, e.g. ``--estimator mli``'s or the model ``fleet`` keeps for a device); with the upper bounds
+        on K and B the Allan deviation sets (:func:`.allan_bounds.with_bounds`)."""
         chosen = self.choice is not None and fit.noise_model is self.choice.chosen.noise_model
-        return ieee952_summary(fit, self.channel.n / self.channel.fs_hz, self.choice.close if chosen else ())
+        summary = ieee952_summary(fit, self.channel.n / self.channel.fs_hz, self.choice.close if chosen else ())
+        return with_bounds(summary, self.allan)
 
     def blocks(self) -> dict[str, MLiResult]:
         """Every fitted model block by its key (the JSON's block names; compared models as ``models/<name>``)."""
@@ -106,6 +112,18 @@ def fit_adequacy(ch: Channel, allan: AllanResult, fit: MLiResult) -> Adequacy | 
     return result_adequacy(allan, fit, ch.fs_hz, [b - a for a, b in ch.segments])
 
 
+def without_sinusoids(ch: Channel) -> tuple[tuple[Component, ...], Channel]:
+    """The spectral peaks of ``ch`` (:func:`.periodic.find_sinusoids`) and the channel to analyse: ``ch``
+    itself, or, when sinusoids were found, a float copy with them subtracted (same id, segments, metadata)."""
+    found = tuple(find_sinusoids(ch.data, ch.fs_hz, ch.scale))
+    if not any(c.kind == "sinusoid" for c in found):
+        return found, ch
+    clean = remove_sinusoids(ch.data, ch.fs_hz, list(found), ch.scale)
+    work = Channel(ch.id, ch.fs_hz, ch.units, clean, 1.0, source=ch.source, gaps=ch.gaps, meta=ch.meta,
+                   segments=list(ch.segments))  # fmt: skip
+    return found, work
+
+
 def analyze_channel(
     ch: Channel,
     *,
@@ -137,6 +155,9 @@ def analyze_channel(
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
     check_channel(ch)
+    original = ch
+    # sinusoids are not noise: measured, removed and named before anything is fitted (issue 32)
+    periodic, ch = without_sinusoids(ch)
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     choice, tau_min = None, 0.0
     if model == MODEL_AUTO:
@@ -163,8 +184,14 @@ def analyze_channel(
     # only the requested comparison blocks are reported
     mli_block = mli if method in ("mli", "both") else None
     gmwm_block = gmwm if method in ("gmwm", "both") else None
-    verdict = channel_verdict(ch, allan, best, need)
-    res = ChannelAnalysis(ch, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator, choice=choice)
+    # the classic Allan-curve fit is checked against what any noise term allows and the model's N interval
+    ieee = ieee_usability(ieee, allan, best.ci90.get("sigma_w") if best is not None else None)
+    summary = None
+    if choice is not None and best is not None and estimator == "mli-f":  # N, B, K judge the record
+        summary = with_bounds(ieee952_summary(best, ch.n / ch.fs_hz, choice.close), allan)
+    verdict = channel_verdict(ch, allan, best, need, summary)
+    res = ChannelAnalysis(original, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator,
+                          choice=choice, periodic=periodic)  # fmt: skip
     done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
     if choice is not None:  # the choice tested its candidates against this Allan variance already
         tested = {id(c.result.noise_model): c.check for c in choice.candidates if c.tested}
@@ -231,6 +258,7 @@ def channel_document(res: ChannelAnalysis) -> dict:
                 "alpha": res.allan.alpha,
             },
             "ieee": res.ieee.as_dict(),
+            "periodic": [c.as_dict() for c in res.periodic],
             **({"verdict": res.verdict.as_dict()} if res.verdict is not None else {}),
         }
     )

@@ -1,9 +1,16 @@
 """The "enough data?" verdict of one channel, with its reasons.
 
 The question is whether the record pins down the noise parameters the user
-needs (``need``, default those of :data:`DEFAULT_NEED` -- ``sigma_w``, ``sigma_b``,
-``tau_b`` -- that the fitted model has). :func:`data_verdict` applies these rules, each giving *enough*,
-*marginal* or *not enough*; the verdict is the worst:
+needs (``need``). By default, with the automatic model choice, those are the IEEE-952
+quantities of :data:`IEEE_NEED` -- ``N``, ``B``, ``K`` with the intervals of the ``ieee952``
+block (mixed over the models that fit nearly as well; K not detected: its upper bound) --
+which do not depend on which of two indistinguishable structures (Gauss-Markov or flicker
+plus random walk) a repeat happens to choose (issue 32: six repeats of one ADIS16405 got
+enough, marginal and not enough from tau_b of whichever model each chose); the record length
+against tau_b is then reported, not judged. With a model given (``--model wn+gm``), those of
+:data:`DEFAULT_NEED` -- ``sigma_w``, ``sigma_b``, ``tau_b`` -- that the fitted model has.
+:func:`data_verdict` applies these rules, each giving *enough*, *marginal* or *not enough*;
+the verdict is the worst:
 
 * every needed parameter has a 90 % interval (the fit's ``ci90``, profile
   likelihood for ML_i-F) whose spread ``hi / lo`` is at most
@@ -44,8 +51,10 @@ MAX_TEMP_SPAN_C = 2.0
 #: 90 % interval spread hi/lo of a needed parameter: up to this enough, up to MARGINAL_SPREAD marginal
 ENOUGH_SPREAD = 3.0
 MARGINAL_SPREAD = 25.0
-#: parameters the verdict judges unless told otherwise (``analyze --need``)
+#: parameters the verdict judges unless told otherwise (``analyze --need``) for a given model
 DEFAULT_NEED = ("sigma_w", "sigma_b", "tau_b")
+#: ... and with the automatic model choice: the model-independent IEEE-952 quantities
+IEEE_NEED = ("N", "B", "K")
 #: the IEEE-952 bias instability: judged by the Allan minimum, not by an interval
 ALLAN_B = "B"
 
@@ -107,6 +116,8 @@ class Interval:
     lo: float
     hi: float
     why: str = ""
+    #: a term not detected: the upper bound (90 %) the record sets instead of an interval
+    upper: float = math.nan
 
     @property
     def spread(self) -> float:
@@ -138,6 +149,24 @@ def fit_intervals(fit, need: Sequence[str]) -> dict[str, Interval]:
     return out
 
 
+def ieee_intervals(summary: Mapping, need: Sequence[str]) -> dict[str, Interval]:
+    """The intervals of ``N``, ``B``, ``K`` in ``need`` from an ``ieee952`` summary
+    (:func:`~.coefficients.ieee952_summary` with :func:`~.allan_bounds.with_bounds`); K without a
+    random walk, B without a bias term (``B_detected`` false): the upper bound."""
+    out: dict[str, Interval] = {}
+    for name in need:
+        value, ci = summary.get(name), summary.get(f"{name}_ci90")
+        if name == "B" and summary.get("B_detected") is False:
+            value = None  # the model's floor is an upper bound on B, not a measurement of it
+        if value is not None and ci and all(v is not None for v in ci):
+            out[name] = Interval(float(value), float(ci[0]), float(ci[1]))
+        elif summary.get(f"{name}_upper90") is not None:
+            out[name] = Interval(math.nan, math.nan, math.nan, upper=float(summary[f"{name}_upper90"]))
+        else:
+            out[name] = Interval(math.nan, math.nan, math.nan, f"{name}: neither an interval nor a bound")
+    return out
+
+
 def data_verdict(
     duration_s: float,
     tau_b_s: float,
@@ -148,12 +177,15 @@ def data_verdict(
     temp_span_c: float = math.nan,
     intervals: Mapping[str, Interval] | None = None,
     need: Sequence[str] = (),
+    judge_tau_b: bool = True,
 ) -> Verdict:
     """Verdict of a record of ``duration_s`` seconds (see the module doc for the rules).
 
     ``tau_b_s``: the longest fitted correlation time (s; NaN when the fit did not converge,
     inf for a random walk); ``intervals``: the needed parameters' intervals
-    (:func:`fit_intervals`); ``need`` the names asked for (``"B"`` judges the Allan minimum).
+    (:func:`fit_intervals`); ``need`` the names asked for (``"B"`` judges the Allan minimum);
+    ``judge_tau_b`` False: the record length against tau_b is reported, not judged (the IEEE-952
+    quantities are judged by their intervals).
     """
     level = 0
     reasons: list[str] = []
@@ -166,6 +198,9 @@ def data_verdict(
     spread: dict[str, float] = {}
     for name, iv in (intervals or {}).items():
         sp = spread[name] = iv.spread
+        if not iv.why and not math.isfinite(sp) and math.isfinite(iv.upper):
+            reasons.append(f"{name} not detected: {name} < {iv.upper:.3g} (90 %)")
+            continue
         if iv.why:
             worse(2, iv.why)
         elif not math.isfinite(sp):
@@ -176,7 +211,10 @@ def data_verdict(
             worse(1, f"{name} = {iv.value:.3g}: its 90 % interval spans a factor {sp:.1f} (> {ENOUGH_SPREAD:g})")
         else:
             reasons.append(f"{name} = {iv.value:.3g} within a factor {sp:.2f} (90 %)")
-    if math.isinf(tau_b_s):
+    if not judge_tau_b:
+        if math.isfinite(tau_b_s) and tau_b_s > 0:
+            reasons.append(f"record is {duration_s / tau_b_s:.1f} x tau_b ({tau_b_s:.3g} s) of the chosen model")
+    elif math.isinf(tau_b_s):
         reasons.append("random-walk bias: no correlation time to compare the record with")
     elif math.isfinite(tau_b_s) and tau_b_s > 0:
         ratio = duration_s / tau_b_s
@@ -190,7 +228,7 @@ def data_verdict(
         worse(1, "no converged finite tau_b: the bias process is not identified by the fit")
     if math.isfinite(allan_min_tau_s):
         clusters = duration_s / allan_min_tau_s
-        judged = ALLAN_B in need
+        judged = ALLAN_B in need and judge_tau_b
         if allan_min_at_end:
             why = f"Allan deviation still falls at the longest tau ({allan_min_tau_s:.3g} s): no minimum reached"
             if judged:
@@ -227,10 +265,12 @@ def longest_correlation_time(fit) -> float:
     return max(taus) if taus else math.nan
 
 
-def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdict:
+def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None, summary: Mapping | None = None) -> Verdict:
     """Verdict of an analysed channel: ``allan`` its AllanResult, ``fit`` its MLiResult (or None),
-    ``need`` the parameters judged (``"B"``: the IEEE-952 bias instability); None: those of
-    :data:`DEFAULT_NEED` the fitted model has.
+    ``need`` the parameters judged (``"B"``: the IEEE-952 bias instability); None: with ``summary``
+    (the fit's ``ieee952`` block, given for the automatic model choice) :data:`IEEE_NEED` judged by
+    its intervals, without it those of :data:`DEFAULT_NEED` the fitted model has. ``N`` and ``K`` in
+    ``need`` are read from ``summary``.
 
     Warm-up and temperature span come from the device's temperature channel
     when ``ch`` is a run-file channel that has one (:func:`.loaders.device_temperature`).
@@ -245,6 +285,9 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
         except OSError:
             mtime = 0
         warmup, span = _warmup_and_span(ch.source, device, mtime)
+    ieee_mode = summary is not None and fit is not None and need is None
+    if ieee_mode:
+        need = IEEE_NEED
     if need is None and fit is None:
         need = DEFAULT_NEED
     elif need is None:
@@ -252,8 +295,12 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
         need = tuple(n for n in DEFAULT_NEED if n in have)
     if fit is None:
         intervals = {n: Interval(math.nan, math.nan, math.nan, "no model fit") for n in need if n != ALLAN_B}
+    elif ieee_mode:
+        intervals = ieee_intervals(summary, need)
     else:
-        intervals = fit_intervals(fit, need)
+        intervals = fit_intervals(fit, [n for n in need if not (summary is not None and n in ("N", "K"))])
+        if summary is not None:
+            intervals |= ieee_intervals(summary, [n for n in need if n in ("N", "K")])
     return data_verdict(
         duration,
         longest_correlation_time(fit),
@@ -263,6 +310,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
         temp_span_c=span,
         intervals=intervals,
         need=tuple(need),
+        judge_tau_b=not ieee_mode,
     )
 
 

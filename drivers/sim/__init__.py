@@ -215,6 +215,34 @@ def simulated_truth(config) -> dict:
     return out
 
 
+def simulated_nbk(config) -> dict:
+    """Channel id -> ``(N, B, K)`` the simulator's output has (SI; for ``demo --lab``): N the white-noise
+    density of the output samples (the model's sigma_w times the square root of the device filter's
+    aliased gain at 0 Hz: what the decimation folds into the band), B and K the profile's bias
+    instability and rate random walk (0 when not simulated). The counts' rounding is the caller's (it
+    knows the stored scale). Replayed channels are left out."""
+    import math
+
+    import numpy as np
+
+    from imustation.drivers.sim import filters
+
+    out = {}
+    for dev in config.devices:
+        seed = station_device_seed(config.seed, dev.name)
+        chip_filters = filters.for_device(dev.driver, dev.settings)
+        for channel, factory in SOURCES[dev.driver](dev.sim, seed).items():
+            if ("replay" if channel == "gyro" else "accel_replay") in dev.sim:
+                continue
+            cf = chip_filters.get(channel)
+            src = factory(output_rate(dev) if cf is None else cf.fs_out_hz)
+            gain = 1.0 if cf is None else float(cf.output_gain(np.array([0.0]))[0])
+            b, k = src.slow_terms()
+            for i, (axis, model) in enumerate(zip(sim_axes(dev.driver), src.models, strict=True)):
+                out[f"{dev.name}/{channel}/{axis}"] = (model.sigma_w * math.sqrt(gain), float(b[i]), float(k[i]))
+    return out
+
+
 def device_sources(dev, seed: int) -> dict[str, SignalSource]:
     """Channel -> the signal source the device's simulator reads (noise model or replay), at its output rate.
 

@@ -188,6 +188,13 @@ class NoiseSource:
     def temperature(self, t_s: float) -> float:
         return self.die(t_s)
 
+    def slow_terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per axis the bias instability B (rad/s or m/s^2) and rate random walk K (per sqrt(s)) drawn,
+        zeros without them: the truth an IEEE-952 analysis is compared with (``demo --lab``)."""
+        if self._slow is None:
+            return np.zeros(len(self.models)), np.zeros(len(self.models))
+        return np.array(self._slow.b, dtype=float), np.array(self._slow.k, dtype=float)
+
     @classmethod
     def for_device(
         cls,

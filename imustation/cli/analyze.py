@@ -21,9 +21,9 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
     import re
 
     names = tuple(n.strip() for n in text.split(",") if n.strip())
-    bad = [n for n in names if not re.fullmatch(r"B|sigma_w|sigma_k|sigma_a|(sigma_b|tau_b)\d?", n)]
+    bad = [n for n in names if not re.fullmatch(r"B|N|K|sigma_w|sigma_k|sigma_a|(sigma_b|tau_b)\d?", n)]
     if not names or bad:
-        raise InputError(f"--need {text!r}: use model parameter names (sigma_w, sigma_b, tau_b, ...) or B")
+        raise InputError(f"--need {text!r}: use model parameter names (sigma_w, sigma_b, tau_b, ...), N, B or K")
     return names
 
 
@@ -87,7 +87,8 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
     default=None,
     metavar="NAMES",
     help="Parameters the 'enough data?' verdict judges, comma-separated: model parameters (sigma_w, sigma_b, "
-    "tau_b, sigma_k, ...) and B (IEEE-952 bias instability). Default: the model's sigma_w, sigma_b, tau_b.",
+    "tau_b, sigma_k, ...), B (IEEE-952 bias instability) and N, K (the ieee952 block's). Default: with --model "
+    "auto N, B, K (a K not detected by its 90 % upper bound); with a given model its sigma_w, sigma_b, tau_b.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 @cluster_options

@@ -93,8 +93,11 @@ class IEEECoefficients:
     #: device filter: equivalent time constant (s) when fitted; the shortest tau fitted (s)
     tau_lp: float = math.nan
     tau_min: float = math.nan
+    #: why N / B cannot be used for this channel ("" when they can; :func:`.allan_bounds.ieee_usability`)
+    N_unusable: str = ""
+    B_unusable: str = ""
 
-    def as_dict(self) -> dict[str, float]:
+    def as_dict(self) -> dict[str, float | str]:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 

@@ -312,7 +312,13 @@ def fine_statistics(
     tau_lp, z = _angle(got, chosen, n, fs_hz)
     # a filter the settings announce needs less evidence than one nobody announced
     lp_z = HINTED_Z if hint is not None and hint.on else ANGLE_Z
-    term = "lp" if z > lp_z else ("wa" if z < -ANGLE_Z else "")
+    # behind a low-pass filter the settings announce well below the output Nyquist frequency there is
+    # no white angle noise (the filter removes its rising spectrum): a fall faster than 1/tau there is
+    # the slow terms' onset, and a "wa" term took the white noise's place (MPU-6500 datasheet gyro z:
+    # sigma_w -96 %, issue 32). A band that reaches the Nyquist frequency folds what lies above it onto
+    # the top of the band (BMX055 accelerometer, 62.5 Hz at 125 Hz): that output is blue, angle-like
+    wa_ok = not (hint is not None and hint.on and hint.memory_s * fs_hz > WA_MEMORY_SAMPLES)
+    term = "lp" if z > lp_z else ("wa" if z < -ANGLE_Z and wa_ok else "")
     slow = _slow(got, chosen, n, fs_hz)
     if slow:  # the slow terms show at the fine scales: several octaves, their floor and rise left free
         scales = [chosen * 2**j for j in range(STAT_OCTAVES)]
@@ -421,6 +427,9 @@ SLOW_SHARE = 0.05
 SLOW_Z = 3.0
 #: ... and the filter deficit is carried from this z on when the device's settings announce a filter
 HINTED_Z = 2.0
+#: an announced filter whose memory exceeds this many output samples (a band well below the Nyquist
+#: frequency) rules out white angle noise at the output
+WA_MEMORY_SAMPLES = 1.5
 
 
 def _gls(
@@ -444,6 +453,30 @@ def _gls(
     beta = cov @ (X.T @ Ci @ y)
     r = y - X @ beta
     return beta, cov, float(r @ Ci @ r)
+
+
+def white_by_scale(
+    fine: FineStatistic, fs_hz: float, octaves: Octaves | None = None
+) -> list[tuple[float, float, float]]:
+    """The white-noise level sigma_w^2 ((rate unit)^2 s) the test's fit (:func:`_gls`: white noise, angle
+    term, floor and rise) reads from each starting cluster size beyond the statistic's first, with its
+    standard error: ``(tau, a, se)`` for n = 2, 4, 8 ... times ``fine.samples`` while the record's
+    octaves reach 16 n. Where these disagree with the fit's sigma_w, the shape below them (a resonance,
+    the slow terms' onset, a filter's tail) is not what the fit assumed (:mod:`.white_guard`).
+    ``octaves``: Allan variances reaching further than ``fine.octaves`` (the same record)."""
+    octaves = octaves or fine.octaves
+    if octaves is None:
+        return []
+    got, n = octaves.avar, octaves.n
+    out = []
+    k = 2 * fine.samples
+    while True:
+        fit = _gls(got, k, n, fs_hz)
+        if fit is None:
+            return out
+        se = math.sqrt(fit[1][0, 0]) if fit[1][0, 0] > 0 else math.inf
+        out.append((k / fs_hz, float(fit[0][0]), se))
+        k *= 2
 
 
 def _first_linear(got: dict[int, float], sizes: list[int], start: int, n: int, fs_hz: float) -> int | None:

@@ -60,6 +60,7 @@ from imustation.analysis.estimators.ml.composite import (
     fit_composite_data,
 )
 from imustation.analysis.estimators.ml.finescale import FilterHint, FineStatistic, fine_statistics
+from imustation.analysis.estimators.ml.white_guard import guard_white, later_octaves
 from imustation.analysis.estimators.models.sensor_terms import FLICKER_FLOOR, flicker_times
 from imustation.analysis.estimators.selection.adequacy import NO_FIT, Adequacy, fit_adequacy
 from imustation.errors import InputError
@@ -155,6 +156,19 @@ class ModelChoice:
     #: chosen model's intervals are mixed with theirs (:func:`mixed_interval`)
     close: tuple[CompositeResult, ...] = ()
 
+    def indistinct(self) -> str | None:
+        """A sentence when the models that fit nearly as well have another bias structure (a Gauss-Markov
+        term against flicker and random walk): the data cannot tell them apart, and N, B, K's intervals
+        are mixed over them; None otherwise."""
+        mine = set(_bias_of(self.chosen.model).split("+"))
+        other = [r.model for r in self.close if set(_bias_of(r.model).split("+")) != mine]
+        if not other:
+            return None
+        return (
+            f"the data cannot tell {self.chosen.model} from {', '.join(other)} (BIC within {BIC_STRONG:g}, both fit): "
+            "N, B, K and the parameters they share have intervals mixed over them"
+        )
+
     def selection_dict(self) -> dict:
         """The ``selection`` object of the JSON document (docs/analysis-json.md)."""
         f = self.fine
@@ -169,6 +183,7 @@ class ModelChoice:
             "memory_s": f.memory_s if f.term else 0.0,
             "flicker_cut_s": flicker_cut(self.chosen) or None,
             "close_models": [r.model for r in self.close],
+            "indistinct": self.indistinct(),
             "candidates": [c.as_dict() for c in self.candidates],
         }
 
@@ -403,7 +418,8 @@ def choose_model(
             for c in cands
             if c is not best and c.result.converged and c.result.bic <= best.result.bic + BIC_STRONG and c.passes
         )
-        chosen = _join_intervals(best.result, close)
+        more = later_octaves(fine, rate, fs_hz, scale=scale, segments=segments)
+        chosen = guard_white(_join_intervals(best.result, close), fine, fs_hz, more)
         return ModelChoice(chosen, True, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0, close)
     if not cands:
         raise InputError("no model of the family could be fitted")
@@ -413,7 +429,9 @@ def choose_model(
         f"no model of the family fits the Allan deviation ({worst.check.summary()}); "
         f"{worst.result.model} has the smallest BIC"
     )
-    return ModelChoice(worst.result, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
+    more = later_octaves(fine, rate, fs_hz, scale=scale, segments=segments)
+    chosen = guard_white(worst.result, fine, fs_hz, more)
+    return ModelChoice(chosen, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
 
 
 def mixed_interval(intervals: list[tuple[float, float, float]]) -> tuple[float, float]:
