@@ -314,6 +314,12 @@ def test_verdict_rules():
     nofit = data_verdict(36000.0, math.nan, 200.0)
     assert nofit.verdict == "marginal"
     assert json.dumps(nofit.as_dict())
+    # still warming at the end: nothing cut, said so; too short to tell: said so, not a warm-up 'until its end'
+    warming = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, warmup_state="unsettled", temp_span_c=0.5)
+    assert warming.verdict == "marginal" and any("still warming up" in r for r in warming.reasons)
+    assert warming.as_dict()["warmup_state"] == "unsettled"
+    unknown = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, warmup_state="unknown", temp_span_c=0.5)
+    assert unknown.verdict == "enough" and any("too short to tell" in r for r in unknown.reasons)
 
 
 # --- the streaming ROS 1 reader (acquisition/importers/rosbag1.py, ros1.py) -----

@@ -14,7 +14,9 @@ needs (``need``, default those of :data:`DEFAULT_NEED` -- ``sigma_w``, ``sigma_b
   fitted correlation time, else *marginal*; below :data:`MARGINAL_TAU_B_MULTIPLE`
   (3) *not enough*: the slowest process is barely observed;
 * a detected warm-up (``warmup_s > 0``: the smooth temperature fit of
-  :func:`.temperature.fit_warmup`) -> *marginal*, discard it (``report --warmup``);
+  :func:`.temperature.fit_warmup`, a real temperature change of many reading steps) ->
+  *marginal*, discard it (``report --warmup``); a record still warming up at its end ->
+  *marginal*; a record too short to tell says so;
 * a temperature span above :data:`MAX_TEMP_SPAN_C` (2 K) after the warm-up ->
   *marginal*: temperature drift may dominate the bias.
 
@@ -55,7 +57,8 @@ LEVELS = ("enough", "marginal", "not enough")
 @dataclass(frozen=True)
 class Verdict:
     """``verdict`` one of :data:`LEVELS`; ``reasons`` one sentence each; ``need`` the judged
-    parameters and ``spread`` their 90 % interval spreads hi/lo (NaN when unknown)."""
+    parameters and ``spread`` their 90 % interval spreads hi/lo (NaN when unknown); ``warmup_s``
+    the warm-up ``--warmup auto`` cuts (s)."""
 
     verdict: str
     duration_s: float
@@ -66,6 +69,8 @@ class Verdict:
     reasons: tuple[str, ...] = field(default_factory=tuple)
     need: tuple[str, ...] = ()
     spread: dict[str, float] = field(default_factory=dict)
+    #: the warm-up fit's state (:data:`.temperature.WARMUP_STATES`); "" without a temperature channel
+    warmup_state: str = ""
 
     @property
     def enough(self) -> bool:
@@ -81,6 +86,7 @@ class Verdict:
             "tau_b_s": num(self.tau_b_s),
             "allan_min_tau_s": num(self.allan_min_tau_s),
             "warmup_s": num(self.warmup_s),
+            "warmup_state": self.warmup_state or None,
             "temp_span_c": num(self.temp_span_c),
             "reasons": list(self.reasons),
             "need": list(self.need),
@@ -145,6 +151,7 @@ def data_verdict(
     *,
     allan_min_at_end: bool = False,
     warmup_s: float = math.nan,
+    warmup_state: str = "",
     temp_span_c: float = math.nan,
     intervals: Mapping[str, Interval] | None = None,
     need: Sequence[str] = (),
@@ -153,7 +160,9 @@ def data_verdict(
 
     ``tau_b_s``: the longest fitted correlation time (s; NaN when the fit did not converge,
     inf for a random walk); ``intervals``: the needed parameters' intervals
-    (:func:`fit_intervals`); ``need`` the names asked for (``"B"`` judges the Allan minimum).
+    (:func:`fit_intervals`); ``need`` the names asked for (``"B"`` judges the Allan minimum);
+    ``warmup_s`` the warm-up cut (s) and ``warmup_state`` the warm-up fit's state
+    (:data:`.temperature.WARMUP_STATES`; ``""``: a cut > 0 is a transient).
     """
     level = 0
     reasons: list[str] = []
@@ -201,7 +210,11 @@ def data_verdict(
             worse(1, f"Allan minimum at {allan_min_tau_s:.3g} s is only {clusters:.1f} clusters of the record")
         else:
             reasons.append(f"Allan minimum at {allan_min_tau_s:.3g} s ({clusters:.0f} clusters)")
-    if math.isfinite(warmup_s):
+    if warmup_state == "unsettled":
+        worse(1, "still warming up at the end of the record: no settled data")
+    elif warmup_state == "unknown":
+        reasons.append("record too short to tell a warm-up")
+    elif math.isfinite(warmup_s):
         if warmup_s > 0:
             worse(1, f"warm-up transient until {warmup_s:.0f} s: discard it")
         else:
@@ -214,7 +227,7 @@ def data_verdict(
         elif math.isfinite(warmup_s):
             reasons.append(f"temperature spans {temp_span_c:.2g} K")
     return Verdict(LEVELS[level], duration_s, tau_b_s, allan_min_tau_s, warmup_s, temp_span_c, tuple(reasons),
-                   tuple(need), spread)  # fmt: skip
+                   tuple(need), spread, warmup_state)  # fmt: skip
 
 
 def longest_correlation_time(fit) -> float:
@@ -237,14 +250,14 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
     """
     duration = ch.n / ch.fs_hz
     tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
-    warmup, span = math.nan, math.nan
+    warmup, span, state = math.nan, math.nan, ""
     device = ch.meta.get("device") if ch.ref is not None else None
     if device:
         try:
             mtime = os.stat(ch.source).st_mtime_ns
         except OSError:
             mtime = 0
-        warmup, span = _warmup_and_span(ch.source, device, mtime)
+        warmup, span, state = _warmup_and_span(ch.source, device, mtime)
     if need is None and fit is None:
         need = DEFAULT_NEED
     elif need is None:
@@ -260,6 +273,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
         tau_min,
         allan_min_at_end=at_end,
         warmup_s=warmup,
+        warmup_state=state,
         temp_span_c=span,
         intervals=intervals,
         need=tuple(need),
@@ -267,17 +281,18 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
 
 
 @functools.lru_cache(maxsize=16)
-def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float]:
-    """(end of warm-up s, temperature span after it K) of a device; NaN without a temperature channel."""
-    from imustation.analysis.reports.temperature import detect_warmup, device_temperature
+def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float, str]:
+    """(warm-up cut s, temperature span after it K, warm-up state) of a device: the cut of
+    ``--warmup auto`` (:attr:`.temperature.WarmupFit.cut_s`); NaN and ``""`` without a temperature channel."""
+    from imustation.analysis.reports.temperature import device_temperature_record, fit_warmup
     from imustation.errors import InputError
 
     try:
-        t_s, temp_c = device_temperature(path, device)
+        rec = device_temperature_record(path, device)
     except InputError:
-        return math.nan, math.nan
-    if len(t_s) < 3:
-        return math.nan, math.nan
-    warmup = detect_warmup(t_s, temp_c)
-    after = temp_c[t_s >= warmup]
-    return warmup, float(after.max() - after.min()) if len(after) else math.nan
+        return math.nan, math.nan, ""
+    if len(rec.t_s) < 3:
+        return math.nan, math.nan, ""
+    wfit = fit_warmup(rec.t_s, rec.temp_c, step_c=rec.step_c)
+    after = rec.temp_c[rec.t_s >= wfit.cut_s]
+    return wfit.cut_s, float(after.max() - after.min()) if len(after) else math.nan, wfit.state

@@ -40,9 +40,9 @@ from imustation.analysis.reports.tables import (
 )
 from imustation.analysis.reports.temperature import (
     TEMPCO_FAMILY_ALPHA,
-    detect_warmup,
-    device_temperature,
+    device_temperature_record,
     fit_tempco,
+    fit_warmup,
     holm,
     thermometer_temperature,
 )
@@ -163,7 +163,8 @@ def report_run(
         run_attrs = dict(run.attrs)
         temp_devices = [d for d, info in run.devices.items() if "temp" in info.channels and info.n > 0]
         thermometer_names = list(run.thermometers)
-    temps = {d: device_temperature(path, d) for d in temp_devices}
+    records = {d: device_temperature_record(path, d) for d in temp_devices}
+    temps = {d: (r.t_s, r.temp_c) for d, r in records.items()}
     therms = {}
     for name in thermometer_names:
         t, c = thermometer_temperature(path, name)
@@ -173,11 +174,16 @@ def report_run(
     sections: list[str] = []
     # warm-up: per device, from its own temperature when 'auto'
     excluded: dict[str, float] = {}
+    found: dict[str, str] = {}  # device -> what auto found, for the page
     for ch in channels:
         dev = ch.meta["device"]
         if dev not in excluded:
-            if fixed is None:
-                excluded[dev] = detect_warmup(*temps[dev]) if dev in temps else 0.0
+            if fixed is None and dev in records:
+                rec = records[dev]
+                wfit = fit_warmup(rec.t_s, rec.temp_c, step_c=rec.step_c)
+                excluded[dev], found[dev] = wfit.cut_s, wfit.describe()
+            elif fixed is None:
+                excluded[dev], found[dev] = 0.0, "no temperature channel"
             else:
                 excluded[dev] = fixed
         if excluded[dev] > 0:
@@ -308,7 +314,10 @@ def report_run(
         )  # fmt: skip
     sections.append("<h2>Figures</h2>" + "\n".join(figs))
     sections += details
-    warm = ", ".join(f"{d}: {format_duration(s) if s > 0 else 'none'}" for d, s in excluded.items())
+    warm = ", ".join(
+        f"{d}: {format_duration(s) if s > 0 else 'none'}" + (f" ({found[d]})" if d in found else "")
+        for d, s in excluded.items()
+    )
     esc = html.escape
     name = esc(os.path.basename(path))
     att = {k: esc(str(run_attrs.get(k, d))) for k, d in (("station", ""), ("started_utc", ""), ("ended_utc", "open"))}
