@@ -106,7 +106,7 @@ def check_warmup(warmup: str) -> float | None:
     temperature decides); ``"0"``/``"none"`` cut nothing. Raises :class:`InputError` otherwise."""
     if warmup == "auto":
         return None
-    return 0.0 if warmup in NO_WARMUP else parse_duration(warmup)
+    return 0.0 if warmup in NO_WARMUP else parse_duration(warmup, "--warmup")
 
 
 def slug(text: str) -> str:

@@ -156,8 +156,8 @@ def capture(
         check_file(trace_file, overwrite=overwrite, option="--trace")
     if status_file is not None:
         check_file(status_file, overwrite=True, option="--status-file")  # replaced every interval by design
-    seconds = parse_duration(duration)
-    rotate_s = parse_duration(rotate) if rotate else None
+    seconds = parse_duration(duration, "--duration")
+    rotate_s = parse_duration(rotate, "--rotate") if rotate else None
     if not status_interval > 0:
         raise InputError(f"--status-interval {status_interval}: must be > 0 s")
     if sim_speed is not None and not sim_speed > 0:

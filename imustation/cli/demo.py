@@ -109,7 +109,7 @@ def demo(
 
     default_cfg = LAB_CONFIGS[profile or "paper"] if lab else "demo.toml"
     cfg = load_config(config_file or config_path(default_cfg))
-    seconds = parse_duration(duration or (LAB_DURATION if lab else QUICK_DURATION))
+    seconds = parse_duration(duration or (LAB_DURATION if lab else QUICK_DURATION), "--duration")
     globs = ["*/gyro/*", "*/accel/*"] if lab else ["*/gyro/*"]
     with tempfile.TemporaryDirectory() as tmp:
         path = output or os.path.join(tmp, "demo.h5")
