@@ -180,7 +180,8 @@ def data_verdict(
         elif not math.isfinite(sp):
             worse(2, f"{name}: no interval")
         elif sp > MARGINAL_SPREAD:
-            worse(2, f"{name} = {iv.value:.3g}: its 90 % interval spans a factor {sp:.1f} (> {MARGINAL_SPREAD:g})")
+            # the factor itself can be 1e63 (an interval reaching its search range): not worth printing
+            worse(2, f"{name} = {iv.value:.3g}: its 90 % interval spans more than a factor {MARGINAL_SPREAD:g}")
         elif sp > ENOUGH_SPREAD:
             worse(1, f"{name} = {iv.value:.3g}: its 90 % interval spans a factor {sp:.1f} (> {ENOUGH_SPREAD:g})")
         else:
