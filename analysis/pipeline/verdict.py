@@ -10,6 +10,7 @@ needs (``need``, default those of :data:`DEFAULT_NEED` -- ``sigma_w``, ``sigma_b
   :data:`ENOUGH_SPREAD` (3: known within about a factor 1.7 either way);
   up to :data:`MARGINAL_SPREAD` (25: a factor 5 either way) *marginal*; wider,
   missing, or a parameter at its search bound -> *not enough*;
+* a record shorter than :data:`MIN_RECORD_S` (60 s) -> *not enough*;
 * the record spans at least :data:`MIN_TAU_B_MULTIPLE` (10) times the longest
   fitted correlation time, else *marginal*; below :data:`MARGINAL_TAU_B_MULTIPLE`
   (3) *not enough*: the slowest process is barely observed;
@@ -39,6 +40,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: a record shorter than this (s) is *not enough* whatever its intervals say: the bias terms need
+#: Allan clusters of tens of seconds, ten times over (a 12 s record was 'marginal')
+MIN_RECORD_S = 60.0
 MIN_TAU_B_MULTIPLE = 10.0
 MARGINAL_TAU_B_MULTIPLE = 3.0
 MIN_ALLAN_CLUSTERS = 10.0
@@ -172,6 +176,8 @@ def data_verdict(
         level = max(level, lv)
         reasons.append(why)
 
+    if not duration_s >= MIN_RECORD_S:
+        worse(2, f"record of {duration_s:.3g} s is shorter than {MIN_RECORD_S:g} s: too short for any bias term")
     spread: dict[str, float] = {}
     for name, iv in (intervals or {}).items():
         sp = spread[name] = iv.spread
