@@ -80,7 +80,7 @@ class TaskFailure:
 class AnalysisOptions:
     """Options of :func:`analyze_channel` plus the sampling rate of plain arrays (Hz)."""
 
-    pattern: str = "log"
+    pattern: str | None = None
     m: int = 1000
     model: str = DEFAULT_MODEL
     compare: tuple[str, ...] = ()

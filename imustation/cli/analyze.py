@@ -174,10 +174,11 @@ def _interp_adev(allan, tau: float) -> float:
 )
 @click.option(
     "--pattern",
-    type=click.Choice(["log", "uniform"]),
-    default="log",
-    show_default=True,
-    help="ML_i sampling pattern of the integrated signal.",
+    type=click.Choice(choices.PATTERNS),
+    default=None,
+    help="Sampling pattern of the integrated signal for the ML_i fits (--estimator mli, --method mli): log "
+    "(the paper's; the default) or uniform (the default for a model with a device filter, lp: the log "
+    "pattern's first intervals are shorter than the filter's memory, so --pattern log with lp is refused).",
 )
 @click.option(
     "-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Number of ML_i pattern intervals."
@@ -200,15 +201,14 @@ def _interp_adev(allan, tau: float) -> float:
     type=click.Choice(choices.ESTIMATORS),
     default=choices.DEFAULT_ESTIMATOR,
     show_default=True,
-    help="Estimator of the noise model reported first and in the JSON 'noise_model' block: ML_i-F (ML_i's "
-    "integrated likelihood + the fine-scale Allan variance, docs/noise-model.md), ML_i or GMWM.",
+    help=choices.ESTIMATOR_HELP,
 )
 @click.option(
     "--method",
     type=click.Choice(choices.METHODS),
     default=choices.DEFAULT_METHOD,
     show_default=True,
-    help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
+    help=choices.METHOD_HELP,
 )
 @click.option(
     "--need",
@@ -224,7 +224,7 @@ def analyze(
     inputs: tuple[str, ...],
     globs: tuple[str, ...],
     rate_hz: float | None,
-    pattern: str,
+    pattern: str | None,
     m: int,
     model: str,
     compare: bool,
@@ -257,9 +257,24 @@ def analyze(
     channel that fails is reported on stderr (and under 'failures' in the
     JSON) and the others finish; the exit status is 2 only when every one
     failed (docs/fleet.md).
+
+    \b
+    --model, --estimator, --method:
+      --model      WHAT is fitted: auto (default) or terms, e.g. wn+gm, wn+fl+rw+lp
+      --estimator  HOW the reported fit is made: mli-f (default), mli, gmwm
+      --method     which comparison fits are shown beside it: mli (default), gmwm, both
+    Every combination works; a model with a device filter (lp) is fitted by
+    ML_i on the uniform pattern (--pattern log is refused for it).
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
+    ml_model = choices.PAPER_MODEL if model == choices.MODEL_AUTO else model  # the one ML_i fits
+    if pattern == "log" and choices.FILTER_TERM in ml_model.split("+") and (method != "gmwm" or estimator == "mli"):
+        raise InputError(
+            f"--pattern log cannot fit --model {model} with ML_i: the log pattern's first intervals are shorter "
+            f"than the device filter's (lp) memory; leave --pattern out (uniform is the default for lp), or "
+            f"--pattern uniform"
+        )
     from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
     from imustation.analysis.pipeline.parallel import AnalysisOptions
 
