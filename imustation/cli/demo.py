@@ -113,7 +113,9 @@ def demo(
     globs = ["*/gyro/*", "*/accel/*"] if lab else ["*/gyro/*"]
     with tempfile.TemporaryDirectory() as tmp:
         path = output or os.path.join(tmp, "demo.h5")
-        click.echo(f"simulating {format_duration(seconds)} of {len(cfg.devices)} device(s) -> {path}")
+        # without -o the run file lives in a temporary folder deleted at the end: no path worth printing
+        where = path if output else "a temporary run file, deleted at the end (-o RUN.h5 keeps it)"
+        click.echo(f"simulating {format_duration(seconds)} of {len(cfg.devices)} device(s) -> {where}")
         if lab and not through_drivers:
             t_syn = time.perf_counter()
             with click.progressbar(length=1000, label="  synthesising (noise-model level)", file=sys.stderr) as bar:
