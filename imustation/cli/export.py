@@ -58,6 +58,13 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
     "margin VIO users add for motion, vibration and temperature (docs/reports.md). The measured values "
     "stay in the file's comments. Default: no inflation.",
 )
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Write a quantity even when no axis's fit vouches for it (it does not fit the Allan deviation, sits "
+    "at a search bound or is not identified); marked FORCED in the file. Without it such an export writes "
+    "nothing and exits 2, naming the axes and why.",
+)
 def export(
     runs: tuple[str, ...],
     fmt: str,
@@ -71,13 +78,18 @@ def export(
     model: str,
     topic: str,
     inflate: str | None,
+    force: bool,
 ) -> None:
     """Fit every axis of RUN and write the noise parameters a VIO tool expects.
 
     Values are continuous-time densities (SI) — the white-noise density is
     sigma_w = N, not N*sqrt(rate); the bias random walk is K (see docs/reports.md
-    for the conversion from a Gauss-Markov bias). One value per sensor: the
-    largest axis. A rotated capture is one RUN: its base name (week.h5) or all its parts.
+    for the conversion from a Gauss-Markov bias). One value per sensor and
+    quantity: the largest axis among those whose fit vouches for it (the model
+    fits the Allan deviation, nothing at a search bound, the value identified;
+    the rule and every axis are in the file's comments); when no axis is left,
+    nothing is written and the exit status is 2 (--force writes it, marked).
+    A rotated capture is one RUN: its base name (week.h5) or all its parts.
     """
     from imustation.runfile import join_parts
 
@@ -125,8 +137,8 @@ def export(
             raise InputError(f"{run}: every {kind} axis was skipped ({'; '.join(skipped)})")
         return out
 
-    gyro = sensor_noise(fit(gyros, "gyroscope"), "gyro", source, rw)
-    accel = sensor_noise(fit(accels, "accelerometer"), "accel", source, rw) if accels else None
+    gyro = sensor_noise(fit(gyros, "gyroscope"), "gyro", source, rw, force=force)
+    accel = sensor_noise(fit(accels, "accelerometer"), "accel", source, rw, force=force) if accels else None
     if factors is not None:
         gyro, accel = inflate_sensors(gyro, accel, *factors)
         for s in (gyro, accel):
