@@ -87,9 +87,15 @@ def test_warmup_detection():
     end = detect_warmup(t, _warm_temperature(t), window_s=600.0, max_rate_c_per_h=1.0)
     assert settle - 600 <= end <= settle + 300
     assert detect_warmup(t, np.full_like(t, 25.0)) == 0.0
-    # a steady 6 degC/h drift has no transient: a drifting room, not a warm-up (nothing to cut)
+    # a steady 6 degC/h drift has no transient to cut up to: nothing settles, nothing is cut
     drift = fit_warmup(t, 25 + t / 600.0)
-    assert drift.state == "none" and drift.cut_s == 0.0 and drift.drift_c_per_h == pytest.approx(6.0)
+    assert drift.state == "unsettled" and drift.cut_s == 0.0 and drift.drift_c_per_h == pytest.approx(6.0)
+    assert drift.describe().startswith("temperature still changing at the end (+24 K")
+    # the first 10 minutes of a 4 K, 15 min warm-up: no transient to tell from a drift, but far from settled
+    first = fit_warmup(t[:600], 25 + 4 * (1 - np.exp(-t[:600] / 900.0)), step_c=1 / 340)
+    assert first.state == "unsettled" and first.cut_s == 0.0
+    # a 0.5 degC/h drift is settled by the limit: no warm-up
+    assert fit_warmup(t, 25 + t / 7200.0).state == "none"
     # a real warm-up cut off before it settles: still warming, nothing settled to keep
     early = fit_warmup(t[:1800], _warm_temperature(t[:1800]))
     assert early.state == "unsettled" and early.end_s == t[1799] and early.cut_s == 0.0

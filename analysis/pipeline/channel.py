@@ -225,6 +225,8 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "duration_s": ch.n / ch.fs_hz,
             "source": ch.source,
             "gaps": ch.gaps,
+            # the start left out (--warmup; analysis/pipeline/warmup.py): what was cut and why
+            **({"warmup": ch.meta["warmup"].as_dict()} if "warmup" in ch.meta else {}),
             **(_noise_blocks(res) if res.noise_model is not None else {}),
             **({"mli": _block(res, "mli", res.mli)} if res.mli is not None else {}),
             **({"gmwm": _block(res, "gmwm", res.gmwm)} if res.gmwm is not None else {}),

@@ -54,6 +54,15 @@ ESTIMATORS = ("mli-f", "mli", "gmwm")
 #: the default: ML_i-F won the Monte Carlo study of docs/noise-model.md
 DEFAULT_ESTIMATOR = "mli-f"
 
+#: ``--warmup``: its default in every command that analyses run files (analysis/pipeline/warmup.py)
+DEFAULT_WARMUP = "auto"
+WARMUP_HELP = (
+    "Start of each device's record left out of the analysis: auto (default: up to the end of a warm-up its "
+    "own temperature shows - a real change of many reading steps and a fitted transient; nothing otherwise), "
+    "0 (nothing), or a duration such as 1h (the paper discards at least the first hour). analyze, report, "
+    "export, fleet and demo cut the same for the same option and say what they cut."
+)
+
 #: estimators of the Monte Carlo study (``study --estimators``, analysis/pipeline/study.py)
 STUDY_ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single", "mli-f")
 #: the study's default: the paper's ML_i on its log pattern

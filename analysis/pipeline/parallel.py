@@ -29,8 +29,9 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis, DegenerateChannel, analyze_channel
-from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL
+from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, DEFAULT_WARMUP
 from imustation.analysis.pipeline.loaders import Channel, NoChannelsError, load_inputs
+from imustation.analysis.pipeline.warmup import cut_channels
 from imustation.errors import ImustationError, InputError
 from imustation.runfile import join_parts
 
@@ -89,6 +90,8 @@ class AnalysisOptions:
     estimator: str = DEFAULT_ESTIMATOR
     #: parameters the "enough data?" verdict judges (None: the model's sigma_w, sigma_b, tau_b)
     need: tuple[str, ...] | None = None
+    #: ``--warmup``: the start of each run-file device's record left out (:mod:`.warmup`)
+    warmup: str = DEFAULT_WARMUP
 
 
 def _message(path: str, channel: str | None, exc: BaseException) -> str:
@@ -154,6 +157,7 @@ def analyze_task(path: str, channel: str, options: AnalysisOptions, data: Channe
         if not picked:
             raise InputError(f"{path}: no channel {channel}")
         ch = picked[0]
+    cut_channels([ch], options.warmup)  # the same cut every command makes (run-file channels only)
     res = analyze_channel(
         ch,
         pattern=options.pattern,

@@ -15,8 +15,9 @@ needs (``need``, default those of :data:`DEFAULT_NEED` -- ``sigma_w``, ``sigma_b
   fitted correlation time, else *marginal*; below :data:`MARGINAL_TAU_B_MULTIPLE`
   (3) *not enough*: the slowest process is barely observed;
 * a detected warm-up (``warmup_s > 0``: the smooth temperature fit of
-  :func:`.temperature.fit_warmup`, a real temperature change of many reading steps) ->
-  *marginal*, discard it (``report --warmup``); a record still warming up at its end ->
+  :func:`.temperature.fit_warmup`, a real temperature change of many reading steps) that the
+  analysis did not cut (``warmup_cut_s``, :mod:`.warmup`: ``--warmup auto`` cuts it) ->
+  *marginal*, discard it; a cut warm-up is a reason, not a fault; a record still warming up at its end ->
   *marginal*; a record too short to tell says so;
 * a temperature span above :data:`MAX_TEMP_SPAN_C` (2 K) after the warm-up ->
   *marginal*: temperature drift may dominate the bias.
@@ -62,7 +63,7 @@ LEVELS = ("enough", "marginal", "not enough")
 class Verdict:
     """``verdict`` one of :data:`LEVELS`; ``reasons`` one sentence each; ``need`` the judged
     parameters and ``spread`` their 90 % interval spreads hi/lo (NaN when unknown); ``warmup_s``
-    the warm-up ``--warmup auto`` cuts (s)."""
+    the warm-up ``--warmup auto`` cuts (s), ``warmup_cut_s`` what this analysis cut (s)."""
 
     verdict: str
     duration_s: float
@@ -75,6 +76,7 @@ class Verdict:
     spread: dict[str, float] = field(default_factory=dict)
     #: the warm-up fit's state (:data:`.temperature.WARMUP_STATES`); "" without a temperature channel
     warmup_state: str = ""
+    warmup_cut_s: float = 0.0
 
     @property
     def enough(self) -> bool:
@@ -91,6 +93,7 @@ class Verdict:
             "allan_min_tau_s": num(self.allan_min_tau_s),
             "warmup_s": num(self.warmup_s),
             "warmup_state": self.warmup_state or None,
+            "warmup_cut_s": num(self.warmup_cut_s),
             "temp_span_c": num(self.temp_span_c),
             "reasons": list(self.reasons),
             "need": list(self.need),
@@ -156,6 +159,7 @@ def data_verdict(
     allan_min_at_end: bool = False,
     warmup_s: float = math.nan,
     warmup_state: str = "",
+    warmup_cut_s: float = 0.0,
     temp_span_c: float = math.nan,
     intervals: Mapping[str, Interval] | None = None,
     need: Sequence[str] = (),
@@ -165,8 +169,9 @@ def data_verdict(
     ``tau_b_s``: the longest fitted correlation time (s; NaN when the fit did not converge,
     inf for a random walk); ``intervals``: the needed parameters' intervals
     (:func:`fit_intervals`); ``need`` the names asked for (``"B"`` judges the Allan minimum);
-    ``warmup_s`` the warm-up cut (s) and ``warmup_state`` the warm-up fit's state
-    (:data:`.temperature.WARMUP_STATES`; ``""``: a cut > 0 is a transient).
+    ``warmup_s`` the warm-up's end ``--warmup auto`` cuts at (s) and ``warmup_state`` the warm-up
+    fit's state (:data:`.temperature.WARMUP_STATES`; ``""``: a ``warmup_s`` > 0 is a transient);
+    ``warmup_cut_s`` what the analysis cut (s).
     """
     level = 0
     reasons: list[str] = []
@@ -222,10 +227,13 @@ def data_verdict(
     elif warmup_state == "unknown":
         reasons.append("record too short to tell a warm-up")
     elif math.isfinite(warmup_s):
-        if warmup_s > 0:
-            worse(1, f"warm-up transient until {warmup_s:.0f} s: discard it")
+        if warmup_s > 0 and warmup_cut_s >= warmup_s:
+            reasons.append(f"warm-up until {warmup_s:.0f} s cut ({warmup_cut_s:.0f} s left out)")
+        elif warmup_s > 0:
+            cut = f"only {warmup_cut_s:.0f} s" if warmup_cut_s > 0 else "nothing"
+            worse(1, f"warm-up transient until {warmup_s:.0f} s, {cut} cut: discard it (--warmup auto)")
         else:
-            reasons.append("no warm-up transient")
+            reasons.append("no warm-up transient" + (f" ({warmup_cut_s:.0f} s cut)" if warmup_cut_s > 0 else ""))
     else:
         reasons.append("no temperature: warm-up and drift not checked")
     if math.isfinite(temp_span_c):
@@ -234,7 +242,7 @@ def data_verdict(
         elif math.isfinite(warmup_s):
             reasons.append(f"temperature spans {temp_span_c:.2g} K")
     return Verdict(LEVELS[level], duration_s, tau_b_s, allan_min_tau_s, warmup_s, temp_span_c, tuple(reasons),
-                   tuple(need), spread, warmup_state)  # fmt: skip
+                   tuple(need), spread, warmup_state, warmup_cut_s)  # fmt: skip
 
 
 def longest_correlation_time(fit) -> float:
@@ -258,13 +266,16 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
     duration = ch.n / ch.fs_hz
     tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
     warmup, span, state = math.nan, math.nan, ""
+    applied = ch.meta.get("warmup")  # the cut the analysis made (.warmup.apply_warmup)
+    cut_s = float(applied.cut_s) if applied is not None else 0.0
+    duration -= min(cut_s, duration)
     device = ch.meta.get("device") if ch.ref is not None else None
     if device:
         try:
             mtime = os.stat(ch.source).st_mtime_ns
         except OSError:
             mtime = 0
-        warmup, span, state = _warmup_and_span(ch.source, device, mtime)
+        warmup, span, state = _warmup_and_span(ch.source, device, mtime, cut_s)
     if need is None and fit is None:
         need = DEFAULT_NEED
     elif need is None:
@@ -281,6 +292,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
         allan_min_at_end=at_end,
         warmup_s=warmup,
         warmup_state=state,
+        warmup_cut_s=cut_s,
         temp_span_c=span,
         intervals=intervals,
         need=tuple(need),
@@ -288,18 +300,20 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
 
 
 @functools.lru_cache(maxsize=16)
-def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float, str]:
-    """(warm-up cut s, temperature span after it K, warm-up state) of a device: the cut of
-    ``--warmup auto`` (:attr:`.temperature.WarmupFit.cut_s`); NaN and ``""`` without a temperature channel."""
-    from imustation.analysis.reports.temperature import device_temperature_record, fit_warmup
+def _warmup_and_span(path: str, device: str, mtime_ns: int, cut_s: float) -> tuple[float, float, str]:
+    """(end of the warm-up ``--warmup auto`` cuts s, temperature span K after it and after ``cut_s``,
+    warm-up state) of a device (:func:`.warmup.auto_warmup`); NaN and ``""`` without a temperature channel."""
+    from imustation.analysis.pipeline.warmup import auto_warmup
+    from imustation.analysis.reports.temperature import device_temperature_record
     from imustation.errors import InputError
 
+    state, _, end = auto_warmup(path, device, mtime_ns)
+    if not state:
+        return math.nan, math.nan, ""
     try:
         rec = device_temperature_record(path, device)
     except InputError:
         return math.nan, math.nan, ""
-    if len(rec.t_s) < 3:
-        return math.nan, math.nan, ""
-    wfit = fit_warmup(rec.t_s, rec.temp_c, step_c=rec.step_c)
-    after = rec.temp_c[rec.t_s >= wfit.cut_s]
-    return wfit.cut_s, float(after.max() - after.min()) if len(after) else math.nan, wfit.state
+    warmup = end if state == "transient" else 0.0
+    after = rec.temp_c[rec.t_s >= max(warmup, cut_s)]
+    return warmup, float(after.max() - after.min()) if len(after) else math.nan, state

@@ -231,12 +231,13 @@ class WarmupFit:
     warm-up transient, ``drift_c_per_h`` the linear drift; ``t0_s`` is the time of the first
     reading. ``state`` (one of :data:`WARMUP_STATES`) and ``end_s`` (s, on the readings' time axis):
 
-    * ``"none"``: no warm-up (a flat record, quantisation steps, a drift without a transient);
+    * ``"none"``: no warm-up (a flat record, quantisation steps, a drift slower than the limit);
       ``end_s`` is ``t0_s``;
     * ``"transient"``: a warm-up that settles inside the record; ``end_s`` its end, after which
       the smooth curve changes slower than the limit;
     * ``"unsettled"``: a warm-up still going (or settled too shortly before the last reading to
-      tell); ``end_s`` the last reading: no settled data;
+      tell), or a temperature drifting faster than the limit to the end without a transient to tell
+      apart; ``end_s`` the last reading: no settled data;
     * ``"unknown"``: a record too short to tell (:data:`MIN_WARMUP_RECORD_S`); ``end_s`` NaN.
 
     ``change_c`` is the fitted curve's change over the warm-up (K), ``step_c`` the reading
@@ -271,7 +272,7 @@ class WarmupFit:
         if self.state == "transient":
             return f"warm-up {abs(self.change_c):.2g} K until {self.end_s:.0f} s"
         if self.state == "unsettled":
-            return f"still warming up at the end ({abs(self.change_c):.2g} K so far): no settled data"
+            return f"temperature still changing at the end ({self.change_c:+.2g} K over the record): no settled data"
         if self.state == "unknown":
             return f"record too short ({self.duration_s:.0f} s) to tell a warm-up"
         return "no warm-up"
@@ -325,8 +326,9 @@ def fit_warmup(
     kept when its amplitude exceeds :data:`WARMUP_SIGNIFICANCE` standard errors and
     :data:`MIN_WARMUP_C`. It is a warm-up only when the fitted curve also changes by
     :data:`MIN_WARMUP_STEPS` reading steps (:func:`reading_step`) and :data:`MIN_WARMUP_C`
-    before it settles: quantisation steps, a slow drift, a drift without a transient or a
-    flat record give none (a transient and a drift that cancel each other are not a change).
+    before it settles: quantisation steps, a slow drift or a flat record give none (a transient
+    and a drift that cancel each other are not a change); a drift faster than the limit without a
+    transient (by many reading steps) is ``"unsettled"``.
     A record shorter than :data:`MIN_WARMUP_RECORD_S` is ``"unknown"``.
     """
     t_s, temp_c = np.asarray(t_s, float), np.asarray(temp_c, float)
@@ -360,6 +362,11 @@ def fit_warmup(
             best = (rss, tau, coef, X)
     drift0 = float(coef0[1]) / span * 3600.0
     none = WarmupFit(t0, 0.0, math.inf, drift0, float(coef0[0]), t0, "none", 0.0, step, duration)
+    moved = drift0 * duration / 3600.0
+    if abs(drift0) > max_rate_c_per_h and abs(moved) >= max(MIN_WARMUP_STEPS * step, MIN_WARMUP_C):
+        # no transient to tell apart, but the temperature changes faster than the limit to the end (the
+        # first minutes of a warm-up slower than the record, or a drifting room): nothing settled
+        none = WarmupFit(t0 + duration, 0.0, math.inf, drift0, float(coef0[0]), t0, "unsettled", moved, step, duration)
     if best is None:
         return none
     rss, tau, coef, X = best

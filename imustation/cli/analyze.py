@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import click
 
@@ -30,7 +31,6 @@ def results_table(results) -> str:
     accelerometers; imustation.units.display_units); a parameter at its search bound or
     not identified is printed as such (analysis/reports/tables.py).
     """
-    import os
 
     from imustation.analysis.reports.tables import AT_BOUND, NOT_IDENTIFIED, param_flag
     from imustation.units import display_units, sensor_kind
@@ -217,6 +217,7 @@ def _interp_adev(allan, tau: float) -> float:
     help="Parameters the 'enough data?' verdict judges, comma-separated: model parameters (sigma_w, sigma_b, "
     "tau_b, sigma_k, ...) and B (IEEE-952 bias instability). Default: the model's sigma_w, sigma_b, tau_b.",
 )
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
 @cluster_options
 @field_options
@@ -231,6 +232,7 @@ def analyze(
     estimator: str,
     method: str,
     need: str | None,
+    warmup: str,
     as_json: bool,
     workers: int | None,
     scheduler: str | None,
@@ -277,12 +279,14 @@ def analyze(
         )
     from imustation.analysis.estimators.mli import DEFAULT_COMPARISON
     from imustation.analysis.pipeline.parallel import AnalysisOptions
+    from imustation.analysis.pipeline.warmup import check_warmup
 
     text = text_options(time_column, gyro_columns, accel_columns, gyro_unit)
     # field recordings are streamed into memory (no run file); other inputs are read by their tasks
     tasks, failures = plan_inputs(inputs, globs, rate_hz, quiet=as_json, topic=topic, time_unit=time_unit, text=text)
+    check_warmup(warmup)  # a bad value fails before any channel is read
     opts = AnalysisOptions(
-        pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need)
+        pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need), warmup
     )
     _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit)
 
@@ -312,6 +316,11 @@ def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -
         click.echo(json.dumps(doc))
     else:
         click.echo(results_table(done))
+        cuts = {(r.channel.source, r.channel.meta["warmup"].device): r.channel.meta["warmup"] for r in done
+                if "warmup" in r.channel.meta}  # fmt: skip
+        sources = {src for src, _ in cuts}
+        for (src, _), cut in cuts.items():  # what every command cuts for the same --warmup
+            click.echo(f"warm-up {os.path.basename(src) + ' ' if len(sources) > 1 else ''}{cut.describe()}")
         skipped = [f for f in failures if f.skipped]
         for f in skipped:  # named in the table's output too: the table alone must say what is missing
             click.echo(f.error)
