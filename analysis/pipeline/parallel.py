@@ -179,6 +179,8 @@ def _analyze_mapped(path: str, channel: str, data: Channel | None, options: Anal
 
 #: ``on_done(done, total, failure)`` after each task; ``failure`` None when it succeeded
 Progress = Callable[[int, int, "TaskFailure | None"], None]
+#: ``on_task(task)`` after each task: which one finished (for a progress line naming the channel)
+TaskDone = Callable[["ChannelTask"], None]
 
 
 def run_tasks(
@@ -186,6 +188,7 @@ def run_tasks(
     options: AnalysisOptions,
     client=None,
     on_done: Progress | None = None,
+    on_task: TaskDone | None = None,
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
     """Analyse every task, in this process (``client`` None) or on a dask ``distributed.Client``.
 
@@ -204,6 +207,8 @@ def run_tasks(
             fail = failed[i] = TaskFailure(t.path, t.channel, _message(t.path, t.channel, exc), kind)
         else:
             results[i] = res
+        if on_task is not None:
+            on_task(tasks[i])
         if on_done is not None:
             on_done(count, total, fail)
 
@@ -246,12 +251,13 @@ def execute(
     memory_limit: str | float | None = "auto",
     on_start: Callable[[object | None], None] | None = None,
     on_done: Progress | None = None,
+    on_task: TaskDone | None = None,
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
     """Analyse every task: in this process, on a local cluster of ``workers`` processes, or on the
     cluster at ``scheduler`` -- the one path of ``analyze`` and ``fleet``.
 
-    ``on_start(client)`` is called once the client (None when serial) is ready, ``on_done`` after
-    each task (see :func:`run_tasks`). Returns the results in task order (None where a task
+    ``on_start(client)`` is called once the client (None when serial) is ready, ``on_done`` and
+    ``on_task`` after each task (see :func:`run_tasks`). Returns the results in task order (None where a task
     failed) and the failures. Raises :class:`InputError` when both ``workers`` and ``scheduler``
     are given or the scheduler cannot be reached.
     """
@@ -262,7 +268,7 @@ def execute(
     with dask_client(workers, scheduler, memory_limit=memory_limit) as client:
         if on_start is not None:
             on_start(client)
-        return run_tasks(tasks, options, client, on_done)
+        return run_tasks(tasks, options, client, on_done, on_task)
 
 
 @contextlib.contextmanager

@@ -125,15 +125,19 @@ def apply_warmup(ch, cut: WarmupCut) -> None:
 
 
 def cut_channels(channels, option: str = DEFAULT_WARMUP) -> dict[str, WarmupCut]:
-    """:func:`apply_warmup` to every run-file channel of ``channels`` (those with a device); returns the
-    cut per device, in first-appearance order. Channels without a device (plain arrays) are left alone."""
-    check_warmup(option)  # a bad value fails before any file is read
+    """:func:`apply_warmup` to every channel of ``channels`` with a device (run files, field recordings);
+    returns the cut per device, in first-appearance order. Channels without a device (plain arrays)
+    are left alone."""
+    fixed = check_warmup(option)  # a bad value fails before any file is read
     cuts: dict[str, WarmupCut] = {}
     for ch in channels:
-        device = ch.meta.get("device") if ch.ref is not None else None
+        device = ch.meta.get("device")
         if not device:
             continue
         if device not in cuts:
-            cuts[device] = warmup_cut(ch.source, device, option)
+            if ch.ref is not None:
+                cuts[device] = warmup_cut(ch.source, device, option)
+            else:  # a streamed field recording: no device temperature to read, as in its imported run file
+                cuts[device] = WarmupCut(device, option, fixed or 0.0, "", "no temperature channel")
         apply_warmup(ch, cuts[device])
     return cuts

@@ -78,6 +78,7 @@ from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
 from imustation.analysis.pipeline.choices import RW_CONVERSIONS
+from imustation.analysis.reports.numbers import interval
 from imustation.analysis.reports.tables import UNIDENTIFIED_RATIO, density_flag
 from imustation.errors import InputError
 from imustation.units import G0
@@ -250,7 +251,7 @@ def _noise_doubts(res: ChannelAnalysis, fit) -> str:
         doubts.append(f"the model does not fit the Allan deviation ({adq.summary()})")
     lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
     if density_flag(fit) or not (lo > 0 and math.isfinite(hi)):  # wide, or no interval at all
-        doubts.append(f"90 % interval {lo:.3g} .. {hi:.3g}")
+        doubts.append(f"90 % interval {interval(fit.sigma_w, lo, hi)}")
     return "; ".join(doubts)
 
 
@@ -259,7 +260,7 @@ def _noise_unidentified(fit) -> str:
     wider than the noise table's 'not identified' (:data:`~.tables.UNIDENTIFIED_RATIO`)."""
     lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
     if not (lo > 0 and math.isfinite(hi)) or hi / lo > UNIDENTIFIED_RATIO:
-        return f"sigma_w not identified (90 % interval {lo:.3g} .. {hi:.3g})"
+        return f"sigma_w not identified (90 % interval {interval(fit.sigma_w, lo, hi)})"
     return ""
 
 
@@ -270,7 +271,7 @@ def _poorly_determined(fit) -> str:
         if key == "sigma_k" or key == "B" or key.startswith("sigma_b"):
             lo, hi = fit.ci90.get(key, (math.nan, math.nan))
             if not (lo > 0 and math.isfinite(hi)) or hi / lo > WIDE_INTERVAL:
-                return f"{key}: 90 % interval {lo:.2g} .. {hi:.2g}"
+                return f"{key}: 90 % interval {interval(fit.params[key], lo, hi, '.2g')}"
     return ""
 
 
