@@ -272,3 +272,19 @@ def test_each_quantity_comes_from_the_axes_whose_fit_vouches_for_it():
     assert "#   FORCED gyro random walk: the largest of every axis (x, y, z); no fit vouches for it" in export_text(
         forced, None, "kalibr"
     )
+
+
+def test_a_sigma_b_column_never_holds_a_random_walk(wn_rw_analysis):
+    """The noise table's sigma_b column held sigma_b on one axis and K (tau_b inf) on the next: a model
+    without a Gauss-Markov term now shows '—' there, in the noise table and in the report's summary."""
+    from imustation.analysis.reports.summary import summary_rows
+    from imustation.analysis.reports.tables import NOT_FITTED, noise_rows, table_markdown
+
+    res, _, _ = wn_rw_analysis
+    assert res.noise_model.model == "wn+rw" and math.isinf(res.noise_model.tau_b)  # sigma_b is its sigma_k
+    (row,) = noise_rows([res])
+    assert row.flag("sigma_b") == NOT_FITTED and row.flag("tau_b") == NOT_FITTED
+    cells = table_markdown([row]).splitlines()[-1].split(" | ")
+    assert cells[4:7] == ["—", "—", "—"] and cells[11] not in ("—", "")  # sigma_b SI, display, tau_b; K shown
+    (summary,) = summary_rows([res])
+    assert summary.values["sigma_b"].flag == NOT_FITTED and summary.values["tau_b"].flag == NOT_FITTED
