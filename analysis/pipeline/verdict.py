@@ -77,6 +77,8 @@ class Verdict:
     #: the warm-up fit's state (:data:`.temperature.WARMUP_STATES`); "" without a temperature channel
     warmup_state: str = ""
     warmup_cut_s: float = 0.0
+    #: the reasons that made the verdict worse than "enough" (a subset of ``reasons``), for a short list
+    problems: tuple[str, ...] = ()
 
     @property
     def enough(self) -> bool:
@@ -96,6 +98,7 @@ class Verdict:
             "warmup_cut_s": num(self.warmup_cut_s),
             "temp_span_c": num(self.temp_span_c),
             "reasons": list(self.reasons),
+            "problems": list(self.problems),
             "need": list(self.need),
             "spread": {k: num(v) for k, v in self.spread.items()},
         }
@@ -175,11 +178,13 @@ def data_verdict(
     """
     level = 0
     reasons: list[str] = []
+    problems: list[str] = []
 
     def worse(lv: int, why: str) -> None:
         nonlocal level
         level = max(level, lv)
         reasons.append(why)
+        problems.append(why)
 
     if not duration_s >= MIN_RECORD_S:
         worse(2, f"record of {duration_s:.3g} s is shorter than {MIN_RECORD_S:g} s: too short for any bias term")
@@ -242,7 +247,7 @@ def data_verdict(
         elif math.isfinite(warmup_s):
             reasons.append(f"temperature spans {temp_span_c:.2g} K")
     return Verdict(LEVELS[level], duration_s, tau_b_s, allan_min_tau_s, warmup_s, temp_span_c, tuple(reasons),
-                   tuple(need), spread, warmup_state, warmup_cut_s)  # fmt: skip
+                   tuple(need), spread, warmup_state, warmup_cut_s, tuple(problems))  # fmt: skip
 
 
 def longest_correlation_time(fit) -> float:
