@@ -123,6 +123,8 @@ class Interval:
     lo: float
     hi: float
     why: str = ""
+    #: the name the reasons print ("" : the needed name); a random walk's sigma_k stands for sigma_b
+    label: str = ""
 
     @property
     def spread(self) -> float:
@@ -149,8 +151,9 @@ def fit_intervals(fit, need: Sequence[str]) -> dict[str, Interval]:
         lo, hi = fit.ci90[key]
         value = float(fit.params.get(key, getattr(fit, name, math.nan)))
         bound = [b for b in fit.at_bound if b == key or b.rstrip("0123456789") == key]
-        why = f"{name} at its search bound: not identified" if bound else ""
-        out[name] = Interval(value, float(lo), float(hi), why)
+        label = "sigma_k (the rate random walk, for sigma_b)" if key != name else ""
+        why = f"{label or name} at its search bound: not identified" if bound else ""
+        out[name] = Interval(value, float(lo), float(hi), why, label)
     return out
 
 
@@ -189,8 +192,9 @@ def data_verdict(
     if not duration_s >= MIN_RECORD_S:
         worse(2, f"record of {duration_s:.3g} s is shorter than {MIN_RECORD_S:g} s: too short for any bias term")
     spread: dict[str, float] = {}
-    for name, iv in (intervals or {}).items():
-        sp = spread[name] = iv.spread
+    for key, iv in (intervals or {}).items():
+        sp = spread[key] = iv.spread
+        name = iv.label or key
         if iv.why:
             worse(2, iv.why)
         elif not math.isfinite(sp):
