@@ -29,7 +29,8 @@ from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.bus.base import RegisterDevice
 from imustation.drivers.bus.i2c import I2CBus, open_i2c
 from imustation.drivers.bus.serial_port import SerialPort
-from imustation.drivers.bus.spi import USBSPIBridge, open_spi
+from imustation.drivers.bus.spi import USBSPIBridge
+from imustation.drivers.bus.spi_open import open_spi
 from imustation.drivers.bus.trace import Trace, TraceWriter, TracingTransport
 from imustation.drivers.bus.url import SPI_SCHEMES, parse_bus_url, parse_usb_target
 from imustation.drivers.sim import make_simulator, make_thermometer_simulator, station_device_seed
@@ -60,6 +61,8 @@ class BusFactory:
         self.trace = trace
         self.replay = replay
         self._i2c: dict[str, I2CBus] = {}
+        #: the simulated adapter under each simulated I2C bus, where its chips are attached
+        self._sim_smbus: dict[str, SimSMBus] = {}
         #: (bus URL, address) -> name of the device or thermometer using it
         self._claimed: dict[tuple[str, int], str] = {}
         self._spi: dict[str, USBSPIBridge] = {}
@@ -127,9 +130,10 @@ class BusFactory:
         if self.simulate:
             bus = self._i2c.get(url)
             if bus is None:
-                bus = self._i2c[url] = I2CBus(SimSMBus(), url)
+                adapter = self._sim_smbus[url] = SimSMBus()
+                bus = self._i2c[url] = I2CBus(adapter, url)
             chip, plan = make_sim(dev.driver, self.clock, dev.settings, dev.sim, self.device_seed(dev.name))
-            bus._smbus.attach(address, chip, plan)
+            self._sim_smbus[url].attach(address, chip, plan)
         else:
             bus = self._i2c.get(url) or self._i2c.setdefault(url, open_i2c(url))
         return bus.device(address)
@@ -186,6 +190,7 @@ class BusFactory:
         for bus in self._i2c.values():
             bus.close()
         self._i2c.clear()
+        self._sim_smbus.clear()
         for bridge in self._spi.values():
             bridge.close()
         self._spi.clear()

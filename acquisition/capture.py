@@ -15,9 +15,11 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from imustation.acquisition.clocksync import ClockWatch
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.modes import check_options
-from imustation.acquisition.recorder import Recorder
+from imustation.acquisition.recorder import Recorder, reserve_resumed
+from imustation.acquisition.resume import resumed_nothing
 from imustation.acquisition.station import DEFAULT_THERMOMETER_RATE_HZ, STATUS_INTERVAL_S, CaptureSummary, Station
 from imustation.clock import Clock
 from imustation.drivers.bus.trace import Trace, TraceWriter
@@ -91,6 +93,9 @@ def capture(
     workers: int = 1,
     sim_level: str = "bus",
     early_stop: Sequence[int] = (),
+    resume: bool = False,
+    resume_now: Callable[[], Any] | None = None,
+    clock_watch: ClockWatch | None = None,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
 
@@ -111,15 +116,31 @@ def capture(
     early_stop : SIGINT/SIGTERM received before this call (the CLI records them from its
         start, read once the capture's own handlers are in place): the capture opens its
         devices, creates its file and finishes it at once, with the stop's note.
+    resume : continue the run at ``output`` as its next part, if there is one
+        (:mod:`~imustation.acquisition.resume`); ``duration_s`` is then the whole run's,
+        from its start. ``resume_now``: the wall clock (tests).
+    clock_watch : the host clock's state and steps (:mod:`~imustation.acquisition.clocksync`;
+        default: the kernel's, read with adjtimex).
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
     when the disk filled up, :class:`~imustation.errors.InputError` before anything is
     written for a duration shorter than one flush or sample period (:func:`check_capture_duration`).
     """
-    check_capture_duration(config, duration_s)
+    check_capture_duration(config, duration_s)  # the planned duration, before a resume shortens it
+    lock, point = (
+        reserve_resumed(output, config, duration_s, simulated=simulate, now=resume_now) if resume else (None, None)
+    )
+    if point is not None:
+        duration_s = point.remaining_s(duration_s)
+        if duration_s <= 0:
+            lock.release()  # type: ignore[union-attr]
+            return resumed_nothing(point, duration_s)
     recorder = Recorder(
         output,
+        resume=point,
+        lock=lock,
+        clock_watch=clock_watch or ClockWatch(),
         duration_s=duration_s,
         rotate_s=rotate_s,
         overwrite=overwrite,

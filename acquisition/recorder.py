@@ -21,11 +21,14 @@ import os
 import re
 import shutil
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
+from imustation.acquisition.clocksync import ClockWatch
+from imustation.acquisition.config import StationConfig
+from imustation.acquisition.resume import ResumePoint, check_layout, link_next_part, prepare_resume, wall_now
 from imustation.acquisition.station import OpenedDevice
 from imustation.errors import DiskFullError, InputError, RunFileError
 from imustation.runfile import (
@@ -160,6 +163,13 @@ class Recorder:
     duration_s : planned capture duration (to check every part name up front).
     rotate_s : station seconds per part, or None for one file.
     note : an event note opening every part (e.g. the simulation level), or "".
+    clock_watch : the host clock: its synchronisation state is stored in every part's
+        root attributes, a step of the wall clock is logged as a ``note``
+        (:mod:`~imustation.acquisition.clocksync`).
+    resume : continue this run as its next part (``capture --resume``,
+        :mod:`~imustation.acquisition.resume`): its run id and start, part numbers
+        from ``resume.next_part``, times shifted by ``resume.offset_ns``, the outage
+        logged as a gap at each device's first sample. Its output lock is held already.
     writer_options : passed to every :class:`RunWriter` (station, config_text,
         simulated, flush_interval_s, fsync, min_free_bytes, ...).
     """
@@ -172,6 +182,9 @@ class Recorder:
         rotate_s: float | None = None,
         overwrite: bool = False,
         note: str = "",
+        resume: ResumePoint | None = None,
+        lock: OutputLock | None = None,
+        clock_watch: ClockWatch | None = None,
         **writer_options: Any,
     ):
         self.output = os.fspath(output)
@@ -181,21 +194,34 @@ class Recorder:
         self.writer_options = writer_options
         self.writer: RunWriter | None = None
         self.paths: list[str] = []
-        self.part = 0
+        self.resume = resume
+        self.clock_watch = clock_watch
+        #: the run's time at the station's time origin, ns (a resumed capture continues its run)
+        self.offset_ns = resume.offset_ns if resume is not None else 0
+        #: devices and thermometers whose first sample after the outage is still to come
+        self._outage = {**resume.devices, **resume.thermometers} if resume is not None else {}
+        self.part = resume.next_part - 1 if resume is not None else 0
         self._closed_bytes = 0
         #: samples per device in parts already closed (on disk)
         self._closed_flushed: dict[str, int] = {}
         self._next_rotation_ns: int | None = None
-        self.lock = OutputLock(self.output)
+        self.lock = lock or OutputLock(self.output)
+        self._locked = lock is not None  # held already (a resumed capture's stock was taken under it)
         #: station time the capture ends, ns: no part starts there (nothing would follow)
         self._end_ns = int(round(duration_s * 1e9))
         n_parts = rotation_parts(duration_s, rotate_s)
-        self.planned = [part_path(self.output, k) for k in range(1, n_parts + 1)] if rotate_s else [self.output]
+        first = self.part + 1
+        if rotate_s or resume is not None:
+            self.planned = [part_path(self.output, k) for k in range(first, first + n_parts)]
+        else:
+            self.planned = [self.output]
 
     # -- life cycle ---------------------------------------------------------------
     def reserve(self) -> None:
         """Lock the output and refuse existing files, before any device is touched."""
-        self.lock.acquire()
+        if not self._locked:
+            self.lock.acquire()
+            self._locked = True
         if not self.overwrite:
             for p in self.planned:
                 if os.path.exists(p):
@@ -228,15 +254,35 @@ class Recorder:
         rate, Hz; every part stores it, see :class:`~imustation.runfile.RunWriter`)."""
         self.devices = [run_file_device(d) for d in devices]
         self.thermometers = dict(thermometers)
-        self.started_utc = utc_now_iso()
-        self.run_id = uuid.uuid4().hex if self.rotate_s else ""
+        if self.resume is not None:
+            check_layout(self.resume, self.devices, self.thermometers)
+            self.resume.commit()
+            self.started_utc, self.run_id = self.resume.started_utc, self.resume.run_id
+        else:
+            self.started_utc = utc_now_iso()
+            self.run_id = uuid.uuid4().hex if self.rotate_s else ""
         self._open_part(0)
+        if self.resume is not None:
+            self._open_resumed()
 
-    def _open_part(self, t_ns: int) -> None:
+    def _open_resumed(self) -> None:
+        """The first part of a resumed capture: linked to the part it continues, the outage noted."""
+        point = self.resume
+        assert point is not None and self.writer is not None
+        link_next_part(point.previous, self.writer.path)
+        for line in point.done:
+            self.writer.event(self.offset_ns, "station", "note", line)
+        outage = f"capture resumed after an outage of {point.outage_s:.3f} s (crash, power cut or stop)"
+        self.writer.event(self.offset_ns, "station", "note", f"{outage}; continues {os.path.basename(point.previous)}")
+        if point.note:
+            self.writer.event(self.offset_ns, "station", "note", point.note)
+
+    def _open_part(self, local_ns: int) -> None:
+        t_ns = local_ns + self.offset_ns
         self.part += 1
-        rotating = self.rotate_s is not None
+        rotating = self.rotate_s is not None or self.resume is not None
         path = part_path(self.output, self.part) if rotating else self.output
-        previous = os.path.basename(self.paths[-1]) if self.paths else ""
+        previous = os.path.basename(self.paths[-1] if self.paths else self.resume.previous if self.resume else "")
         started = _dt.datetime.fromisoformat(self.started_utc) + _dt.timedelta(microseconds=t_ns / 1e3)
         self.writer = RunWriter(
             path,
@@ -248,14 +294,15 @@ class Recorder:
             previous_part=previous,
             run_id=self.run_id,
             part_started_utc=started.isoformat(timespec="milliseconds"),
+            attrs=self.clock_watch.sync().attrs() if self.clock_watch is not None else None,
             **self.writer_options,
         )
         self.paths.append(path)
         if self.note:
             self.writer.event(t_ns, "station", "note", self.note)
+        if self.rotate_s is not None:
+            self._next_rotation_ns = local_ns + int(round(self.rotate_s * 1e9))
         if rotating:
-            assert self.rotate_s is not None
-            self._next_rotation_ns = t_ns + int(round(self.rotate_s * 1e9))
             if self.part > 1:
                 self.writer.event(t_ns, "station", "note", f"part {self.part} continues {previous}")
 
@@ -268,11 +315,15 @@ class Recorder:
         self.writer = None  # its bytes and samples are counted above
 
     def tick(self, t_ns: int) -> None:
-        """Between polls: flush when due, start the next part when its time has come."""
+        """Between polls: flush when due, start the next part when its time has come, note a clock step."""
         assert self.writer is not None
+        if self.clock_watch is not None:
+            step = self.clock_watch.check(t_ns)
+            if step is not None:
+                self.writer.event(t_ns + self.offset_ns, "station", "note", step)
         if self._next_rotation_ns is not None and self._end_ns > t_ns >= self._next_rotation_ns:
             following = os.path.basename(part_path(self.output, self.part + 1))
-            self.writer.event(t_ns, "station", "note", f"continued in {following}")
+            self.writer.event(t_ns + self.offset_ns, "station", "note", f"continued in {following}")
             self._close_part({"next_part": following})
             self._open_part(t_ns)
         else:
@@ -295,14 +346,32 @@ class Recorder:
             self.lock.release()
 
     # -- the sink the station writes into ------------------------------------------------
+    # (times arrive in station time, ns since this capture's origin; the file's are the run's)
     def append(self, device: str, t_ns: np.ndarray, channels, counter=None) -> None:
+        if self.offset_ns:
+            t_ns = np.asarray(t_ns, dtype=np.int64) + self.offset_ns
+        if device in self._outage and len(t_ns):
+            self._log_outage(device, int(t_ns[0]), None if counter is None else int(counter[0]))
         self.writer.append(device, t_ns, channels, counter)  # type: ignore[union-attr]
 
     def append_temperature(self, name: str, t_ns: np.ndarray, celsius: np.ndarray) -> None:
+        if self.offset_ns:
+            t_ns = np.asarray(t_ns, dtype=np.int64) + self.offset_ns
+        if name in self._outage and len(t_ns):
+            self._log_outage(name, int(t_ns[0]), None, late_polls=True)
         self.writer.append_temperature(name, t_ns, celsius)  # type: ignore[union-attr]
 
     def event(self, t_ns: int, source: str, kind: str, detail: str = "", lost: int = 0) -> None:
-        self.writer.event(t_ns, source, kind, detail, lost)  # type: ignore[union-attr]
+        self.writer.event(t_ns + self.offset_ns, source, kind, detail, lost)  # type: ignore[union-attr]
+
+    def _log_outage(self, name: str, t_first: int, counter: int | None, *, late_polls: bool = False) -> None:
+        """The outage's gap, at the first sample it misses, counted as the file's hole finder counts it."""
+        edge = self._outage.pop(name)
+        lost = edge.hole(t_first, counter, late_polls=late_polls)
+        span = (t_first - edge.t_ns) * 1e-9
+        t_missing = edge.t_ns + int(round(edge.period_ns))
+        detail = f"outage: no samples for {span:.3f} s before the capture resumed"
+        self.writer.event(min(t_missing, t_first - 1), name, "gap", detail, lost)  # type: ignore[union-attr]
 
     def status(self) -> dict[str, Any]:
         """The file part of the status document (docs/capture.md): current file and part, bytes of
@@ -315,7 +384,7 @@ class Recorder:
             free = None
         return {
             "file": path,
-            "part": self.part if self.rotate_s else None,
+            "part": self.part if self.rotate_s or self.resume else None,
             "file_bytes": self._closed_bytes + (w.file_bytes() if w else 0),
             # samples per device known to be on disk (after the last completed flush)
             "on_disk": {
@@ -323,4 +392,31 @@ class Recorder:
                 for name in (w.samples_flushed if w else self._closed_flushed)
             },
             "disk_free_bytes": free,
+            **({"clock": self.clock_watch.status()} if self.clock_watch is not None else {}),
         }
+
+
+def reserve_resumed(
+    output: str | os.PathLike,
+    config: StationConfig,
+    duration_s: float,
+    *,
+    simulated: bool,
+    now: Callable[[], Any] | None = None,
+) -> tuple[OutputLock | None, ResumePoint | None]:
+    """Lock ``output`` and take stock of its run for ``capture --resume`` (recovering cut-off parts).
+
+    Returns (the held lock, the resume point), or (None, None) when there is no run to
+    resume (the lock is released: a new capture starts as usual).
+    """
+    lock = OutputLock(os.fspath(output))
+    lock.acquire()
+    try:
+        point = prepare_resume(os.fspath(output), config, duration_s, simulated=simulated, now=now or wall_now)
+    except BaseException:
+        lock.release()
+        raise
+    if point is None:
+        lock.release()
+        return None, None
+    return lock, point

@@ -190,7 +190,7 @@ def worker_main(
         return  # the main process is gone (killed): nothing to report to
     except BaseException as exc:  # noqa: BLE001 - every failure must reach the main process
         try:
-            conn.send(("error", _picklable(exc), traceback.format_exc()))
+            conn.send(("error", picklable(exc), traceback.format_exc()))
         except Exception:  # noqa: BLE001 - the pipe is gone too
             pass
     finally:
@@ -199,7 +199,7 @@ def worker_main(
         conn.close()
 
 
-def _picklable(exc: BaseException) -> BaseException:
+def picklable(exc: BaseException) -> BaseException:
     """``exc`` if it survives pickling, else its nearest project error class with its message."""
     if _round_trips(exc):
         return exc

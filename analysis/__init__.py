@@ -22,7 +22,7 @@ Three rooms (each subpackage's ``__init__`` names what it offers):
 This layer imports nothing from ``imustation.drivers`` or ``imustation.acquisition``.
 
 The names above load on first use (PEP 562 ``__getattr__``): importing one submodule,
-e.g. ``imustation.analysis.estimators.models`` for the chip simulators, does not pay for scipy.stats,
+e.g. ``imustation.analysis.estimators.models.standard`` for the chip simulators, does not pay for scipy.stats,
 numba and every estimator.
 """
 
@@ -32,33 +32,33 @@ import importlib
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from imustation.analysis.estimators.allan import AllanResult, mdev, oadev, ohdev, totdev
-    from imustation.analysis.estimators.ar import ARResult, GaussMarkovFit, fit_ar, gauss_markov_from_ar1
-    from imustation.analysis.estimators.fitting import MLiResult
-    from imustation.analysis.estimators.gmwm import GMWMResult, WVResult, fit_gmwm, wavelet_variance
-    from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
-    from imustation.analysis.estimators.ml_rate import fit_ml_rate
-    from imustation.analysis.estimators.mli import compare_models, fit_integrated, fit_mli
-    from imustation.analysis.estimators.models import StandardModel, simulate_standard
-    from imustation.analysis.estimators.noise_models import NoiseModel
-    from imustation.analysis.estimators.pattern import integrate
-    from imustation.analysis.estimators.psd import PSDResult, log_average, welch_psd
+    from imustation.analysis.estimators.classical.allan import AllanResult, mdev, oadev, ohdev, totdev
+    from imustation.analysis.estimators.classical.ar import ARResult, GaussMarkovFit, fit_ar, gauss_markov_from_ar1
+    from imustation.analysis.estimators.classical.ieee import IEEECoefficients, ieee_coefficients
+    from imustation.analysis.estimators.classical.psd import PSDResult, log_average, welch_psd
+    from imustation.analysis.estimators.engine.fitting import MLiResult
+    from imustation.analysis.estimators.engine.pattern import integrate
+    from imustation.analysis.estimators.ml.gmwm import GMWMResult, WVResult, fit_gmwm, wavelet_variance
+    from imustation.analysis.estimators.ml.ml_rate import fit_ml_rate
+    from imustation.analysis.estimators.ml.mli import compare_models, fit_integrated, fit_mli
+    from imustation.analysis.estimators.models.noise_models import NoiseModel
+    from imustation.analysis.estimators.models.standard import StandardModel, simulate_standard
 
 #: module (below this package) -> the public names it defines (in step with the TYPE_CHECKING imports and __all__)
 _SOURCES = {
-    "estimators.allan": ("AllanResult", "mdev", "oadev", "ohdev", "totdev"),
-    "estimators.ar": ("ARResult", "GaussMarkovFit", "fit_ar", "gauss_markov_from_ar1"),
-    "estimators.gmwm": ("GMWMResult", "WVResult", "fit_gmwm", "wavelet_variance"),
-    "estimators.ieee": ("IEEECoefficients", "ieee_coefficients"),
-    "estimators.ml_rate": ("fit_ml_rate",),
-    "estimators.fitting": ("MLiResult",),
-    "estimators.mli": ("compare_models", "fit_integrated", "fit_mli"),
-    "estimators.pattern": ("integrate",),
-    "estimators.models": ("StandardModel", "simulate_standard"),
-    "estimators.noise_models": ("NoiseModel",),
-    "estimators.sensor_terms": ("BiasInstability", "LowPass"),
-    "estimators.model_choice": ("ModelChoice", "choose_model"),
-    "estimators.psd": ("PSDResult", "log_average", "welch_psd"),
+    "estimators.classical.allan": ("AllanResult", "mdev", "oadev", "ohdev", "totdev"),
+    "estimators.classical.ar": ("ARResult", "GaussMarkovFit", "fit_ar", "gauss_markov_from_ar1"),
+    "estimators.ml.gmwm": ("GMWMResult", "WVResult", "fit_gmwm", "wavelet_variance"),
+    "estimators.classical.ieee": ("IEEECoefficients", "ieee_coefficients"),
+    "estimators.ml.ml_rate": ("fit_ml_rate",),
+    "estimators.engine.fitting": ("MLiResult",),
+    "estimators.ml.mli": ("compare_models", "fit_integrated", "fit_mli"),
+    "estimators.engine.pattern": ("integrate",),
+    "estimators.models.standard": ("StandardModel", "simulate_standard"),
+    "estimators.models.noise_models": ("NoiseModel",),
+    "estimators.models.sensor_terms": ("BiasInstability", "LowPass"),
+    "estimators.selection.model_choice": ("ModelChoice", "choose_model"),
+    "estimators.classical.psd": ("PSDResult", "log_average", "welch_psd"),
 }
 _ORIGIN = {name: module for module, names in _SOURCES.items() for name in names}
 

@@ -8,8 +8,8 @@ from typing import TypeVar
 
 import numpy as np
 
-from imustation.analysis.estimators.noise_models import standard
-from imustation.analysis.estimators.reference import TABLE_III_MEAN
+from imustation.analysis.estimators.models.noise_models import standard
+from imustation.analysis.estimators.models.reference import TABLE_III_MEAN
 
 T = TypeVar("T")
 #: rate units per count of the int16 copy of the benchmark record (rad/s)

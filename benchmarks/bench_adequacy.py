@@ -19,11 +19,11 @@ import time
 import numpy as np
 from _common import COUNT_SCALE, best_of, table_iii_record
 
-from imustation.analysis.estimators.adequacy import ALPHA, NO_FIT, model_adequacy
-from imustation.analysis.estimators.allan import oadev
-from imustation.analysis.estimators.composite import fit_composite
-from imustation.analysis.estimators.noise_models import GaussMarkov, NoiseModel, WhiteRate, standard
-from imustation.analysis.estimators.screen import screen
+from imustation.analysis.estimators.classical.allan import oadev
+from imustation.analysis.estimators.ml.composite import fit_composite
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, NoiseModel, WhiteRate, standard
+from imustation.analysis.estimators.selection.adequacy import ALPHA, NO_FIT, model_adequacy
+from imustation.analysis.estimators.selection.screen import screen
 
 
 def flicker(sigma_w: float, level: float, t_lo: float = 1.0, t_hi: float = 3000.0) -> NoiseModel:

@@ -107,7 +107,7 @@ def transport_floor_us(n: int = 20000) -> float:
     The same-run reference: an SPI chip without a FIFO (the ADIS16448) costs at least
     this per sample in a simulated capture, before its driver and chip simulator.
     """
-    from imustation.drivers.bus.spi import open_spi
+    from imustation.drivers.bus.spi_open import open_spi
     from imustation.drivers.sim.spi_bridges import CP2130Sim
     from imustation.drivers.sim.usb_backend import SimUSBBackend
 

@@ -26,8 +26,8 @@ import time
 
 import numpy as np
 
-from imustation.analysis.estimators.noise_models import standard
-from imustation.analysis.estimators.reference import TABLE_III_MEAN
+from imustation.analysis.estimators.models.noise_models import standard
+from imustation.analysis.estimators.models.reference import TABLE_III_MEAN
 from imustation.analysis.pipeline.channel import analysis_document
 from imustation.analysis.pipeline.parallel import AnalysisOptions, dask_client, plan_tasks, run_tasks
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter

@@ -15,9 +15,9 @@ import argparse
 import numpy as np
 from _common import best_of, table_iii_record
 
-from imustation.analysis.estimators.gmwm import fit_gmwm, wavelet_variance
-from imustation.analysis.estimators.mli import fit_integrated
-from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.gmwm import fit_gmwm, wavelet_variance
+from imustation.analysis.estimators.ml.mli import fit_integrated
 
 
 def main() -> None:

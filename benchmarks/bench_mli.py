@@ -17,9 +17,9 @@ import time
 import numpy as np
 from _common import best_of, table_iii_record
 
-import imustation.analysis.estimators.fitting as fitting
-import imustation.analysis.estimators.mli as mli
-import imustation.analysis.estimators.pattern as pattern
+import imustation.analysis.estimators.engine.fitting as fitting
+import imustation.analysis.estimators.engine.pattern as pattern
+import imustation.analysis.estimators.ml.mli as mli
 
 
 def main() -> None:

@@ -125,7 +125,7 @@ def make_one(args: tuple) -> str:
 def run_one(args: tuple) -> dict:
     """Time the analysis of one stored channel (and the np.sum reference over its counts)."""
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-    from imustation.analysis.estimators.model_choice import flicker_cut
+    from imustation.analysis.estimators.selection.model_choice import flicker_cut
     from imustation.analysis.pipeline.channel import analyze_channel
     from imustation.analysis.pipeline.loaders import Channel
 

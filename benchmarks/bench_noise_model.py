@@ -13,10 +13,10 @@ import argparse
 
 from _common import COUNT_SCALE, best_of, table_iii_record
 
-from imustation.analysis.estimators.composite import DEFAULT_M, fine_scale, fit_composite_data
-from imustation.analysis.estimators.gmwm import fit_gmwm
-from imustation.analysis.estimators.mli import fit_integrated
-from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import DEFAULT_M, fine_scale, fit_composite_data
+from imustation.analysis.estimators.ml.gmwm import fit_gmwm
+from imustation.analysis.estimators.ml.mli import fit_integrated
 
 
 def main() -> None:

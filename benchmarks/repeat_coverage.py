@@ -22,9 +22,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from imustation.analysis.estimators.coefficients import ieee952_summary  # noqa: E402
-from imustation.analysis.estimators.fitting import Z90  # noqa: E402
-from imustation.analysis.estimators.model_choice import choose_model  # noqa: E402
+from imustation.analysis.estimators.engine.fitting import Z90  # noqa: E402
+from imustation.analysis.estimators.selection.coefficients import ieee952_summary  # noqa: E402
+from imustation.analysis.estimators.selection.model_choice import choose_model  # noqa: E402
 from tests.realistic_records import low_frequency_gain, record  # noqa: E402
 
 SIGMA_W = 2.44e-4  # 0.014 deg/s/sqrt(Hz), rad/s/sqrt(Hz)

@@ -89,10 +89,23 @@ class GyroRange:
     code: int
     range_dps: int
     dps_per_lsb: float
+    #: the smallest SENS_AVG filter B (2^B taps) the range may be used with
+    min_filter_b: int = 0
+
+    @property
+    def min_taps(self) -> int:
+        return 2**self.min_filter_b
 
 
-#: SENS_AVG bits10:8, §4.3 [PX4-ADIS-OLD]: scale = code / 100 deg/s per LSB
-GYRO_RANGES: tuple[GyroRange, ...] = (GyroRange(1, 250, 0.01), GyroRange(2, 500, 0.02), GyroRange(4, 1000, 0.04))
+#: SENS_AVG bits10:8, §4.3 [PX4-ADIS-OLD]: scale = code / 100 deg/s per LSB. The reduced ranges
+#: need a minimum filter: +-500 deg/s B >= 2 (4 taps), +-250 deg/s B >= 4 (16 taps) - the SENS_AVG
+#: bit table of the ADIS1640x/ADIS16448 data sheets ("filter taps >= 4 / >= 16");
+#: docs/reference/conformance-adis16448.md
+GYRO_RANGES: tuple[GyroRange, ...] = (
+    GyroRange(1, 250, 0.01, min_filter_b=4),
+    GyroRange(2, 500, 0.02, min_filter_b=2),
+    GyroRange(4, 1000, 0.04),
+)
 
 #: DIAG_STAT bits, ADIS16448-specific table of §4.5 [PX4-ADIS] (gyro bit order UNCONFIRMED)
 DIAG_BITS: tuple[tuple[int, str], ...] = (
@@ -110,7 +123,11 @@ DIAG_BITS: tuple[tuple[int, str], ...] = (
     (0, "magnetometer functional test failure"),
 )
 DIAG_INFO_MASK = 1 << 7  # not an error
-FIR_TAPS = tuple(2**b for b in range(8))  # SENS_AVG B = 0..7 -> 2^B taps, 1 = filter off
+#: SENS_AVG B = 0..6 -> 2^B taps, 1 = filter off. B = 7 (128 taps) fits the 3-bit field but is no
+#: valid setting: Linux adis16400.c marks it "Not a valid setting" (adis16400_3db_divisors), and
+#: the data sheet's largest B is 6
+MAX_FILTER_B = 6
+FIR_TAPS = tuple(2**b for b in range(MAX_FILTER_B + 1))
 
 
 def decode_diag(word: int) -> list[str]:
@@ -232,6 +249,14 @@ class ADIS16448:
         stall = out["stall_us"]
         if isinstance(stall, bool) or not isinstance(stall, (int, float)) or not 9 <= stall <= 1000:
             raise SettingError(f"stall_us = {stall!r}: a number of microseconds, 9 .. 1000 (datasheet minimum 9)")
+        rng = next(r for r in GYRO_RANGES if r.range_dps == out["gyro_range_dps"])
+        if out["filter_taps"] < rng.min_taps:
+            allowed = ", ".join(str(t) for t in FIR_TAPS if t >= rng.min_taps)
+            raise SettingError(
+                f"filter_taps = {out['filter_taps']!r} with gyro_range_dps = {rng.range_dps}: the ADIS16448 data "
+                f"sheet (SENS_AVG) needs at least {rng.min_taps} filter taps at +-{rng.range_dps} deg/s "
+                f"(allowed: {allowed}; or gyro_range_dps = 1000 with any)"
+            )
         return out
 
     # -- register access (docs/reference/sensors.md §4.1) ----------------------------------

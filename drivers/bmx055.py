@@ -51,7 +51,10 @@ FIFO_DEPTH_FRAMES = 100  # §1.2 [B-BMG-LNX] MAX_FIFO_F_LEVEL
 
 # --- delays --------------------------------------------------------------------
 SOFTRESET_WAIT_S = 0.030  # "wait >= 30 ms" after soft reset, §1.2 [L-BMG]
-STARTUP_WAIT_S = 0.030  # normal-mode start-up before data are valid (same bound)
+#: normal-mode start-up before data are valid: the data sheet's start-up / wake-up times
+#: (t_su, t_wusm) are 30 ms, but Linux bmg160_core.c waits BMG160_MAX_STARTUP_TIME_MS = 80 ms after
+#: setting normal mode on resume; the longer wait is taken (docs/reference/conformance-bmx055.md)
+STARTUP_WAIT_S = 0.080
 
 # --- tables ----------------------------------------------------------------------
 

@@ -8,17 +8,19 @@ the MPU-6050 register map [RM6050], PX4's MPU-6500 driver [PX4-6500].
 The chip samples gyro, accelerometer and temperature together; frames of
 ACCEL(6) TEMP(2) GYRO(6) = 14 big-endian bytes go through the on-chip FIFO,
 read once per poll (at most 40 % full). The FIFO is a byte stream whose size is
-not a multiple of 14, so an overflow (FIFO_OFLOW_INT, or a count at capacity)
-loses the frame alignment: the driver then resets the FIFO, drops its contents
-and reports a lost-sample block (``lost=-1``: the station measures the loss from
-time). The reset is the sequence the MPU-6050 register map documents (FIFO_RST
-acts only while USER_CTRL.FIFO_EN is 0): clear FIFO_EN, set FIFO_RST, set FIFO_EN
-again, as Linux ``inv_mpu6050`` does; the MPU-6500's asynchronous FIFO_RST takes
-the same sequence. Datasheet rules, sources and tests:
-``docs/reference/conformance-invensense.md``. Only whole frames are read; a partial frame
-stays in the FIFO for the next poll. INT_ENABLE doubles as a configuration
-marker (power-on value 0): a chip reset is detected on the next poll. INT_STATUS
-is read after the data, so an overflow during the poll is seen too.
+not a multiple of 14, so an overflow loses the frame alignment: the driver then
+resets the FIFO, drops its contents and reports a lost-sample block (``lost=-1``:
+the station measures the loss from time). Field quirks the register maps leave out
+are handled as Linux ``inv_mpu6050`` does: overflow is decided by the byte count
+(capacity less three frames), never by FIFO_OFLOW_INT, which some chips always set;
+the FIFO reset turns the sensors' routing (FIFO_EN, 0x23) off first, so no frame
+is being written when the (MPU-6500: asynchronous) reset acts, and the FIFO must
+read empty before the routing is turned on again; nothing is written for 10 ms
+after SLEEP is cleared; the clock moves to the gyro PLL only once the gyro runs.
+Datasheet rules, quirks, sources and tests: ``docs/reference/conformance-invensense.md``.
+Only whole frames are read; a partial frame stays in the FIFO for the next poll.
+INT_ENABLE doubles as a configuration marker (power-on value 0): a chip reset is
+detected on the next poll.
 
 The AK8975 magnetometer of the MPU-9150 (§2.6) is not read.
 
@@ -67,6 +69,7 @@ REG_PWR_MGMT_1 = 0x6B  # bit7 DEVICE_RESET, bit6 SLEEP, bits2:0 CLKSEL, §2.1
 PWR1_DEVICE_RESET = 0x80
 PWR1_SLEEP = 0x40
 CLKSEL = Field(REG_PWR_MGMT_1, 0, 3)
+CLKSEL_INTERNAL = 0  # internal oscillator: the clock while the gyro starts (Linux inv_mpu6050_set_power_itg)
 CLKSEL_PLL_XGYRO = 1  # PLL with X gyro reference: recommended over the internal oscillator [I2CDEV]
 #: what CLKSEL = 1 selects, per chip (Register 107 of each register map), for the run file's metadata
 CLKSEL_1_6050 = "PLL with X axis gyroscope reference"
@@ -82,13 +85,28 @@ FRAME_BYTES = 14
 FRAME_DTYPE = ">i2"  # big-endian s16, §2.4 [L-MPU-C]
 #: INT_ENABLE value written; read back every poll as the configuration marker
 INT_ENABLE_VALUE = INT_FIFO_OFLOW | INT_DATA_RDY
+#: an overflow is decided by the byte count alone: at the capacity less this many frames the
+#: FIFO is reset (Linux inv_mpu_ring.c since commit 6e82ae6b8d11 "iio: imu: inv_mpu6050: fix no
+#: data on MPU6050": on some chips FIFO_OFLOW_INT is always set, and a driver that trusts it drops
+#: every sample; the margin covers the samples written between the count and the data read)
+FIFO_MARGIN_FRAMES = 3
+#: FIFO resets tried before a FIFO that will not come out empty is an error
+FIFO_RESET_TRIES = 3
 
 # --- delays -----------------------------------------------------------------------
 #: after DEVICE_RESET before the registers answer again (not in docs/reference/sensors.md; the
 #: MPU-6050 register map's 100 ms figure is used for both chips - UNCONFIRMED)
 RESET_WAIT_S = 0.100
-#: after wake-up before samples are valid: gyro start-up 70 ms (accel 30 ms), §3 [L-MPU-H]
+#: after wake-up before samples are valid: gyro start-up 70 ms (accel 30 ms), §3 [L-MPU-H];
+#: also the time the gyro runs before the clock takes it as its PLL reference
 STARTUP_WAIT_S = 0.070
+#: after clearing SLEEP before the next register write: Linux inv_mpu6050_set_power_itg sleeps
+#: INV_MPU6050_REG_UP_TIME_MIN..MAX = 5..10 ms there; a write sooner may be lost
+WAKE_WAIT_S = 0.010
+#: after wake-up before the temperature is valid: Linux inv_mpu_iio.h INV_MPU6050_TEMP_UP_TIME
+#: (100 ms, waited after enabling the temperature sensor; older versions after any sensor): the
+#: FIFO, which carries the temperature in every frame, is enabled no sooner
+TEMP_UP_WAIT_S = 0.100
 
 
 # --- tables --------------------------------------------------------------------------
@@ -197,10 +215,19 @@ class Variant:
     #: FIFO writes (MPU-6050 set); else FIFO_RST is asynchronous and FIFO_EN = 0 only
     #: stops serial access (MPU-6500). The driver's reset sequence suits both.
     fifo_rst_needs_disable: bool
+    #: CLKSEL = 1 is the X-gyro PLL with no fallback (MPU-6050 set): the gyro must run before
+    #: it is selected (Linux inv_mpu6050_switch_engine); the MPU-6500's CLKSEL = 1 falls back
+    #: to the internal oscillator until the PLL is ready (Register 107)
+    pll_needs_running_gyro: bool
 
     @property
     def fifo_frames(self) -> int:
         return self.fifo_bytes // FRAME_BYTES
+
+    @property
+    def overflow_bytes(self) -> int:
+        """A FIFO holding this many bytes is treated as overflowed (capacity less the margin)."""
+        return self.fifo_bytes - FIFO_MARGIN_FRAMES * FRAME_BYTES
 
 
 MPU9150 = Variant(
@@ -217,6 +244,7 @@ MPU9150 = Variant(
     clock_source=CLKSEL_1_6050,
     register_map="MPU-6000/6050 Register Map rev 4.2",
     fifo_rst_needs_disable=True,  # RM-MPU-6000A rev 4.2, Register 106
+    pll_needs_running_gyro=True,  # RM-MPU-6000A Register 107; Linux inv_mpu6050_switch_engine
 )
 
 MPU6500 = Variant(
@@ -235,6 +263,7 @@ MPU6500 = Variant(
     clock_source=CLKSEL_1_6500,
     register_map="MPU-6500 Register Map rev 2.1",
     fifo_rst_needs_disable=False,  # RM-MPU-6500A rev 2.1, Register 106: "Reset is asynchronous"
+    pll_needs_running_gyro=False,  # RM-MPU-6500A Register 107: "PLL if ready, else internal oscillator"
 )
 
 VARIANTS = {v.driver: v for v in (MPU9150, MPU6500)}
@@ -378,38 +407,68 @@ class InvenSenseIMU:
         return who
 
     def configure(self) -> None:
-        """Reset, wake with the gyro PLL clock, rate/filter/ranges, FIFO on; read the settings back."""
+        """Reset, wake on the internal oscillator, rate/filter/ranges, gyro PLL once the gyro runs, FIFO on.
+
+        The order is Linux inv_mpu6050's: after clearing SLEEP nothing is written for
+        ``WAKE_WAIT_S`` (a write sooner may be lost); the clock is switched to the gyro PLL only
+        after the gyro has run its start-up time (``STARTUP_WAIT_S``); the FIFO is enabled only
+        once the temperature is valid too (``TEMP_UP_WAIT_S`` after waking), so no start-up
+        sample enters it. Every setting is read back.
+        """
         self.regs.write(REG_PWR_MGMT_1, bytes([PWR1_DEVICE_RESET]))
         self._sleep(RESET_WAIT_S)
         self.identify()
-        self.regs.write(REG_PWR_MGMT_1, bytes([CLKSEL.encode(CLKSEL_PLL_XGYRO)]))  # SLEEP = 0
+        self.regs.write(REG_PWR_MGMT_1, bytes([CLKSEL.encode(CLKSEL_INTERNAL)]))  # SLEEP = 0
+        self._sleep(WAKE_WAIT_S)
         self.regs.write(REG_PWR_MGMT_2, bytes([0]))
         config = self._config_bytes()
         self.regs.write(REG_SMPLRT_DIV, config)
         self.regs.write(REG_INT_ENABLE, bytes([INT_ENABLE_VALUE]))
-        back = self.regs.read(REG_SMPLRT_DIV, len(config))
-        power = self.regs.read(REG_PWR_MGMT_1, 1)[0]
-        if back != config or power != CLKSEL.encode(CLKSEL_PLL_XGYRO):
-            raise DeviceError(
-                f"{self.regs.where}: configuration read back {back.hex(' ')} / PWR_MGMT_1 0x{power:02X}, "
-                f"wrote {config.hex(' ')} / 0x{CLKSEL.encode(CLKSEL_PLL_XGYRO):02X}"
-            )
-        self.regs.write(REG_FIFO_EN, bytes([FIFO_EN_FRAME]))
-        self._reset_fifo()  # leaves USER_CTRL.FIFO_EN set
-        self._sleep(STARTUP_WAIT_S)
-        # samples of the start-up time are not valid: drop them
-        self._reset_fifo()
-        self.regs.read(REG_INT_STATUS, 1)  # clear the flags they raised
+        self._read_back(config, CLKSEL.encode(CLKSEL_INTERNAL))
+        self._sleep(STARTUP_WAIT_S)  # the gyro runs (on the internal oscillator)
+        self.regs.write(REG_PWR_MGMT_1, bytes([CLKSEL.encode(CLKSEL_PLL_XGYRO)]))
+        self._read_back(config, CLKSEL.encode(CLKSEL_PLL_XGYRO))
+        self._sleep(max(0.0, TEMP_UP_WAIT_S - WAKE_WAIT_S - STARTUP_WAIT_S))  # the temperature is valid
+        self._reset_fifo()  # leaves FIFO_EN routing and USER_CTRL.FIFO_EN set
+        self.regs.read(REG_INT_STATUS, 1)  # clear the flags the start-up raised
         self._stuck = False
 
-    def _reset_fifo(self) -> None:
-        """Empty the FIFO: FIFO_EN off, FIFO_RST while it is off, FIFO_EN on (three writes).
+    def _read_back(self, config: bytes, power: int) -> None:
+        """DeviceError unless SMPLRT_DIV.. and PWR_MGMT_1 read as written."""
+        back = self.regs.read(REG_SMPLRT_DIV, len(config))
+        got = self.regs.read(REG_PWR_MGMT_1, 1)[0]
+        if back != config or got != power:
+            raise DeviceError(
+                f"{self.regs.where}: configuration read back {back.hex(' ')} / PWR_MGMT_1 0x{got:02X}, "
+                f"wrote {config.hex(' ')} / 0x{power:02X}"
+            )
 
-        A write of FIFO_EN | FIFO_RST with FIFO_EN already set is not documented to
-        reset anything on the MPU-6050 set (Register 106); this sequence is.
+    def _reset_fifo(self) -> None:
+        """Empty the FIFO in frame: routing off, FIFO reset, check it is empty, routing on.
+
+        The order is Linux inv_mpu6050's (``inv_mpu6050_prepare_fifo``): FIFO_EN (0x23) ← 0 so
+        no sensor is writing a frame into the FIFO when it is reset (the MPU-6500's reset is
+        asynchronous: a frame being written would leave its tail at the head of the FIFO, and
+        every frame after it would be read shifted); USER_CTRL ← 0, ← FIFO_RST (the MPU-6050
+        set resets only while USER_CTRL.FIFO_EN is 0, Register 106). Then the FIFO must read
+        empty while nothing routes into it - a known instant at which the byte count must be
+        zero, checked after every reset (repeated up to ``FIFO_RESET_TRIES`` times, then a
+        DeviceError); only then FIFO_EN ← the frame's sensors and USER_CTRL ← FIFO_EN. Whole
+        samples are written from there on, so the FIFO holds whole frames from its head.
         """
-        self.regs.write(REG_USER_CTRL, bytes([0]))
-        self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_RST]))
+        self.regs.write(REG_FIFO_EN, bytes([0]))
+        for _ in range(FIFO_RESET_TRIES):
+            self.regs.write(REG_USER_CTRL, bytes([0]))
+            self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_RST]))
+            left = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big")
+            if left == 0:
+                break
+        else:
+            raise DeviceError(
+                f"{self.regs.where}: FIFO holds {left} bytes after {FIFO_RESET_TRIES} resets with no sensor routed "
+                "into it; its frames cannot be aligned"
+            )
+        self.regs.write(REG_FIFO_EN, bytes([FIFO_EN_FRAME]))
         self.regs.write(REG_USER_CTRL, bytes([USER_CTRL_FIFO_EN]))
 
     def open(self) -> DriverInfo:
@@ -449,16 +508,20 @@ class InvenSenseIMU:
 
     # -- streaming -----------------------------------------------------------------------
     def read_block(self) -> Block:
-        """FIFO_COUNT, the whole frames, then INT_ENABLE..INT_STATUS.
+        """FIFO_COUNT, the whole frames, FIFO_COUNT again, then INT_ENABLE..INT_STATUS.
 
-        The status is read *after* the data: FIFO_OFLOW_INT then also covers an
-        overflow between the count and the data read (a stalled host), which shifts
-        the 14-byte frames in the byte FIFO; such data is dropped, not stored.
+        An overflow is decided by the byte count, never by FIFO_OFLOW_INT (always set on
+        some chips, Linux commit 6e82ae6b8d11): the FIFO is reset and its contents dropped
+        when it held ``Variant.overflow_bytes`` or more - at the first count, or, counted
+        again after the data, the bytes read plus those left (an overflow while the poll
+        read: a stalled host; the 14-byte frames in the byte FIFO are then shifted).
         """
+        v = self.VARIANT
         count = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big")  # H first: latches both
-        full = count >= self.VARIANT.fifo_bytes
+        full = count >= v.overflow_bytes
         frames = 0 if full else count // FRAME_BYTES  # a partial frame stays for the next poll
         data = self.regs.read(REG_FIFO_R_W, frames * FRAME_BYTES) if frames else b""
+        after = int.from_bytes(self.regs.read(REG_FIFO_COUNT_H, 2), "big") if frames else 0
         head = self.regs.read(REG_INT_ENABLE, REG_INT_STATUS - REG_INT_ENABLE + 1)
         if head[0] != INT_ENABLE_VALUE:
             raise DeviceError(
@@ -467,11 +530,12 @@ class InvenSenseIMU:
             )
         status = head[-1]
         empty = np.zeros((0, 3), dtype=np.int16)
-        if status & INT_FIFO_OFLOW or full:
-            # oldest bytes were overwritten (maybe while this poll read): frame alignment is gone
+        if full or after + len(data) >= v.overflow_bytes:
+            # oldest bytes were (or may have been) overwritten: frame alignment is gone
             self._reset_fifo()
             self._stuck = False
-            note = f"FIFO overrun ({count} bytes); FIFO reset, contents dropped"
+            held = max(count, after + len(data))
+            note = f"FIFO overrun ({held} of {v.fifo_bytes} bytes); FIFO reset, contents dropped"
             return Block({"gyro": empty, "accel": empty, "temp": np.zeros(0, np.int16)}, lost=-1, note=note)
         lost, note = 0, ""
         if frames:

@@ -4,7 +4,8 @@ Each output is one line ``(-)xxx.xxxxxx y`` + CR LF at 38 400 baud 8N1: the
 value (rate in deg/s, or incremental angle in deg), spaces, and a BIT flag
 (1 valid, 0 fault or starting up) [KVH-M]. Parsing follows the tested ROS
 parser [KVH-R]: the value must be preceded by at least one space, the flag
-must be 0 or 1, and the stream resynchronises on CR LF.
+must be 0 or 1, blanks may follow it before CR LF, and the stream resynchronises
+on CR LF.
 
 Storage: the value has six decimals, so it is stored *exactly* as an int32
 count of 1e-6 deg/s (rate mode) or 1e-6 deg per output (incremental-angle
@@ -32,8 +33,10 @@ from imustation.errors import DeviceError, SettingError
 from imustation.units import DEG2RAD
 
 EOL = b"\r\n"
-#: one output line without CR LF: >= 1 leading space, value, >= 1 space, flag [KVH-R]
-LINE_RE = re.compile(rb" +(-?)(\d+)\.(\d{1,6}) +([01])")
+#: one output line without CR LF: >= 1 leading space, value, >= 1 space, flag [KVH-R], then any
+#: blanks or tabs before CR LF (units in the field pad their lines; the ROS drivers split the line
+#: on whitespace and accept them - a strict match counted every such line as lost)
+LINE_RE = re.compile(rb" +(-?)(\d+)\.(\d{1,6}) +([01])[ \t]*")
 DECIMALS = 6
 COUNTS_PER_UNIT = 10**DECIMALS  # 1e-6 deg/s (or deg) per count
 STATUS_VALID = 1

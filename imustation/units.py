@@ -20,6 +20,8 @@ RADPS_TO_DPH = 1.0 / DPH2RADPS
 MPS2_TO_UG = 1e6 / G0
 #: sqrt(s) per sqrt(h): a figure per sqrt(s) times this is per sqrt(h)
 SQRT_S_PER_SQRT_H = 60.0
+#: time units of text logs -> nanoseconds (``import``/``analyze --time-unit``, acquisition/importers/logs.py)
+TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 
 #: SI unit of a channel's samples (run-file ``units``) -> its sensor kind
 SENSOR_KINDS = {"rad/s": "gyro", "m/s^2": "accel"}

@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from imustation.analysis.estimators.adequacy import ALPHA, FITS, NO_FIT, NOT_TESTED, model_adequacy, normal_scores
-from imustation.analysis.estimators.allan import edf_oadev, log_taus, oadev
-from imustation.analysis.estimators.avar_cov import AngleKernel, avar_covariance
-from imustation.analysis.estimators.noise_models import (
+from imustation.analysis.estimators.classical.allan import edf_oadev, log_taus, oadev
+from imustation.analysis.estimators.classical.avar_cov import AngleKernel, avar_covariance
+from imustation.analysis.estimators.models.noise_models import (
     GaussMarkov,
     NoiseModel,
     Quantization,
@@ -18,6 +17,14 @@ from imustation.analysis.estimators.noise_models import (
     WhiteAngle,
     WhiteRate,
     standard,
+)
+from imustation.analysis.estimators.selection.adequacy import (
+    ALPHA,
+    FITS,
+    NO_FIT,
+    NOT_TESTED,
+    model_adequacy,
+    normal_scores,
 )
 
 FS = 10.0
@@ -161,7 +168,7 @@ def test_true_model_fits_at_the_nominal_rate():
 
 
 def test_fitted_model_fits_at_the_nominal_rate():
-    from imustation.analysis.estimators.composite import fit_composite
+    from imustation.analysis.estimators.ml.composite import fit_composite
 
     truth = standard(1e-3, 2e-5, 60.0)
     n, fs, R = 36_000, FS, 20
@@ -178,7 +185,7 @@ def test_fitted_model_fits_at_the_nominal_rate():
 
 
 def test_flicker_floor_does_not_fit_wn_gm_and_is_located():
-    from imustation.analysis.estimators.composite import fit_composite
+    from imustation.analysis.estimators.ml.composite import fit_composite
 
     truth = _flicker(1e-4, 3e-5, 1.0, 3000.0)
     fs, n = 50.0, 360_000  # 2 h

@@ -5,7 +5,7 @@ import pytest
 
 from imustation.clock import VirtualClock
 from imustation.drivers import adis16448 as adis
-from imustation.drivers.bus.spi import open_spi
+from imustation.drivers.bus.spi_open import open_spi
 from imustation.drivers.sim.adis16448 import ADIS16448Sim, burst_crc_rows
 from imustation.drivers.sim.faults import FaultPlan, FaultSpec
 from imustation.drivers.sim.sources import NoiseSource
@@ -256,3 +256,17 @@ def test_sim_ignores_a_reserved_range_code():
     clock.sleep(9e-6)
     chip.spi_transfer(bytes([0x80 | adis.REG_SENS_AVG + 1, 0x03]), adis.SPI_MODE, 1e6)  # range 011: reserved
     assert chip.regs[adis.REG_SENS_AVG] >> 8 == 0x04  # still +-1000 deg/s
+
+
+def test_filter_taps_the_data_sheet_allows():
+    # SENS_AVG B = 7 (128 taps) is no valid setting (Linux adis16400.c: "Not a valid setting"); the reduced
+    # gyro ranges need a minimum filter (+-500 deg/s: 4 taps, +-250 deg/s: 16 taps); before, all were written
+    with pytest.raises(SettingError, match=r"filter_taps = 128: driver 'adis16448' allows 1, 2, 4, 8, 16, 32, 64$"):
+        adis.ADIS16448.check_settings({"filter_taps": 128})
+    with pytest.raises(SettingError, match=r"filter_taps = 8 with gyro_range_dps = 250.*at least 16.*16, 32, 64"):
+        adis.ADIS16448.check_settings({"gyro_range_dps": 250, "filter_taps": 8})
+    with pytest.raises(SettingError, match=r"filter_taps = 2 with gyro_range_dps = 500.*at least 4"):
+        adis.ADIS16448.check_settings({"gyro_range_dps": 500, "filter_taps": 2})
+    assert adis.ADIS16448.check_settings({"gyro_range_dps": 250, "filter_taps": 16})["filter_taps"] == 16
+    assert adis.ADIS16448.check_settings({"gyro_range_dps": 500, "filter_taps": 4})["filter_taps"] == 4
+    assert adis.ADIS16448.check_settings({"gyro_range_dps": 1000, "filter_taps": 1})["filter_taps"] == 1

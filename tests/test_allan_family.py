@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from reference_data import NBS14_10_FREQ, nbs14_1000
 
-from imustation.analysis.estimators.allan import edf_oadev, mdev, oadev, ohdev, totdev
+from imustation.analysis.estimators.classical.allan import edf_oadev, mdev, oadev, ohdev, totdev
 from imustation.errors import InputError
 
 # SP 1065 Table 31 (7 significant figures) at m = 1, 10, 100 (docs/reference/noise-formulas.md §1.1)

@@ -5,9 +5,9 @@ import pytest
 from reference_data import nbs14_1000
 
 from imustation.analysis import StandardModel, fit_mli, oadev, simulate_standard
-from imustation.analysis.estimators.fitting import full_nll
-from imustation.analysis.estimators.pattern import integrate_pattern, sampling_pattern
-from imustation.analysis.estimators.scan import standard_profile
+from imustation.analysis.estimators.engine.fitting import full_nll
+from imustation.analysis.estimators.engine.pattern import integrate_pattern, sampling_pattern
+from imustation.analysis.estimators.engine.scan import standard_profile
 from imustation.analysis.pipeline.loaders import load_inputs
 
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate, standard
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate, standard
 from imustation.analysis.reports.attitude import angle_error_std, angle_spread
 
 T = np.array([0.1, 1.0, 10.0, 100.0, 1000.0, 1e4])

@@ -59,7 +59,7 @@ def make(settings=None, source=None, address=0x68):
 
 
 def chip_model():
-    from imustation.analysis.estimators.models import StandardModel
+    from imustation.analysis.estimators.models.standard import StandardModel
 
     return StandardModel(1e-4, 1e-6, 500.0)
 
@@ -211,3 +211,25 @@ def test_sim_read_only_registers():
     assert read(chip.REG_CHIP_ID, 1)[0] == chip.CHIP_ID_VALUE and read(chip.REG_FIFO_STATUS, 1)[0] == 0
     write(chip.BW.reg, 0x03)
     assert read(chip.BW.reg, 1)[0] == 0x83  # bit 7 reads 1 whatever is written
+
+
+def test_start_up_wait_after_normal_mode():
+    # data sheet t_su 30 ms; Linux bmg160_core.c waits BMG160_MAX_STARTUP_TIME_MS = 80 ms after entering
+    # normal mode (runtime resume): the driver waits 80 ms before its first FIFO read (before: 30 ms)
+    clock, sim, smbus, drv = make()
+    times = {}
+    on_write, i2c_read = sim.on_write, sim.i2c_read
+
+    def log_write(reg, value):
+        if reg == chip.REG_LPM1 and value == chip.LPM1_NORMAL:
+            times["normal"] = clock.now_ns()
+        on_write(reg, value)
+
+    def log_read(n):
+        if sim.pointer in (chip.REG_TEMP, chip.REG_FIFO_DATA):  # the first poll after the wait
+            times.setdefault("fifo", clock.now_ns())
+        return i2c_read(n)
+
+    sim.on_write, sim.i2c_read = log_write, log_read
+    drv.open()
+    assert times["fifo"] - times["normal"] >= 0.080e9

@@ -1,4 +1,4 @@
-"""ML_i-F (analysis/estimators/composite.py): the integrated likelihood plus the fine-scale Allan variance."""
+"""ML_i-F (analysis/estimators/ml/composite.py): the integrated likelihood plus the fine-scale Allan variance."""
 
 from __future__ import annotations
 
@@ -10,19 +10,18 @@ import pytest
 from click.testing import CliRunner
 from scipy.signal import lfilter
 
-from imustation.analysis.estimators.allan import oadev
-from imustation.analysis.estimators.composite import (
+from imustation.analysis.estimators.classical.allan import oadev
+from imustation.analysis.estimators.engine.fitting import ParamSpec, full_nll
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import (
     ESTIMATOR,
-    _CompositeProblem,
-    _gm_unit_avar,
+    CompositeProblem,
     fine_scale,
     fit_composite,
     fit_composite_data,
 )
-from imustation.analysis.estimators.fitting import ParamSpec, full_nll
-from imustation.analysis.estimators.mli import fit_integrated
-from imustation.analysis.estimators.noise_models import GaussMarkov, parse_model, standard
-from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.ml.mli import fit_integrated
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, gm_unit_avar, parse_model, standard
 from imustation.analysis.pipeline.study import run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
@@ -43,7 +42,7 @@ def record():
 def test_vectorised_gm_avar_is_the_library_closed_form(tau_b, samples):
     tau = samples / FS
     ref = GaussMarkov(1.0, tau_b).avar(np.array([tau]), FS)[0]
-    assert _gm_unit_avar(np.array([tau_b]), tau, FS)[0] == pytest.approx(ref, rel=1e-12)
+    assert gm_unit_avar(np.array([tau_b]), tau, FS)[0] == pytest.approx(ref, rel=1e-12)
 
 
 def test_fine_scale_is_the_overlapping_allan_variance_at_one_sample(record):
@@ -66,7 +65,7 @@ def test_counts_and_scaled_floats_give_the_same_statistic():
 def test_composite_nll_is_ml_i_likelihood_plus_the_fine_term_at_the_profiled_sigma_w(record):
     inc = integrate(record, FS, m=500, pattern="uniform")
     fine = fine_scale(record, FS)
-    problem = _CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
+    problem = CompositeProblem(inc, ParamSpec(parse_model("wn+gm")), fine)
     theta = np.array([[math.log((2e-5 / 1e-3) ** 2), math.log(60.0)], [math.log(1e-6), math.log(500.0)]])
     prof = problem.profile(theta)
     A = problem.unit_avar(theta)  # (K, 1): one fine scale
@@ -156,7 +155,7 @@ def test_profile_intervals_of_a_fit_at_its_bounds_raise_no_numpy_warnings():
 
 
 def test_study_reports_mli_f_and_single_start_outcomes():
-    from imustation.analysis.estimators.models import StandardModel
+    from imustation.analysis.estimators.models.standard import StandardModel
 
     fits = run_study(
         StandardModel(1e-3, 1e-4, 20.0),
@@ -191,7 +190,7 @@ def test_analyze_json_has_a_noise_model_block_with_the_mli_keys_plus_method(tmp_
 @pytest.mark.slow
 def test_monte_carlo_coverage_of_the_intervals():
     """40 records of 2 h: every 90 % interval covers the truth 75-100 % of the time (binomial 4 sigma)."""
-    from imustation.analysis.estimators.models import StandardModel
+    from imustation.analysis.estimators.models.standard import StandardModel
 
     fits = run_study(StandardModel(1e-3, 5e-5, 30.0), records=40, duration_s=7200.0, fs_hz=FS, estimators=("mli-f",))
     for row in summarize(fits):

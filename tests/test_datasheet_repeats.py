@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators.coefficients import ieee952_summary
-from imustation.analysis.estimators.model_choice import choose_model
+from imustation.analysis.estimators.selection.coefficients import ieee952_summary
+from imustation.analysis.estimators.selection.model_choice import choose_model
 from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.drivers.sim.filters import for_device
 from imustation.drivers.sim.sources import NoiseSource

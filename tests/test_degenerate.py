@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from imustation.analysis.estimators.screen import screen
+from imustation.analysis.estimators.selection.screen import screen
 from imustation.cli import cli
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter
 

@@ -7,7 +7,7 @@ import csv
 from click.testing import CliRunner
 
 from imustation.acquisition import load_config
-from imustation.analysis.estimators.reference import TABLE_IV
+from imustation.analysis.estimators.models.reference import TABLE_IV
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.drivers.sim import simulated_truth

@@ -13,6 +13,7 @@ import pytest
 
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.reports.analyzetable import results_table
 from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
 from imustation.analysis.reports.tables import (
     AT_BOUND,
@@ -25,7 +26,6 @@ from imustation.analysis.reports.tables import (
     table_latex,
     table_markdown,
 )
-from imustation.cli.analyze import results_table
 from imustation.units import G0, display_units, sensor_kind
 
 FS = 100.0
@@ -128,11 +128,11 @@ def test_a_noise_density_with_a_wide_interval_is_doubtful_for_sigma_w_and_n(anal
 def test_model_names_are_spelled_out_in_every_help():
     from click.testing import CliRunner
 
-    from imustation.analysis.estimators.noise_models import _TERM_ORDER
+    from imustation.analysis.estimators.models.noise_models import TERM_ORDER
     from imustation.analysis.pipeline.choices import MODEL_TERMS
     from imustation.cli import cli
 
-    assert set(MODEL_TERMS) == set(_TERM_ORDER)  # a new term code needs its words in the help
+    assert set(MODEL_TERMS) == set(TERM_ORDER)  # a new term code needs its words in the help
     for cmd in ("analyze", "report", "export", "fleet"):
         out = " ".join(CliRunner().invoke(cli, [cmd, "--help"]).output.split())
         for words in ("wn white rate noise", "gm first-order Gauss-Markov bias", "rw rate random walk",

@@ -10,7 +10,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from imustation.analysis.estimators.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, NoiseModel, RandomWalk, WhiteRate
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.reports.export import (

@@ -19,11 +19,11 @@ from imustation.analysis.pipeline.fleet import (
     FleetRow,
     device_key,
     flag_outliers,
-    fleet_rows,
     repeatability,
     robust_z,
 )
 from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks, run_tasks
+from imustation.analysis.reports.fleettable import fleet_rows
 from imustation.analysis.reports.tables import DOUBTFUL
 from imustation.cli import cli
 

@@ -13,10 +13,15 @@ import math
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators.model_choice import choose_model, flicker_cut, flicker_cuts
-from imustation.analysis.estimators.noise_models import NoiseModel, WhiteRate
-from imustation.analysis.estimators.paramspec import ParamSpec
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR, BiasInstability, flicker_times, flicker_weights
+from imustation.analysis.estimators.engine.paramspec import ParamSpec
+from imustation.analysis.estimators.models.noise_models import NoiseModel, WhiteRate
+from imustation.analysis.estimators.models.sensor_terms import (
+    FLICKER_FLOOR,
+    BiasInstability,
+    flicker_times,
+    flicker_weights,
+)
+from imustation.analysis.estimators.selection.model_choice import choose_model, flicker_cut, flicker_cuts
 
 
 def test_a_cut_at_a_decade_is_the_sum_started_there():
@@ -64,7 +69,7 @@ def test_cut_offs_tried_are_two_per_decade_up_to_one_second():
 
 def test_without_cut_offs_to_try_the_choice_goes_on_uncut(monkeypatch):
     """A record sampled at 1 Hz or slower has no cut-off to try (its sum starts at 1 s)."""
-    from imustation.analysis.estimators import model_choice
+    from imustation.analysis.estimators.selection import model_choice
 
     monkeypatch.setattr(model_choice, "flicker_cuts", lambda fs, duration: [])
     fs = 100.0
@@ -105,7 +110,7 @@ def test_fleet_takes_a_models_fit_that_passes_whether_cut_or_not():
     """A run's model fitted with and without a cut-off is one model for the fleet: the fit that passes."""
     from types import SimpleNamespace as NS
 
-    from imustation.analysis.pipeline.fleet import _by_model
+    from imustation.analysis.pipeline.fleet import by_model
 
     def cand(model, bic, passes, converged=True):
         return NS(result=NS(model=model, bic=bic, converged=converged), passes=passes)
@@ -113,7 +118,7 @@ def test_fleet_takes_a_models_fit_that_passes_whether_cut_or_not():
     uncut, cut = cand("wn+fl+rw", 100.0, False), cand("wn+fl+rw", 100.4, True)
     other = cand("wn+gm", 90.0, False)
     unconverged = cand("wn+gm+fl", 50.0, True, converged=False)
-    got = _by_model([other, uncut, cut, unconverged])
+    got = by_model([other, uncut, cut, unconverged])
     assert got == {"wn+fl+rw": cut, "wn+gm": other}
     # none passes: the smallest BIC
-    assert _by_model([uncut, cand("wn+fl+rw", 101.0, False)])["wn+fl+rw"] is uncut
+    assert by_model([uncut, cand("wn+fl+rw", 101.0, False)])["wn+fl+rw"] is uncut

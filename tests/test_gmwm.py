@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from imustation.analysis.estimators.allan import oadev
-from imustation.analysis.estimators.gmwm import GMWMResult, fit_gmwm, model_wv, wavelet_variance
-from imustation.analysis.estimators.mli import fit_mli
-from imustation.analysis.estimators.noise_models import (
+from imustation.analysis.estimators.classical.allan import oadev
+from imustation.analysis.estimators.ml.gmwm import GMWMResult, fit_gmwm, model_wv, wavelet_variance
+from imustation.analysis.estimators.ml.mli import fit_mli
+from imustation.analysis.estimators.models.noise_models import (
     GaussMarkov,
     NoiseModel,
     RandomWalk,
@@ -225,7 +225,7 @@ def test_analyze_method_both_json(tmp_path):
 
 
 def test_study_gmwm_column():
-    from imustation.analysis.estimators.models import StandardModel
+    from imustation.analysis.estimators.models.standard import StandardModel
 
     fits = run_study(StandardModel(1e-3, 1e-3, 20.0), records=2, duration_s=2000.0, fs_hz=FS, estimators=("gmwm",))
     assert [f.estimator for f in fits] == ["gmwm", "gmwm"]

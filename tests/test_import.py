@@ -166,6 +166,24 @@ def test_streamed_channels_equal_the_imported_run(tmp_path, fmt):
         assert ref[0].gaps == 1 and len(ref[0].segments) == 2  # the gap splits the record
 
 
+def test_streamed_channels_split_at_an_unlogged_hole(tmp_path):
+    """A hole the stamps show but no event logs splits a streamed record, as load_run splits a run file."""
+    from dataclasses import replace
+
+    from imustation.acquisition.importers import stream_recording
+    from imustation.analysis.pipeline.loaders import recording_channels
+
+    t, g, a = broken_record()
+    src = text_log(tmp_path, t, g, a)
+    dev = stream_recording(str(src), text={"time_col": None, "gyro_cols": None, "accel_cols": None}).devices
+    ((name, d),) = dev.items()
+    period = int(round(1e9 / d.spec.rate_hz))
+    t_ns = d.t_ns.copy()
+    t_ns[2500:] += 20 * period  # 20 samples missing, no event says so
+    got = recording_channels({name: replace(d, t_ns=t_ns)}, str(src), ["*/gyro/x"])
+    assert got[0].gaps == 1 and got[0].segments == [(0, 2000), (2000, 2500), (2500, len(t_ns))]
+
+
 @pytest.mark.parametrize("fmt", ["ros1", "csv"])
 def test_analyze_streams_a_recording_without_a_run_file(tmp_path, monkeypatch, fmt):
     import tempfile

@@ -1,5 +1,5 @@
 """The stage walk of ``--model auto`` with scripted fits and verdicts (issue 22, "Models ... chosen
-automatically"): the rule of analysis/estimators/model_choice.py on its own, without depending
+automatically"): the rule of analysis/estimators/selection/model_choice.py on its own, without depending
 on what a record happens to give.
 
 The fits and the adequacy verdicts are replaced by a script (BIC and "fits" per model name);
@@ -15,8 +15,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators import model_choice
-from imustation.analysis.estimators.adequacy import FITS, NO_FIT
+from imustation.analysis.estimators.selection import model_choice
+from imustation.analysis.estimators.selection.adequacy import FITS, NO_FIT
 
 
 @dataclass(frozen=True)

@@ -7,23 +7,23 @@ import math
 import numpy as np
 import pytest
 
-from imustation.analysis.estimators.adequacy import model_adequacy
-from imustation.analysis.estimators.allan import oadev
-from imustation.analysis.estimators.coefficients import ieee952_summary
-from imustation.analysis.estimators.composite import fine_scale, fit_composite, fit_composite_data
-from imustation.analysis.estimators.finescale import FilterHint, allan_corr, fine_statistics
-from imustation.analysis.estimators.fitting import Problem, full_nll
-from imustation.analysis.estimators.kalman import Layout, kalman_profile
-from imustation.analysis.estimators.model_choice import choose_model
-from imustation.analysis.estimators.noise_models import NoiseModel, TermBlock, WhiteRate, parse_model, van_loan
-from imustation.analysis.estimators.paramspec import ParamSpec
-from imustation.analysis.estimators.pattern import integrate
-from imustation.analysis.estimators.sensor_terms import (
+from imustation.analysis.estimators.classical.allan import oadev
+from imustation.analysis.estimators.engine.fitting import Problem, full_nll
+from imustation.analysis.estimators.engine.kalman import Layout, kalman_profile
+from imustation.analysis.estimators.engine.paramspec import ParamSpec
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import fine_scale, fit_composite, fit_composite_data
+from imustation.analysis.estimators.ml.finescale import FilterHint, allan_corr, fine_statistics
+from imustation.analysis.estimators.models.noise_models import NoiseModel, TermBlock, WhiteRate, parse_model, van_loan
+from imustation.analysis.estimators.models.sensor_terms import (
     FLICKER_FLOOR,
     BiasInstability,
     LowPass,
     flicker_times,
 )
+from imustation.analysis.estimators.selection.adequacy import model_adequacy
+from imustation.analysis.estimators.selection.coefficients import ieee952_summary
+from imustation.analysis.estimators.selection.model_choice import choose_model
 from imustation.errors import InputError
 from tests.realistic_records import filtered_white, record
 
@@ -206,7 +206,7 @@ def test_auto_on_filtered_devices_sigma_w_within_one_percent_and_nothing_at_a_bo
 
 
 def test_auto_on_the_paper_model_keeps_the_paper_model():
-    from imustation.analysis.estimators.noise_models import standard
+    from imustation.analysis.estimators.models.noise_models import standard
 
     fs = 10.0  # 12 h: the Gauss-Markov roll-off beyond tau_b is seen over two decades
     x = standard(1e-3, 2e-5, 60.0, 0.01).simulate(int(12 * 3600 * fs), fs, 12)
@@ -217,7 +217,7 @@ def test_auto_on_the_paper_model_keeps_the_paper_model():
 
 
 def test_choice_checks_candidates_with_the_adequacy_test_from_the_filter_memory_on():
-    from imustation.analysis.estimators.noise_models import standard
+    from imustation.analysis.estimators.models.noise_models import standard
 
     fs = 100.0
     truth = standard(1e-3, 2e-5, 60.0)
@@ -243,8 +243,8 @@ def test_choice_checks_candidates_with_the_adequacy_test_from_the_filter_memory_
 
 @pytest.mark.parametrize("device", ["bmx055", "mpu9150", "adis16448"])
 def test_ieee_and_gmwm_beyond_the_filter_memory_get_sigma_w_within_one_percent(device):
-    from imustation.analysis.estimators.gmwm import fit_gmwm
-    from imustation.analysis.estimators.ieee import ieee_coefficients
+    from imustation.analysis.estimators.classical.ieee import ieee_coefficients
+    from imustation.analysis.estimators.ml.gmwm import fit_gmwm
 
     x, fs = record(device, 2, SIGMA_W, B=1.5e-5, K=2e-7, seed=3)
     allan = oadev(x, fs)
@@ -275,8 +275,8 @@ def test_filter_hints_from_device_settings():
 
 
 def test_model_help_names_every_term_code():
-    from imustation.analysis.estimators import model_choice
-    from imustation.analysis.estimators.noise_models import TERM_CODES
+    from imustation.analysis.estimators.models.noise_models import TERM_CODES
+    from imustation.analysis.estimators.selection import model_choice
     from imustation.analysis.pipeline.choices import MODEL_HELP, PAPER_MODEL
 
     # the CLI's vocabulary loads without numpy, so it names the paper's model on its own: the same one
@@ -323,7 +323,7 @@ def test_repeated_recordings_of_one_device_stay_inside_the_stated_intervals():
 
 
 def test_block_allan_variances_equal_the_allan_variance_of_each_block():
-    from imustation.analysis.estimators.allan import block_oavar
+    from imustation.analysis.estimators.classical.allan import block_oavar
 
     x, fs = record("none", 0.1, 1e-3, seed=1)
     n = len(x)

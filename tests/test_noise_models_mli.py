@@ -17,11 +17,13 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.analysis import StandardModel
-from imustation.analysis.estimators.fitting import ParamSpec, Problem, profiled_nll
-from imustation.analysis.estimators.kalman import Layout, kalman_profile
-from imustation.analysis.estimators.ml_rate import fit_ml_rate, rate_filter
-from imustation.analysis.estimators.mli import compare_models, fit_integrated, fit_mli
-from imustation.analysis.estimators.noise_models import (
+from imustation.analysis.estimators.engine.fitting import ParamSpec, Problem, profiled_nll
+from imustation.analysis.estimators.engine.kalman import Layout, kalman_profile
+from imustation.analysis.estimators.engine.pattern import integrate, pattern_avar
+from imustation.analysis.estimators.engine.scan import standard_profile
+from imustation.analysis.estimators.ml.ml_rate import fit_ml_rate, rate_filter
+from imustation.analysis.estimators.ml.mli import compare_models, fit_integrated, fit_mli
+from imustation.analysis.estimators.models.noise_models import (
     GaussMarkov,
     NoiseModel,
     Quantization,
@@ -33,8 +35,6 @@ from imustation.analysis.estimators.noise_models import (
     parse_model,
     standard,
 )
-from imustation.analysis.estimators.pattern import integrate, pattern_avar
-from imustation.analysis.estimators.scan import standard_profile
 from imustation.analysis.pipeline.study import markdown, run_study, summarize
 from imustation.cli import cli
 from imustation.errors import InputError
@@ -392,7 +392,7 @@ def test_sigma_w_interval_coverage_small():
 @pytest.mark.slow
 def test_interval_coverage_over_100_seeds_of_12h():
     """Coverage of all three 90 % intervals over 100 seeds of 12 h BMX055-like records: 80-98 %."""
-    from imustation.analysis.estimators.reference import TABLE_III_MEAN as T
+    from imustation.analysis.estimators.models.reference import TABLE_III_MEAN as T
 
     fits = run_study(StandardModel(T.sigma_w, T.sigma_b, T.tau_b), records=100, duration_s=12 * 3600)
     for row in summarize(fits):

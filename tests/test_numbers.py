@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from imustation.analysis.estimators.adequacy import Adequacy
+from imustation.analysis.estimators.selection.adequacy import Adequacy
 from imustation.analysis.pipeline.verdict import Interval, data_verdict
 from imustation.analysis.reports.numbers import factor, interval, number, p_value
 

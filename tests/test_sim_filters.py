@@ -12,8 +12,8 @@ from scipy.stats import chi2
 
 from imustation.acquisition import capture
 from imustation.acquisition.config import parse_config
-from imustation.analysis.estimators.models import StandardNoiseStream
-from imustation.analysis.estimators.reference import TABLE_IV
+from imustation.analysis.estimators.models.reference import TABLE_IV
+from imustation.analysis.estimators.models.standard import StandardNoiseStream
 from imustation.configs import config_path
 from imustation.drivers.sim import device_sources, filters
 from imustation.drivers.sim.sources import NoiseSource

@@ -14,7 +14,7 @@ from procs import wait_for_file
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.config import parse_config
-from imustation.acquisition.workers import _picklable, bus_groups, partition
+from imustation.acquisition.workers import bus_groups, partition, picklable
 from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.errors import BusError, ChipIdMismatch, DeviceError, DiskFullError, InputError
@@ -231,6 +231,6 @@ def test_a_worker_device_pulled_and_replugged_is_logged_and_resumed(tmp_path):
 
 def test_worker_errors_that_do_not_pickle_keep_their_class_family_and_message():
     exc = ChipIdMismatch("ADIS16448", 0x4040, 0xFFFF, "cp2130:")
-    twin = _picklable(exc)
+    twin = picklable(exc)
     assert isinstance(twin, DeviceError) and str(twin) == str(exc)
-    assert _picklable(BusError("gone")) is not None and str(_picklable(BusError("gone"))) == "gone"
+    assert picklable(BusError("gone")) is not None and str(picklable(BusError("gone"))) == "gone"

@@ -3,7 +3,7 @@
 import pytest
 
 from imustation.clock import VirtualClock
-from imustation.drivers.bus.spi import open_spi
+from imustation.drivers.bus.spi_open import open_spi
 from imustation.drivers.bus.url import parse_bus_url, parse_usb_target
 from imustation.drivers.sim.faults import FaultPlan, FaultSpec
 from imustation.drivers.sim.spi_bridges import CP2130Sim, MCP2210Sim

@@ -53,23 +53,23 @@ for args in calls:
     assert _loaded_after(code, HEAVY) == []
 
 
-@pytest.mark.parametrize("module", ["imustation.analysis.estimators.models", "imustation.drivers.sim"])
+@pytest.mark.parametrize("module", ["imustation.analysis.estimators.models.standard", "imustation.drivers.sim"])
 def test_simulators_skip_the_estimators(module):
     assert _loaded_after(f"import {module}", ESTIMATORS) == []
 
 
 def test_noise_models_skip_scipy_stats():
-    assert _loaded_after("import imustation.analysis.estimators.models", ["scipy.stats"]) == []
+    assert _loaded_after("import imustation.analysis.estimators.models.standard", ["scipy.stats"]) == []
 
 
 def test_public_analysis_names_resolve():
     from imustation.analysis import StandardModel, fit_mli, oadev
 
     assert (oadev.__module__, fit_mli.__module__) == (
-        "imustation.analysis.estimators.allan",
-        "imustation.analysis.estimators.mli",
+        "imustation.analysis.estimators.classical.allan",
+        "imustation.analysis.estimators.ml.mli",
     )
-    assert StandardModel.__module__ == "imustation.analysis.estimators.models"
+    assert StandardModel.__module__ == "imustation.analysis.estimators.models.standard"
     assert sorted(analysis.__all__) == sorted(analysis._ORIGIN)
     for name in analysis.__all__:
         value = getattr(analysis, name)
@@ -95,12 +95,13 @@ def test_library_modules_use_the_cli_vocabularies():
     from imustation.analysis.pipeline import channel as pipeline
     from imustation.analysis.pipeline import choices, study
     from imustation.analysis.reports import export
+    from imustation.units import TIME_UNITS
 
     assert pipeline.ESTIMATORS is choices.ESTIMATORS and pipeline.METHODS is choices.METHODS
     assert pipeline.DEFAULT_ESTIMATOR is choices.DEFAULT_ESTIMATOR
     assert export.FORMATS is choices.EXPORT_FORMATS and export.SOURCES is choices.EXPORT_SOURCES
     assert export.RW_CONVERSIONS is choices.RW_CONVERSIONS
-    assert study.ESTIMATORS is choices.STUDY_ESTIMATORS and logs.TIME_UNITS is choices.TIME_UNITS
+    assert study.ESTIMATORS is choices.STUDY_ESTIMATORS and logs.TIME_UNITS is TIME_UNITS
 
 
 def test_analyze_options_carry_the_library_values():

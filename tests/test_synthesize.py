@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from imustation.acquisition import load_config
 from imustation.acquisition.synthesize import synthesize
-from imustation.analysis.estimators.composite import fit_composite
+from imustation.analysis.estimators.ml.composite import fit_composite
 from imustation.analysis.pipeline.loaders import load_run
 from imustation.cli import cli
 from imustation.configs import config_path

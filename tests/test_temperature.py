@@ -8,15 +8,14 @@ import re
 import numpy as np
 import pytest
 
-from imustation.analysis.reports.plots import bias_track
-from imustation.analysis.reports.temperature import (
+from imustation.analysis.estimators.classical.temperature import (
     detect_warmup,
-    device_temperature,
-    device_temperature_record,
     fit_tempco,
     fit_warmup,
     reading_step,
 )
+from imustation.analysis.pipeline.loaders import device_temperature, device_temperature_record
+from imustation.analysis.reports.plots import bias_track
 from imustation.errors import InputError
 
 
@@ -185,8 +184,8 @@ def test_device_temperature_from_run(sim_run):
 
 
 def test_holm_and_the_listed_coefficients():
+    from imustation.analysis.estimators.classical.temperature import TempcoResult, holm
     from imustation.analysis.reports.tables import TempcoRow, tempco_csv, tempco_markdown
-    from imustation.analysis.reports.temperature import TempcoResult, holm
 
     # step-down: 0.005 <= 0.05/4, 0.01 <= 0.05/3, then 0.03 > 0.05/2 stops
     assert holm(np.array([0.01, 0.04, 0.03, 0.005]), 0.05).tolist() == [True, False, False, True]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from imustation.analysis.estimators.noise_models import standard
+from imustation.analysis.estimators.models.noise_models import standard
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.cli import cli

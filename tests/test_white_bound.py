@@ -4,7 +4,7 @@ A bias instability that dominates from a few filter memories on (the MPU-9150 of
 datasheet profile) leaves sigma_w resting on how the slow terms continue below the fine
 scales, which nothing measures. The Allan variances at k and 2k samples beyond the filter's
 memory still bound sigma_w^2 from above with no model of them
-(analysis/estimators/finescale.py white_bound), and the stated interval reaches that bound.
+(analysis/estimators/ml/finescale.py white_bound), and the stated interval reaches that bound.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ import math
 import numpy as np
 from scipy.signal import lfilter
 
-from imustation.analysis.estimators.composite import fit_composite_data
-from imustation.analysis.estimators.finescale import fine_statistics, octave_avars, white_bound
-from imustation.analysis.estimators.fitting import Z90
-from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.engine.fitting import Z90
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import fit_composite_data
+from imustation.analysis.estimators.ml.finescale import fine_statistics, octave_avars, white_bound
 
 FS = 200.0
 N = 2_000_000

@@ -16,8 +16,8 @@ from itertools import islice
 import numpy as np
 
 from imustation.acquisition.importers.messages import BLOCK_ROWS, Rows
-from imustation.analysis.pipeline.choices import TIME_UNITS
 from imustation.errors import InputError
+from imustation.units import TIME_UNITS
 
 TEXT_EXTS = (".csv", ".tsv", ".txt", ".dat", ".log")
 

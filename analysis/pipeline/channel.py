@@ -7,18 +7,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imustation.analysis.estimators.adequacy import Adequacy
-from imustation.analysis.estimators.adequacy import fit_adequacy as result_adequacy
-from imustation.analysis.estimators.allan import AllanResult, oadev
-from imustation.analysis.estimators.coefficients import ieee952_summary
-from imustation.analysis.estimators.composite import fit_composite
-from imustation.analysis.estimators.fitting import MLiResult
-from imustation.analysis.estimators.gmwm import fit_gmwm
-from imustation.analysis.estimators.ieee import IEEECoefficients, ieee_coefficients
-from imustation.analysis.estimators.mli import compare_models, fit_integrated
-from imustation.analysis.estimators.model_choice import ModelChoice, as_choice_result, choose_model
-from imustation.analysis.estimators.pattern import integrate
-from imustation.analysis.estimators.screen import screen
+from imustation.analysis.estimators.classical.allan import AllanResult, oadev
+from imustation.analysis.estimators.classical.ieee import IEEECoefficients, ieee_coefficients
+from imustation.analysis.estimators.engine.fitting import MLiResult
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import fit_composite
+from imustation.analysis.estimators.ml.gmwm import fit_gmwm
+from imustation.analysis.estimators.ml.mli import compare_models, fit_integrated
+from imustation.analysis.estimators.selection.adequacy import Adequacy
+from imustation.analysis.estimators.selection.adequacy import fit_adequacy as result_adequacy
+from imustation.analysis.estimators.selection.coefficients import ieee952_summary
+from imustation.analysis.estimators.selection.model_choice import ModelChoice, as_choice_result, choose_model
+from imustation.analysis.estimators.selection.screen import screen
 from imustation.analysis.pipeline.choices import (
     DEFAULT_ESTIMATOR,
     DEFAULT_METHOD,
@@ -33,6 +33,7 @@ from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
 from imustation.errors import InputError
+from imustation.units import sensor_kind
 
 DOC_FORMAT = "imustation-analysis"
 DOC_VERSION = 1
@@ -82,7 +83,7 @@ class ChannelAnalysis:
 
 class DegenerateChannel(InputError):
     """A channel with nothing to characterise (constant, saturated, stuck, all quantisation):
-    skipped with its reason (:mod:`imustation.analysis.estimators.screen`); ``kind`` names which."""
+    skipped with its reason (:mod:`imustation.analysis.estimators.selection.screen`); ``kind`` names which."""
 
     def __init__(self, message: str, kind: str) -> None:
         super().__init__(message)
@@ -262,3 +263,16 @@ def _noise_blocks(res: ChannelAnalysis) -> dict:
 def analysis_document(results: list[ChannelAnalysis]) -> dict:
     """The JSON document of docs/analysis-json.md."""
     return {"format": DOC_FORMAT, "version": DOC_VERSION, "channels": [channel_document(r) for r in results]}
+
+
+def split_channel_id(ch) -> tuple[str, str, str]:
+    """(device, sensor, axis) of a ``device/gyro|accel/axis`` id, else the sensor from the units."""
+    parts = ch.id.split("/")
+    kind = sensor_kind(ch.units, ch.id)
+    if kind is None:
+        raise InputError(
+            f"channel {ch.id}: units {ch.units!r} name neither a gyroscope (rad/s) nor an accelerometer (m/s^2)"
+        )
+    if len(parts) >= 3 and parts[-2] == kind:
+        return "/".join(parts[:-2]), kind, parts[-1]
+    return ch.id, kind, "-"

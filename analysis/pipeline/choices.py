@@ -6,14 +6,14 @@ numpy or scipy are loaded; the modules that act on them import them from here.
 
 from __future__ import annotations
 
-#: ``--model auto``: the simplest model of the family that fits (analysis/estimators/model_choice.py)
+#: ``--model auto``: the simplest model of the family that fits (analysis/estimators/selection/model_choice.py)
 MODEL_AUTO = "auto"
 #: the noise model fitted unless ``--model`` says otherwise (analyze, report, export, fleet)
 DEFAULT_MODEL = MODEL_AUTO
 #: the paper's standard model, white rate noise + one Gauss-Markov bias (eq. 22), always reported
 #: beside an automatic choice
 PAPER_MODEL = "wn+gm"
-#: the term codes of a model name (analysis/estimators/noise_models.py parse_model), spelled out
+#: the term codes of a model name (analysis/estimators/models/noise_models.py parse_model), spelled out
 MODEL_TERMS = {
     "wn": "white rate noise (angle random walk, N = sigma_w; required)",
     "wa": "white angle noise (quantisation, Q = sigma_a)",
@@ -73,6 +73,3 @@ DEFAULT_STUDY_ESTIMATORS = ("mli-log",)
 EXPORT_FORMATS = ("kalibr", "openvins", "vins", "orbslam3")
 EXPORT_SOURCES = ("model", "mli", "ieee")
 RW_CONVERSIONS = ("diffusion", "tau_b")
-
-#: time units of text logs -> nanoseconds (``import --time-unit``, acquisition/importers/logs.py)
-TIME_UNITS = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}

@@ -1,10 +1,10 @@
 """What a run file's stored device settings say about the device's output filter.
 
 The model family carries a device low-pass filter as one number estimated from the
-data (:mod:`imustation.analysis.estimators.sensor_terms`); the settings only say
+data (:mod:`imustation.analysis.estimators.models.sensor_terms`); the settings only say
 *whether* a filter is configured and roughly how long its output samples stay
 correlated, so the fine-scale test starts beyond that memory
-(:class:`~imustation.analysis.estimators.finescale.FilterHint`). The memory is
+(:class:`~imustation.analysis.estimators.ml.finescale.FilterHint`). The memory is
 taken as ``0.5 / bandwidth`` for the chips whose datasheets give a -3 dB
 bandwidth (a second-order low-pass's autocorrelation has decayed to a few per cent
 there; the data test then moves on until the noise is white up to the filter's
@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from imustation.analysis.estimators.finescale import FilterHint
+from imustation.analysis.estimators.ml.finescale import FilterHint
 
 #: drivers whose settings carry the -3 dB bandwidth of the chip's digital low-pass (Hz)
 BANDWIDTH_DRIVERS = ("bmx055", "bmx055_accel", "mpu9150", "mpu6500")

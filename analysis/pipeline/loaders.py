@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import fnmatch
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -254,3 +255,108 @@ def load_inputs(paths: Sequence[str], globs: Sequence[str] = (), fs_hz: float | 
         sel = f" matching {', '.join(globs)}" if globs else ""
         raise NoChannelsError(f"no channels{sel} in {', '.join(paths)}")
     return channels
+
+
+def recording_channels(devices: Mapping[str, Any], path: str, globs: Sequence[str] = ()) -> list[Channel]:
+    """The rate channels of a field recording streamed into memory, as :func:`load_run` gives them
+    for the recording imported (ids, rates, units, samples, gap count, segments, metadata), except
+    ``source``: ``path``, the recording.
+
+    ``devices``: name -> streamed device (``spec``, ``t_ns``, ``columns``, ``events``, as
+    :func:`imustation.acquisition.importers.stream_recording` returns them; duck-typed, so the
+    analysis imports nothing from acquisition). Split at every hole, as :func:`load_run`:
+    those the stamps show and those the loss events locate (:func:`record_breaks`).
+    """
+    out = []
+    # devices and channels in the order a run file lists them (by name): the same table as the imported run's
+    for name, dev in sorted(devices.items()):
+        spec = dev.spec
+        breaks = [ev for ev in dev.events if ev.kind in ("gap", "overrun")]
+        segments = None
+        for ch in sorted(spec.channels, key=lambda c: c.name):
+            if ch.name not in RATE_CHANNELS or not ch.axes:
+                continue
+            for j, axis in enumerate(ch.axes):
+                cid = f"{name}/{ch.name}/{axis}"
+                if globs and not any(fnmatch.fnmatchcase(cid, g) for g in globs):
+                    continue
+                if segments is None:
+                    at = record_breaks(dev.t_ns, breaks, spec.rate_hz)
+                    segments = segments_from_breaks(at, len(dev.t_ns))
+                meta = {
+                    "device": name,
+                    "driver": spec.driver,
+                    "model": spec.model,
+                    "identity": spec.identity,
+                    "station": "import",
+                    "settings": {"rate_hz": spec.rate_hz, **spec.settings},
+                }
+                data = dev.columns[ch.name][j]
+                out.append(Channel(cid, spec.rate_hz, ch.units, data, ch.scale, source=path, gaps=len(breaks),
+                                   meta=meta, segments=list(segments)))  # fmt: skip
+    return out
+
+
+#: readings per second kept when a device's temperature channel is read (block means)
+TEMP_READ_HZ = 1.0
+
+
+def _t0_ns(run) -> int:
+    firsts = [int(run.dataset(d, "t")[0]) for d, info in run.devices.items() if info.n > 0]
+    return min(firsts) if firsts else 0
+
+
+@dataclass(frozen=True)
+class TemperatureRecord:
+    """A device's temperature: ``t_s`` (s from the run's first sample), ``temp_c`` (°C, block means
+    at ~:data:`TEMP_READ_HZ`) and ``step_c``, the resolution of its raw readings (K,
+    :func:`~imustation.analysis.estimators.classical.temperature.reading_step` of the unaveraged
+    readings: the block means hide the quantisation)."""
+
+    t_s: np.ndarray
+    temp_c: np.ndarray
+    step_c: float
+
+
+def device_temperature_record(path: str, device: str) -> TemperatureRecord:
+    """A device's ``temp`` channel as a :class:`TemperatureRecord`.
+
+    Raises :class:`InputError` if the device has no temperature channel.
+    """
+    from imustation.analysis.estimators.classical.temperature import reading_step
+
+    with open_series(path) as run:
+        info = run.devices.get(device)
+        if info is None or "temp" not in info.channels:
+            raise InputError(f"{path}: device {device} has no temperature channel")
+        ch = info.channels["temp"]
+        n = run.rows(device)
+        m = max(1, int(round(info.rate_hz / TEMP_READ_HZ)))
+        k = n // m
+        if k == 0:
+            raise InputError(f"{path}: device {device} has fewer than {m} temperature samples")
+        raw = run.read(device, "temp", 0, k * m).astype(np.float64)
+        step = reading_step(raw.reshape(len(raw), -1)[:, 0]) * abs(ch.scale)
+        raw = raw.reshape(k, m, -1).mean(axis=(1, 2)) if raw.ndim > 1 else raw.reshape(k, m).mean(axis=1)
+        t = run.read(device, "t", 0, k * m).astype(np.int64).reshape(k, m)[:, m // 2]
+        t0 = _t0_ns(run)
+    return TemperatureRecord((t - t0) * 1e-9, raw * ch.scale + ch.offset, step)
+
+
+def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
+    """A device's ``temp`` channel: times (s from the run's first sample) and °C, block-averaged to ~1 Hz.
+
+    Raises :class:`InputError` if the device has no temperature channel.
+    """
+    rec = device_temperature_record(path, device)
+    return rec.t_s, rec.temp_c
+
+
+def thermometer_temperature(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Thermometer ``name`` (e.g. MCP9804): times (s from the run's first sample) and °C."""
+    with open_series(path) as run:
+        if name not in run.thermometers:
+            raise InputError(f"{path}: no thermometer {name} (have: {', '.join(run.thermometers) or 'none'})")
+        t, c = run.temperatures(name)
+        t0 = _t0_ns(run)
+    return (np.asarray(t, dtype=np.int64) - t0) * 1e-9, np.asarray(c, dtype=np.float64)

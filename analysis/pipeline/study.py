@@ -33,14 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.estimators.composite import DEFAULT_M as F_DEFAULT_M
-from imustation.analysis.estimators.composite import fine_scale, fit_composite_data
-from imustation.analysis.estimators.gmwm import fit_gmwm
-from imustation.analysis.estimators.ml_rate import fit_ml_rate
-from imustation.analysis.estimators.mli import fit_integrated
-from imustation.analysis.estimators.models import StandardModel
-from imustation.analysis.estimators.noise_models import standard
-from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.composite import DEFAULT_M as F_DEFAULT_M
+from imustation.analysis.estimators.ml.composite import fine_scale, fit_composite_data
+from imustation.analysis.estimators.ml.gmwm import fit_gmwm
+from imustation.analysis.estimators.ml.ml_rate import fit_ml_rate
+from imustation.analysis.estimators.ml.mli import fit_integrated
+from imustation.analysis.estimators.models.noise_models import standard
+from imustation.analysis.estimators.models.standard import StandardModel
 from imustation.analysis.pipeline.choices import DEFAULT_STUDY_ESTIMATORS
 from imustation.analysis.pipeline.choices import STUDY_ESTIMATORS as ESTIMATORS
 from imustation.errors import InputError

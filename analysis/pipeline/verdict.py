@@ -270,7 +270,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
     :data:`DEFAULT_NEED` the fitted model has.
 
     Warm-up and temperature span come from the device's temperature channel
-    when ``ch`` is a run-file channel that has one (:func:`.temperature.device_temperature`).
+    when ``ch`` is a run-file channel that has one (:func:`.loaders.device_temperature`).
     """
     duration = ch.n / ch.fs_hz
     tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
@@ -312,8 +312,8 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None) -> Verdic
 def _warmup_and_span(path: str, device: str, mtime_ns: int, cut_s: float) -> tuple[float, float, str]:
     """(end of the warm-up ``--warmup auto`` cuts s, temperature span K after it and after ``cut_s``,
     warm-up state) of a device (:func:`.warmup.auto_warmup`); NaN and ``""`` without a temperature channel."""
+    from imustation.analysis.pipeline.loaders import device_temperature_record
     from imustation.analysis.pipeline.warmup import auto_warmup
-    from imustation.analysis.reports.temperature import device_temperature_record
     from imustation.errors import InputError
 
     state, _, end = auto_warmup(path, device, mtime_ns)

@@ -4,10 +4,11 @@
 record for the same option, so they give the same numbers for the same channel:
 
 * ``auto`` (the default everywhere): the device's own temperature decides
-  (:func:`.temperature.fit_warmup`: a real temperature change of many reading steps and a fitted
-  transient); a warm-up that settles inside the record is cut up to its end; nothing is cut
-  for no warm-up, for a record still warming up at its end (nothing settled would be left) or
-  too short to tell, nor for a device without a temperature channel;
+  (:func:`~imustation.analysis.estimators.classical.temperature.fit_warmup`: a real temperature
+  change of many reading steps and a fitted transient); a warm-up that settles inside the
+  record is cut up to its end; nothing is cut for no warm-up, for a record still warming up
+  at its end (nothing settled would be left) or too short to tell, nor for a device without
+  a temperature channel;
 * ``0`` / ``none``: nothing is cut;
 * a duration (``20m``, ``1h``): that much is cut from every device.
 
@@ -53,8 +54,9 @@ def check_warmup(option: str) -> float | None:
 class WarmupCut:
     """What ``--warmup`` cuts from one device: ``cut_s`` seconds from the start of its record;
     ``option`` the option's value, ``state`` what ``auto`` found (the warm-up fit's state,
-    :data:`.temperature.WARMUP_STATES`; "" for a fixed cut or without a temperature channel),
-    ``found`` the warm-up fit in words and ``end_s`` the warm-up's end it found (NaN when none)."""
+    :data:`~imustation.analysis.estimators.classical.temperature.WARMUP_STATES`; "" without a
+    temperature channel), ``found`` the warm-up fit in words and ``end_s`` the warm-up's end it found
+    (NaN when none)."""
 
     device: str
     option: str
@@ -99,7 +101,8 @@ def auto_warmup(path: str, device: str, mtime_ns: int) -> tuple[str, str, float]
     """(state, description, end s) of the warm-up fit of a device's temperature (``mtime_ns``: the
     file's version, the cache key); ("", "no temperature channel", NaN) without one. Cached: every
     channel of a device asks."""
-    from imustation.analysis.reports.temperature import device_temperature_record, fit_warmup
+    from imustation.analysis.estimators.classical.temperature import fit_warmup
+    from imustation.analysis.pipeline.loaders import device_temperature_record
 
     try:
         rec = device_temperature_record(path, device)

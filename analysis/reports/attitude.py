@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.estimators.noise_models import GaussMarkov, NoiseModel, WhiteAngle
+from imustation.analysis.estimators.models.noise_models import GaussMarkov, NoiseModel, WhiteAngle
 from imustation.errors import InputError
 
 

@@ -68,16 +68,17 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
-from imustation.analysis.estimators.adequacy import NO_FIT
-from imustation.analysis.estimators.noise_models import GaussMarkov
-from imustation.analysis.estimators.sensor_terms import FLICKER_FLOOR
-from imustation.analysis.pipeline.channel import ChannelAnalysis
+from imustation.analysis.estimators.models.noise_models import GaussMarkov
+from imustation.analysis.estimators.models.sensor_terms import FLICKER_FLOOR
+from imustation.analysis.estimators.selection.adequacy import NO_FIT
+from imustation.analysis.pipeline.channel import ChannelAnalysis, DegenerateChannel, analyze_channel
 from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
 from imustation.analysis.pipeline.choices import RW_CONVERSIONS
+from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.reports.numbers import interval
 from imustation.analysis.reports.tables import UNIDENTIFIED_RATIO, density_flag
 from imustation.errors import InputError
@@ -423,6 +424,70 @@ def _units() -> list[str]:
     ]
 
 
+def device_channels(channels: Sequence[Channel], device: str | None, kind: str, path: str) -> list[Channel]:
+    """Channels of ``kind`` ('gyro'/'accel') of ``device``; the only device with them when not named."""
+    by_dev: dict[str, list] = {}
+    for ch in channels:
+        if ch.id.split("/")[1] == kind:
+            by_dev.setdefault(ch.meta["device"], []).append(ch)
+    if device is not None:
+        return by_dev.get(device, [])
+    if len(by_dev) > 1:
+        opt = "--device" if kind == "gyro" else "--accel-device"
+        raise InputError(f"{path}: {kind} channels on {', '.join(sorted(by_dev))}; choose one with {opt}")
+    return next(iter(by_dev.values()), [])
+
+
+def export_channels(
+    channels: Sequence[Channel], run: str, *, device: str | None, accel_device: str | None, gyro_only: bool
+) -> tuple[list[Channel], list[Channel]]:
+    """The (gyroscope, accelerometer) channels of run file ``run`` an export fits: ``device``'s gyro
+    (the only device with one when None) and ``accel_device``'s accelerometer (default: the gyro's
+    device, else the only device with one, e.g. the BMX055's separate accelerometer die); none with
+    ``gyro_only``. :class:`InputError` when a sensor has no channels."""
+    gyros = device_channels(channels, device, "gyro", run)
+    if not gyros:
+        raise InputError(f"{run}: no gyroscope channels" + (f" on device {device}" if device else ""))
+    accels = [] if gyro_only else device_channels(channels, accel_device or gyros[0].meta["device"], "accel", run)
+    if accel_device is None and not accels and not gyro_only:
+        accels = device_channels(channels, None, "accel", run)  # e.g. the BMX055's separate accelerometer die
+    if not accels and not gyro_only:
+        raise InputError(
+            f"{run}: no accelerometer channels"
+            + (f" on device {accel_device}" if accel_device else "")
+            + "; name one with --accel-device or pass --gyro-only"
+        )
+    return gyros, accels
+
+
+def fit_axes(
+    chs: Sequence[Channel],
+    kind: str,
+    run: str,
+    model: str,
+    skipped: list[str],
+    note: Callable[[str], None] = lambda line: None,
+) -> list[ChannelAnalysis]:
+    """Analyse every axis of one sensor (``kind``: 'gyroscope'/'accelerometer') with ``model``.
+
+    An axis with nothing to characterise is skipped (its reason appended to ``skipped`` and
+    passed to ``note``, with one "fitting ..." line per axis) so the sensor's other axes are
+    exported; :class:`InputError` when every axis of the sensor was skipped.
+    """
+    out = []
+    for ch in chs:
+        note(f"fitting {ch.id} ({ch.n} samples) ...")
+        try:
+            out.append(analyze_channel(ch, model=model))
+        except DegenerateChannel as exc:  # the sensor's other axes are exported
+            note(f"warning: {exc}")
+            skipped.append(str(exc))
+        ch.release()
+    if chs and not out:
+        raise InputError(f"{run}: every {kind} axis was skipped ({'; '.join(skipped)})")
+    return out
+
+
 def export_text(
     gyro: SensorNoise,
     accel: SensorNoise | None,
@@ -432,9 +497,10 @@ def export_text(
     g_norm: float = G0,
     origin: str = "",
     skipped: Sequence[str] = (),
+    warmup: Sequence[str] = (),
 ) -> str:
     """The file for ``fmt``: keys of :func:`export_dict`, with comments naming units, source and axes
-    (and the axes ``skipped``, each a sentence with its reason)."""
+    (and the axes ``skipped``, each a sentence with its reason, and the ``warmup`` cut per device)."""
     d = export_dict(gyro, accel, fmt, topic=topic, g_norm=g_norm)
     how = (
         "IEEE-952 Allan fit: noise density = N, random walk = K"
@@ -443,6 +509,7 @@ def export_text(
         "docs/reports.md)"
     )
     comments = [f"imustation export --format {fmt}" + (f" of {origin}" if origin else ""), *_units(), how]
+    comments += [f"warm-up {w}" for w in warmup]
     for s in (gyro, accel):
         if s is not None and s.inflated:
             comments.append(

@@ -3,7 +3,7 @@
 :func:`write_fleet_report` turns the per-channel analyses of many runs (and the runs or
 channels that failed) into fleet.csv, fleet.md, fleet.html (self-contained: the Allan
 figure embedded) and fleet_allan.png, with repeatability per device and outliers
-against the fleet (the statistics are :mod:`imustation.analysis.pipeline.fleet`'s).
+against the fleet (the statistics are :mod:`imustation.analysis.pipeline.fleet`'s, the tables :mod:`.fleettable`'s).
 """
 
 from __future__ import annotations
@@ -22,13 +22,11 @@ from imustation.analysis.pipeline.fleet import (
     FleetRow,
     common_models,
     flag_outliers,
-    fleet_csv,
-    fleet_markdown,
-    fleet_rows,
     repeatability,
 )
 from imustation.analysis.pipeline.parallel import TaskFailure
 from imustation.analysis.reports import plots
+from imustation.analysis.reports.fleettable import fleet_csv, fleet_markdown, fleet_rows
 from imustation.analysis.reports.pages import CSS, html_table
 from imustation.errors import InputError
 

@@ -26,9 +26,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from imustation.analysis.estimators.adequacy import MIN_EDF
-from imustation.analysis.estimators.noise_models import NoiseModel
-from imustation.analysis.estimators.psd import log_average, welch_psd
+from imustation.analysis.estimators.classical.psd import log_average, welch_psd
+from imustation.analysis.estimators.models.noise_models import NoiseModel
+from imustation.analysis.estimators.selection.adequacy import MIN_EDF
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.reports.tables import units_of
 from imustation.units import EARTH_RATE, display_units, format_duration, sensor_kind

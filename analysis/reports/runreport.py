@@ -21,9 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imustation.analysis.estimators.classical.temperature import TEMPCO_FAMILY_ALPHA, fit_tempco, holm
 from imustation.analysis.pipeline.channel import DegenerateChannel, analyze_channel
 from imustation.analysis.pipeline.choices import DEFAULT_MODEL
-from imustation.analysis.pipeline.loaders import load_run
+from imustation.analysis.pipeline.loaders import device_temperature, load_run, thermometer_temperature
 from imustation.analysis.pipeline.warmup import check_warmup, cut_channels
 from imustation.analysis.reports import plots
 from imustation.analysis.reports.pages import CSS, figure_html, html_table
@@ -38,13 +39,6 @@ from imustation.analysis.reports.tables import (
     tempco_csv,
     tempco_markdown,
     units_of,
-)
-from imustation.analysis.reports.temperature import (
-    TEMPCO_FAMILY_ALPHA,
-    device_temperature,
-    fit_tempco,
-    holm,
-    thermometer_temperature,
 )
 from imustation.errors import InputError
 from imustation.outputs import check_folder, fresh_folder

@@ -40,9 +40,8 @@ import io
 import math
 from dataclasses import dataclass, field
 
-from imustation.analysis.pipeline.channel import ChannelAnalysis
-from imustation.errors import InputError
-from imustation.units import MPS2_TO_UG, RADPS_TO_DPH, SQRT_S_PER_SQRT_H, display_units, sensor_kind
+from imustation.analysis.pipeline.channel import ChannelAnalysis, split_channel_id
+from imustation.units import MPS2_TO_UG, RADPS_TO_DPH, SQRT_S_PER_SQRT_H, display_units
 
 __all__ = [
     "MPS2_TO_UG",
@@ -102,19 +101,6 @@ DASH = "—"
 def units_of(sensor: str | None, quantity: str) -> tuple[str, str, float]:
     """(SI unit, display unit, SI->display factor) of ``quantity`` for a ``gyro`` or ``accel`` axis."""
     return display_units(sensor, _DIM[quantity])
-
-
-def split_channel_id(ch) -> tuple[str, str, str]:
-    """(device, sensor, axis) of a ``device/gyro|accel/axis`` id, else the sensor from the units."""
-    parts = ch.id.split("/")
-    kind = sensor_kind(ch.units, ch.id)
-    if kind is None:
-        raise InputError(
-            f"channel {ch.id}: units {ch.units!r} name neither a gyroscope (rad/s) nor an accelerometer (m/s^2)"
-        )
-    if len(parts) >= 3 and parts[-2] == kind:
-        return "/".join(parts[:-2]), kind, parts[-1]
-    return ch.id, kind, "-"
 
 
 def param_key(fit, name: str) -> str:

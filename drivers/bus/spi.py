@@ -244,13 +244,3 @@ class USBSPIBridge:
 
     def _recover(self) -> None:
         """Bring the bridge back to idle after a failed attempt (before a retry)."""
-
-
-def open_spi(url: str, *, mode: int, sleep=time.sleep, backend: Any = None) -> USBSPIBridge:
-    """Open the SPI bridge of a ``cp2130:`` or ``mcp2210:`` URL (not yet connected; see ``ensure_open``)."""
-    from imustation.drivers.bus.spi_cp2130 import CP2130
-    from imustation.drivers.bus.spi_mcp2210 import MCP2210
-
-    parsed = parse_bus_url(url, ("cp2130", "mcp2210"))
-    cls = CP2130 if parsed.scheme == "cp2130" else MCP2210
-    return cls(parsed, mode=mode, sleep=sleep, backend=backend)

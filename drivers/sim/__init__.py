@@ -117,13 +117,17 @@ def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
     """The byte-level simulator of ``driver``'s chip and its fault plan.
 
     ``settings`` are the device's validated settings, ``sim`` its ``[device.sim]``
-    table, ``seed`` the per-device seed (``sim.seed`` overrides it). Returns
-    ``(simulator, plan)``; the bus applies the plan's bus-level faults.
+    table, ``seed`` the per-device seed (``sim.seed`` overrides it); ``sim.quirks``
+    names field quirks the chip shows (:mod:`.quirks`). Returns ``(simulator, plan)``;
+    the bus applies the plan's bus-level faults.
     """
     from imustation.errors import SettingError
 
     if driver not in SOURCES:
         raise SettingError(f"driver {driver!r} has no simulator")
+    from imustation.drivers.sim.quirks import chip_quirks
+
+    quirks = chip_quirks(driver, sim.get("quirks"))
     plan = _plan(clock, sim, seed)
     sources = _with_replays(driver, settings, SOURCES[driver](sim, seed), sim)
     if driver == "bmx055":
@@ -145,11 +149,11 @@ def make_simulator(driver: str, clock, settings: dict, sim: dict, seed: int):
     if driver == "dsp3000":
         from imustation.drivers.sim.kvh_dsp3000 import DSP3000Sim
 
-        return DSP3000Sim(clock, sources["gyro"], plan, rate_hz=settings["rate_hz"]), plan
+        return DSP3000Sim(clock, sources["gyro"], plan, rate_hz=settings["rate_hz"], quirks=quirks), plan
     from imustation.drivers.invensense import VARIANTS
     from imustation.drivers.sim.invensense import InvenSenseSim
 
-    return InvenSenseSim(VARIANTS[driver], clock, sources["gyro"], sources["accel"], plan), plan
+    return InvenSenseSim(VARIANTS[driver], clock, sources["gyro"], sources["accel"], plan, quirks), plan
 
 
 #: [thermometer.sim] keys: ambient temperature temp_c + temp_drift_c * sin(2 pi t / temp_period_s + phase)

@@ -28,6 +28,14 @@ lists each rule, its source and the test that checks it):
 * FIFO_COUNT_H latches both count bytes; read-only registers ignore writes;
   interrupt status bits are set only for enabled sources and cleared only by
   reading INT_STATUS.
+
+Field quirks the register maps leave out, shown when named (``quirks``,
+:mod:`imustation.drivers.sim.quirks`; "Field quirks" in the conformance table):
+``stuck_overflow_bit`` (FIFO_OFLOW_INT always reads 1), ``async_reset_tail`` (a
+FIFO reset while FIFO_EN routes sensors leaves the tail of the frame being
+written), ``wake_write_loss`` (writes lost for 5 ms after SLEEP is cleared). A
+switch of the MPU-6050 set to a gyro PLL before its gyro has run is counted
+(``sim_pll_without_gyro``).
 """
 
 from __future__ import annotations
@@ -64,6 +72,14 @@ ACCEL_FCHOICE_HZ = 4000.0
 #: after DEVICE_RESET the registers take no writes for this long: the 100 ms wait of the
 #: reset sequence (RM-MPU-6000A rev 4.2, Register 107 note), used for both chips
 REGISTER_STARTUP_S = 0.100
+#: quirk ``wake_write_loss``: writes are lost this long after SLEEP is cleared (Linux
+#: inv_mpu6050 waits INV_MPU6050_REG_UP_TIME_MIN..MAX = 5..10 ms before writing again)
+WAKE_S = 0.005
+#: gyro start-up time before it can be the clock's PLL reference (Linux inv_mpu_iio.h:
+#: INV_MPU6050_GYRO_STARTUP_TIME 60 ms, INV_MPU6500_GYRO_STARTUP_TIME 70 ms)
+GYRO_START_S = {"mpu9150": 0.060, "mpu6500": 0.070}
+#: PWR_MGMT_2 gyro standby bits (Register 108, both maps)
+PWR2_GYRO_STANDBY = 0x07
 
 
 class InvenSenseSim(RegisterFileChip):
@@ -76,6 +92,8 @@ class InvenSenseSim(RegisterFileChip):
     gyro_factory, accel_factory : ``fs_hz -> SignalSource`` giving X/Y/Z rate
         (rad/s; its temperature is the die temperature) and specific force (m/s^2).
     plan : fault plan (``reset``, ``stuck_fifo`` act on the chip).
+    quirks : field quirks to show (:data:`imustation.drivers.sim.quirks.QUIRKS`):
+        ``stuck_overflow_bit``, ``async_reset_tail``, ``wake_write_loss``.
     """
 
     NO_INCREMENT = frozenset({chip.REG_FIFO_R_W})
@@ -87,9 +105,15 @@ class InvenSenseSim(RegisterFileChip):
         gyro_factory: Callable[[float], SignalSource],
         accel_factory: Callable[[float], SignalSource],
         plan: FaultPlan | None = None,
+        quirks: frozenset[str] = frozenset(),
     ):
         super().__init__()
         self.variant = variant
+        self.quirks = frozenset(quirks)
+        #: CLKSEL set to a gyro PLL before the gyro ran its start-up time (test back door)
+        self.sim_pll_without_gyro = 0
+        #: FIFO resets that left the tail of a frame at the FIFO head (test back door)
+        self.sim_reset_tails = 0
         self.clock = clock
         self.plan = plan
         self.gyro_factory, self.accel_factory = gyro_factory, accel_factory
@@ -113,7 +137,18 @@ class InvenSenseSim(RegisterFileChip):
         self.last_fifo_byte = 0
         self.count_latch = 0
         self.ready_ns = self.clock.now_ns() + int(REGISTER_STARTUP_S * 1e9)
+        self.wake_until_ns = 0
+        self.gyro_on_ns: int | None = None
+        self._track_gyro()
         self._restart_timing()
+
+    def _track_gyro(self) -> None:
+        """Note when the gyro started (awake, not in standby), or that it stopped."""
+        on = self.running and not self.regs[chip.REG_PWR_MGMT_2] & PWR2_GYRO_STANDBY
+        if not on:
+            self.gyro_on_ns = None
+        elif self.gyro_on_ns is None:
+            self.gyro_on_ns = self.clock.now_ns()
 
     def _restart_timing(self) -> None:
         self.t_start_ns = self.clock.now_ns()
@@ -273,6 +308,8 @@ class InvenSenseSim(RegisterFileChip):
     def on_read(self, reg: int) -> int:
         if reg == chip.REG_INT_STATUS:
             value, self.int_status = self.int_status, 0  # cleared by reading INT_STATUS (Register 58)
+            if "stuck_overflow_bit" in self.quirks:
+                value |= chip.INT_FIFO_OFLOW
             return value
         if reg == chip.REG_FIFO_COUNT_H:
             # reading FIFO_COUNT_H latches both count bytes (Registers 114/115, both maps)
@@ -296,8 +333,9 @@ class InvenSenseSim(RegisterFileChip):
     def on_write(self, reg: int, value: int) -> None:
         if reg in _READ_ONLY:
             return
-        if self.clock.now_ns() < self.ready_ns:
-            self.sim_ignored_writes += 1  # still starting up after DEVICE_RESET
+        now = self.clock.now_ns()
+        if now < self.ready_ns or now < self.wake_until_ns:
+            self.sim_ignored_writes += 1  # still starting up after DEVICE_RESET, or waking
             return
         if reg == chip.REG_PWR_MGMT_1 and value & chip.PWR1_DEVICE_RESET:
             self.sim_resets += 1
@@ -307,10 +345,45 @@ class InvenSenseSim(RegisterFileChip):
         if reg == chip.REG_USER_CTRL:
             if value & chip.USER_CTRL_FIFO_RST and self._fifo_reset_takes(value):
                 self.fifo.clear()
+                self._cut_frame_tail()
             value &= ~_USER_CTRL_SELF_CLEARING & 0xFF
+        if reg == chip.REG_PWR_MGMT_1:
+            self._check_clock_source(value)
+            if self.regs[reg] & chip.PWR1_SLEEP and not value & chip.PWR1_SLEEP and "wake_write_loss" in self.quirks:
+                self.wake_until_ns = now + int(WAKE_S * 1e9)
         self.regs[reg] = value
         if reg in _TIMING:
             self._restart_timing()
+        if reg in (chip.REG_PWR_MGMT_1, chip.REG_PWR_MGMT_2):
+            self._track_gyro()
+
+    def _check_clock_source(self, value: int) -> None:
+        """Count a switch to a gyro PLL (CLKSEL 1..3) before the gyro has started (MPU-6050 set only).
+
+        Linux inv_mpu6050 (``inv_mpu6050_switch_engine``): the clock may take the gyro as its
+        reference only once the gyro runs; until then it must be the internal oscillator. What
+        the chip does otherwise is not documented, so it is counted, not modelled.
+        """
+        if not self.variant.pll_needs_running_gyro or not 1 <= chip.CLKSEL.decode(value) <= 3:
+            return
+        if 1 <= chip.CLKSEL.decode(self.regs[chip.REG_PWR_MGMT_1]) <= 3:
+            return  # already on it
+        started = self.gyro_on_ns
+        if started is None or self.clock.now_ns() - started < GYRO_START_S[self.variant.driver] * 1e9:
+            self.sim_pll_without_gyro += 1
+
+    def _cut_frame_tail(self) -> None:
+        """Quirk ``async_reset_tail``: a reset while sensors write into the FIFO leaves the tail
+        of the frame being written (all but its first sensor block) at the head of the FIFO."""
+        if "async_reset_tail" not in self.quirks or not self._running or not self._fifo_takes_data:
+            return
+        enabled = self.regs[chip.REG_FIFO_EN]
+        blocks = [cs for bit, cs in _FIFO_COLUMNS if enabled & bit]
+        if len(blocks) < 2:
+            return
+        frame = self.latest[[c for cs in blocks for c in cs]].astype(">i2").tobytes()
+        self.fifo += frame[2 * len(blocks[0]) :]
+        self.sim_reset_tails += 1
 
     def _fifo_reset_takes(self, value: int) -> bool:
         """Whether a USER_CTRL write with FIFO_RST set resets the FIFO.

@@ -11,6 +11,9 @@ Faults: ``corrupt``/``checksum`` (one character of one line damaged - the
 ASCII protocol has no checksum, so only non-numeric damage is detectable),
 ``short_read`` (5 bytes lost across a line end), ``reset`` (flag 0 for the
 start-up time, then rate mode), ``disconnect`` (the port vanishes).
+
+Quirk ``trailing_blanks`` (:mod:`.quirks`): every line carries blanks after the
+status word, before CR LF.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from imustation.drivers.sim.sources import SignalSource, with_filter
 from imustation.units import RAD2DEG
 
 START_UP_S = 1.0  # flag-0 lines after power-on (duration UNCONFIRMED; simulation choice)
+#: quirk ``trailing_blanks``: what follows the status word before CR LF
+TRAILING_BLANKS = "  \t "
 BAUD = 38400  # [KVH-M]
 
 
@@ -35,8 +40,9 @@ class DSP3000Sim(SerialDeviceSim):
     baud = BAUD
 
     def __init__(self, clock: Clock, source_factory: Callable[[float], SignalSource], plan: FaultPlan | None = None,
-                 rate_hz: float = chip.NOMINAL_RATE_HZ):  # fmt: skip
+                 rate_hz: float = chip.NOMINAL_RATE_HZ, quirks: frozenset[str] = frozenset()):  # fmt: skip
         super().__init__(clock, plan)
+        self.tail = TRAILING_BLANKS if "trailing_blanks" in quirks else ""
         self.rate_hz = float(rate_hz)
         self.source = with_filter(source_factory(self.rate_hz), filters.interval_mean("KVH DSP-3000", self.rate_hz))
         self.mode = "rate"
@@ -87,7 +93,7 @@ class DSP3000Sim(SerialDeviceSim):
                 values = np.mod(self.integrated_deg + np.cumsum(step), 360.0)
                 self.integrated_deg = float(values[-1])
         flags = np.where((t_ns >= self.fault_from_ns) & (t_ns < self.fault_until_ns), 0, 1)
-        text = "".join(f" {v:13.6f}   {f}\r\n" for v, f in zip(values.tolist(), flags.tolist(), strict=True))
+        text = "".join(f" {v:13.6f}   {f}{self.tail}\r\n" for v, f in zip(values.tolist(), flags.tolist(), strict=True))
         data = text.encode("ascii")
         if self.plan is not None:
             if self.plan.fire("corrupt") or self.plan.fire("checksum"):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from imustation.analysis.estimators.reference import ACCEL_DEFAULTS, TABLE_IV
+from imustation.analysis.estimators.models.reference import ACCEL_DEFAULTS, TABLE_IV
 from imustation.drivers.sim.noise_terms import FLICKER_FLOOR
 from imustation.units import DEG2RAD, G0
 

@@ -11,6 +11,7 @@ import math
 from typing import Any
 
 from imustation.drivers.sim.profiles import PROFILES
+from imustation.drivers.sim.quirks import quirks_problem
 
 #: keys that shape a gyroscope source / an accelerometer source
 GYRO_SIM_KEYS = (
@@ -48,8 +49,10 @@ SIM_KEYS = (
     "warmup_c",
     "warmup_tau_s",
     "faults",
+    # field quirks the chip simulator shows (drivers/sim/quirks.py)
+    "quirks",
     *GYRO_SIM_KEYS[6:],
-    # accelerometers (defaults: analysis.estimators.reference.ACCEL_DEFAULTS, not the paper)
+    # accelerometers (defaults: analysis.estimators.models.reference.ACCEL_DEFAULTS, not the paper)
     *(k for k in ACCEL_SIM_KEYS if k != "accel_replay"),
     # a recorded signal instead of the noise model (see ReplaySource)
     "replay",
@@ -103,6 +106,8 @@ def sim_value_problem(key: str, value: Any, n_axes: int) -> str | None:
         return None if value in PROFILES else f"one of {', '.join(repr(p) for p in PROFILES)}"
     if key == "filter":
         return None if isinstance(value, bool) else "true or false"
+    if key == "quirks":
+        return quirks_problem(value)
     if key not in _VALUES:
         return None
     kind, per_axis = _VALUES[key]

@@ -19,8 +19,8 @@ from typing import Protocol
 
 import numpy as np
 
-from imustation.analysis.estimators.models import StandardModel, StandardNoiseStream
-from imustation.analysis.estimators.reference import ACCEL_DEFAULTS, TABLE_IV
+from imustation.analysis.estimators.models.reference import ACCEL_DEFAULTS, TABLE_IV
+from imustation.analysis.estimators.models.standard import StandardModel, StandardNoiseStream
 from imustation.drivers.sim.filters import ChipFilter, FilterRun
 from imustation.drivers.sim.noise_terms import DieTemperature, SlowBias
 from imustation.drivers.sim.profiles import defaults

@@ -13,7 +13,7 @@ from typing import Protocol
 from imustation.drivers.bus import spi_cp2130 as cp
 from imustation.drivers.bus import spi_mcp2210 as mcp
 from imustation.drivers.sim.faults import FaultPlan
-from imustation.drivers.sim.usb_backend import SimUSBFunction, _stall, _timeout
+from imustation.drivers.sim.usb_backend import SimUSBFunction, usb_stall, usb_timeout
 
 #: what MISO reads when no chip drives it (pulled up)
 MISO_IDLE = 0xFF
@@ -65,15 +65,15 @@ class CP2130Sim(SimUSBFunction):
             return 2
         if request_type == cp.REQTYPE_IN and request == cp.REQ_GET_SPI_WORD:
             return bytes(self.spi_words)
-        raise _stall()
+        raise usb_stall()
 
     def out(self, ep: int, data: bytes) -> int:
         if ep != self.ENDPOINTS[0][0] or len(data) < cp.HEADER.size:
-            raise _stall()
+            raise usb_stall()
         _zero, cmd, _res, n = cp.HEADER.unpack_from(data)
         payload = data[cp.HEADER.size :]
         if cmd != cp.CMD_WRITE_READ or len(payload) != n:
-            raise _stall()  # only WriteRead in one packet is modelled
+            raise usb_stall()  # only WriteRead in one packet is modelled
         self._in += _corrupt(self._spi(payload), self.plan)
         return len(data)
 
@@ -90,7 +90,7 @@ class CP2130Sim(SimUSBFunction):
 
     def in_(self, ep: int, size: int) -> bytes:
         if not self._in:
-            raise _timeout()
+            raise usb_timeout()
         out = bytes(self._in[:size])
         del self._in[:size]
         return out
@@ -123,7 +123,7 @@ class MCP2210Sim(SimUSBFunction):
 
     def out(self, ep: int, data: bytes) -> int:
         if ep != self.ENDPOINTS[0][0] or len(data) != mcp.REPORT_LEN:
-            raise _stall()
+            raise usb_stall()
         cmd = data[0]
         if cmd == mcp.CMD_GET_CHIP_SETTINGS:
             self._reply(cmd, mcp.STATUS_OK, 0, 0, data=bytes(self.chip_settings))
@@ -175,5 +175,5 @@ class MCP2210Sim(SimUSBFunction):
 
     def in_(self, ep: int, size: int) -> bytes:
         if not self._replies:
-            raise _timeout()
+            raise usb_timeout()
         return self._replies.pop(0)[:size]

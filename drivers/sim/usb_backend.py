@@ -4,8 +4,8 @@
 ``usb.core.Device`` objects, so the bridge code (device lookup, serial-number
 strings, interface claiming, endpoint dispatch bulk vs interrupt, error
 handling) runs unchanged. Each :class:`SimUSBFunction` answers control, OUT
-and IN transfers as its bridge chip does (see ``drivers/sim/cp2130.py`` and
-``drivers/sim/mcp2210.py``).
+and IN transfers as its bridge chip does (see ``drivers/sim/spi_bridges.py``:
+``CP2130Sim`` and ``MCP2210Sim``).
 
 Faults (from the function's :class:`~imustation.drivers.sim.faults.FaultPlan`):
 ``disconnect`` - the device is absent from enumeration and every transfer fails
@@ -99,11 +99,13 @@ def _gone() -> usb.core.USBError:
     return usb.core.USBError("No such device (it may have been disconnected)", -4, errno.ENODEV)
 
 
-def _timeout() -> usb.core.USBTimeoutError:
+def usb_timeout() -> usb.core.USBTimeoutError:
+    """The error pyusb raises when a transfer times out (LIBUSB_ERROR_TIMEOUT), for the simulated bridges."""
     return usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
 
 
-def _stall() -> usb.core.USBError:
+def usb_stall() -> usb.core.USBError:
+    """The error pyusb raises when an endpoint stalls (LIBUSB_ERROR_PIPE), for the simulated bridges."""
     return usb.core.USBError("Pipe error", -9, errno.EPIPE)
 
 
@@ -136,7 +138,7 @@ class SimUSBFunction:
             raise _gone()
         if out and self.plan is not None:
             if self.plan.fire("nack"):
-                raise _timeout()
+                raise usb_timeout()
             # the transfer is late (a stalled bridge or host; a slow window): the chip's clock runs on
             late = (self.plan.fire_duration("stall") or 0.0) + self.plan.delay_s("slow")
             if late:
@@ -144,13 +146,13 @@ class SimUSBFunction:
 
     # -- handlers -------------------------------------------------------------------------
     def control(self, request_type: int, request: int, value: int, index: int, data: bytes | int) -> bytes | int:
-        raise _stall()
+        raise usb_stall()
 
     def out(self, ep: int, data: bytes) -> int:
-        raise _stall()
+        raise usb_stall()
 
     def in_(self, ep: int, size: int) -> bytes:
-        raise _timeout()
+        raise usb_timeout()
 
 
 class SimUSBBackend(usb.backend.IBackend):
@@ -262,5 +264,5 @@ class SimUSBBackend(usb.backend.IBackend):
         elif index in dev.strings:
             body = dev.strings[index].encode("utf-16-le")
         else:
-            raise _stall()
+            raise usb_stall()
         return bytes([len(body) + 2, _DESC_STRING]) + body

@@ -85,7 +85,8 @@ def cli(ctx: click.Context, debug: bool) -> None:
       imustation analyze run.h5 --channel 'bmx055/gyro/*'
       imustation import field.bag -o field.h5    # ROS bag / MCAP / CSV log -> run file
       imustation demo            # simulated capture + analysis, about a minute
-      imustation devices configs/lab-example.toml   # probe every configured chip
+      imustation devices configs/lab-example.toml   # probe every configured chip, say what to fix
+      imustation setup udev           # udev rules; setup service CONFIG -o RUN.h5: a systemd unit
       imustation fleet night*.h5 -o fleet/ --workers 2   # fleet table, repeatability, outliers
     """
     ctx.ensure_object(dict)
@@ -113,5 +114,6 @@ from imustation.cli import (  # noqa: E402,F401
     monitor,
     recover,
     report,
+    setup,
     study,
 )

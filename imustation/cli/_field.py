@@ -2,14 +2,14 @@
 summary they print, and ``analyze``'s glue from the importer's stream to analysis channels.
 
 The analysis layer imports nothing from acquisition; here the recording streamed by
-:func:`imustation.acquisition.importers.stream_recording` becomes
-:class:`imustation.analysis.pipeline.loaders.Channel` objects, the ones the imported run file would give.
+:func:`imustation.acquisition.importers.stream_recording` is handed to
+:func:`imustation.analysis.pipeline.loaders.recording_channels`, which makes the channels the
+imported run file would give.
 """
 
 from __future__ import annotations
 
 import contextlib
-import fnmatch
 import os
 import sys
 from collections.abc import Sequence
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from imustation.analysis.pipeline.choices import TIME_UNITS
+from imustation.units import TIME_UNITS
 
 if TYPE_CHECKING:
     from imustation.analysis.pipeline.loaders import Channel
@@ -147,43 +147,14 @@ def plan_inputs(
 
 
 def streamed_channels(path: str, globs: Sequence[str], *, quiet: bool, topic, time_unit, text: dict) -> list[Channel]:
-    """The rate channels of a field recording, streamed into memory: no run file is written.
-
-    Equal to :func:`~imustation.analysis.pipeline.loaders.load_run`'s channels of the recording imported
-    (ids, rates, units, samples, gap count, segments, metadata), except ``source``: the recording.
-    """
+    """The rate channels of a field recording, streamed into memory with a progress bar and the
+    import summary on stderr (no run file is written); the channels are
+    :func:`~imustation.analysis.pipeline.loaders.recording_channels`'."""
     from imustation.acquisition.importers import stream_recording
-    from imustation.analysis.pipeline.loaders import RATE_CHANNELS, Channel, record_breaks, segments_from_breaks
+    from imustation.analysis.pipeline.loaders import recording_channels
 
     with progress_bar(f"importing {os.path.basename(path.rstrip('/'))}", quiet) as progress:
         rec = stream_recording(path, topic=topic, text=text, time_unit=time_unit, progress=progress)
     if not quiet:
         print_summary(path, rec.result)
-    out = []
-    # devices and channels in the order a run file lists them (by name): the same table as the imported run's
-    for name, dev in sorted(rec.devices.items()):
-        spec = dev.spec
-        breaks = [ev for ev in dev.events if ev.kind in ("gap", "overrun")]
-        segments = None
-        for ch in sorted(spec.channels, key=lambda c: c.name):
-            if ch.name not in RATE_CHANNELS or not ch.axes:
-                continue
-            for j, axis in enumerate(ch.axes):
-                cid = f"{name}/{ch.name}/{axis}"
-                if globs and not any(fnmatch.fnmatchcase(cid, g) for g in globs):
-                    continue
-                if segments is None:
-                    at = record_breaks(dev.t_ns, breaks, spec.rate_hz)
-                    segments = segments_from_breaks(at, len(dev.t_ns))
-                meta = {
-                    "device": name,
-                    "driver": spec.driver,
-                    "model": spec.model,
-                    "identity": spec.identity,
-                    "station": "import",
-                    "settings": {"rate_hz": spec.rate_hz, **spec.settings},
-                }
-                data = dev.columns[ch.name][j]
-                out.append(Channel(cid, spec.rate_hz, ch.units, data, ch.scale, source=path, gaps=len(breaks),
-                                   meta=meta, segments=list(segments)))  # fmt: skip
-    return out
+    return recording_channels(rec.devices, path, globs)

@@ -52,6 +52,18 @@ def _workers(value: str, cfg, can: bool) -> int:
     return n
 
 
+def _bring_up_check(cfg, seconds: float, *, simulate: bool, sim_level: str, fsync: bool) -> None:
+    """``capture --check``: the report on stdout, exit status 1 for NO-GO."""
+    from imustation.acquisition.bringup import run_check
+
+    click.echo(f"checking {cfg.name} for {format_duration(seconds)} (keep the rig still) ...", err=True)
+    report = run_check(cfg, seconds, simulate=simulate, sim_level=sim_level, fsync=fsync)
+    for line in report.lines():
+        click.echo(line)
+    if not report.go:
+        raise SystemExit(1)
+
+
 @cli.command()
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", default="run.h5", show_default=True, help="Run file to create (HDF5).")
@@ -63,6 +75,21 @@ def _workers(value: str, cfg, can: bool) -> int:
     default=None,
     metavar="DURATION",
     help="Start a new part file every DURATION (e.g. 6h): run.001.h5, run.002.h5, ...",
+)
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the run at OUTPUT as its next part if it exists (after a crash, power cut or stop): same run, "
+    "the outage a logged gap, a cut-off part recovered first; --duration counts from the run's start. "
+    "Without a run there, a new one starts (docs/capture.md).",
+)
+@click.option(
+    "--check",
+    default=None,
+    metavar="DURATION",
+    help="Bring-up check instead of a run: capture DURATION (e.g. 30s) into a temporary file and report per "
+    "device the rate reached, losses, gravity, gyro bias against the range, temperatures, then GO / NO-GO "
+    "(exit status 0 / 1). The rig must stand still.",
 )
 @click.option("--quiet", is_flag=True, help="No live status (errors and the final summary only).")
 @click.option("--json-status", is_flag=True, help="Print the status as one JSON line per interval on stdout.")
@@ -134,6 +161,8 @@ def capture(
     sim_level: str,
     sim_speed: float | None,
     no_fsync: bool,
+    resume: bool,
+    check: str | None,
 ) -> None:
     """Record every device and thermometer of CONFIG into a run file (format v1).
 
@@ -149,9 +178,14 @@ def capture(
     from imustation.acquisition.modes import check_options, workers_possible
     from imustation.monitor.launcher import MonitorProcess
 
+    if resume and overwrite:
+        raise InputError("--resume continues the run at -o; --overwrite would replace it: give one of them")
     cfg = load_config(config)
+    if check is not None:
+        _bring_up_check(cfg, parse_duration(check), simulate=simulate, sim_level=sim_level, fsync=not no_fsync)
+        return
     # outputs before any device is touched (existing parts of a rotated capture: the recorder's check)
-    check_file(output, overwrite=overwrite or bool(rotate))
+    check_file(output, overwrite=overwrite or bool(rotate) or resume)
     if trace_file is not None:
         check_file(trace_file, overwrite=overwrite, option="--trace")
     if status_file is not None:
@@ -199,11 +233,15 @@ def capture(
             workers=n_workers,
             sim_level=sim_level,
             early_stop=early,
+            resume=resume,
         )
     finally:
         launcher.stop()
         if view is not None:
             view.close()
+    if not summary.paths:  # a resume that found its run over
+        click.echo(f"{output}: {summary.stop_reason}", err=json_status)
+        return
     total = sum(summary.samples.values())
     lost = sum(summary.lost.values())
     speed = summary.duration_s / summary.wall_s if summary.wall_s > 0 else float("inf")

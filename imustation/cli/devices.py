@@ -1,4 +1,4 @@
-"""``imustation devices``: list the devices and thermometers of a config and probe their identity."""
+"""``imustation devices``: probe every configured device and thermometer; say why one does not answer."""
 
 from __future__ import annotations
 
@@ -6,52 +6,51 @@ import click
 
 from imustation.cli import cli
 from imustation.clock import MonotonicClock, VirtualClock
-from imustation.errors import ImustationError
 
 
 @cli.command()
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--simulate", is_flag=True, help="Probe the simulated chips instead of the hardware.")
-def devices(config: str, simulate: bool) -> None:
-    """Open every device and thermometer of CONFIG and print its identity.
+@click.option(
+    "--no-baud-probe", is_flag=True, help="Do not try other baud rates on a serial device that does not answer."
+)
+@click.option("--host-root", default=None, hidden=True, help="Tests: read DIR/dev and DIR/sys instead of /dev, /sys.")
+def devices(config: str, simulate: bool, no_baud_probe: bool, host_root: str | None) -> None:
+    """Open every device and thermometer of CONFIG, print its identity or why it does not answer.
 
     Each one is identified and configured as a capture would do it (chips are
     reset to apply the settings), then closed. One line per device: name,
-    driver, bus@address and the identity, or the error. Exit status 1 if any
-    device failed to answer.
+    driver, bus@address and the identity, or the error followed by its cause
+    and remedy - a missing /dev/i2c-N (i2c-dev not loaded, bus not enabled),
+    permissions (the node's group), a USB bridge that is not plugged in (the
+    USB devices present are listed), a serial port that does not exist
+    (/dev/serial/by-id is listed), a serial device answering at another baud
+    rate (the common rates are tried). Then the host clock's synchronisation.
+    Exit status 1 if any device failed to answer (docs/hardware.md).
     """
     from imustation.acquisition import load_config
-    from imustation.acquisition.buses import BusFactory
-    from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
+    from imustation.acquisition.clocksync import read_sync
+    from imustation.acquisition.doctor import PROBE_BAUDS, check_station
+    from imustation.acquisition.hostview import HostView
 
     cfg = load_config(config)
     clock = VirtualClock() if simulate else MonotonicClock()
-    buses = BusFactory(simulate=simulate, clock=clock, seed=cfg.seed)
-    entries = [("device", d, DRIVERS[d.driver]) for d in cfg.devices]
-    entries += [("thermometer", t, THERMOMETER_DRIVERS[t.driver]) for t in cfg.thermometers]
-    failed = 0
-    try:
-        for what, entry, driver_cls in entries:
-            address = entry.address if entry.address is not None else getattr(driver_cls, "default_address", None)
-            where = entry.bus + (f"@0x{address:02X}" if address is not None else "")
-            head = f"{what:<11} {entry.name:<12} {entry.driver:<13} {where:<16}"
-            try:
-                regs = buses.register_thermometer(entry) if what == "thermometer" else buses.register_device(entry)
-                driver = driver_cls(regs, entry.settings, sleep=clock.sleep)
-                opened = driver.open()
-                try:
-                    if what == "thermometer":
-                        line = f"{opened}, {driver.read_celsius():.4f} degC"
-                    else:
-                        line = f"{opened.identity}, {opened.model}, {opened.rate_hz:g} Hz"
-                finally:
-                    driver.close()
-            except ImustationError as exc:
-                failed += 1
-                line = f"ERROR: {exc}"
-            click.echo(f"{head} {line}")
-    finally:
-        buses.close()
+    view = HostView(dev_root=f"{host_root}/dev", sys_root=f"{host_root}/sys") if host_root else HostView()
+    findings = check_station(
+        cfg, simulate=simulate, clock=clock, view=view, probe_bauds=() if no_baud_probe else PROBE_BAUDS
+    )
+    for f in findings:
+        head = f"{f.what:<11} {f.name:<12} {f.driver:<13} {f.where:<16}"
+        click.echo(f"{head} {f.detail}" if f.ok else f"{head} ERROR: {f.detail}")
+        if not f.ok:
+            if f.cause and f.cause != f.detail:
+                click.echo(f"    cause:  {f.cause}")
+            click.echo(f"    remedy: {f.remedy}")
+        for note in f.notes:
+            click.echo(f"    note:   {note}")
+    if not simulate:
+        click.echo(f"host clock: {read_sync().describe()}")
+    failed = sum(not f.ok for f in findings)
     if failed:
-        click.echo(f"{failed} of {len(entries)} did not answer as expected", err=True)
+        click.echo(f"{failed} of {len(findings)} did not answer as expected", err=True)
         raise SystemExit(1)

@@ -10,20 +10,6 @@ from imustation.errors import InputError
 from imustation.outputs import check_file
 
 
-def _device_channels(channels, device: str | None, kind: str, path: str):
-    """Channels of ``kind`` ('gyro'/'accel') of ``device``; the only device with them when not named."""
-    by_dev: dict[str, list] = {}
-    for ch in channels:
-        if ch.id.split("/")[1] == kind:
-            by_dev.setdefault(ch.meta["device"], []).append(ch)
-    if device is not None:
-        return by_dev.get(device, [])
-    if len(by_dev) > 1:
-        opt = "--device" if kind == "gyro" else "--accel-device"
-        raise InputError(f"{path}: {kind} channels on {', '.join(sorted(by_dev))}; choose one with {opt}")
-    return next(iter(by_dev.values()), [])
-
-
 @cli.command()
 @click.argument("runs", metavar="RUN", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--format", "fmt", type=click.Choice(choices.EXPORT_FORMATS), required=True, help="Target tool.")
@@ -65,6 +51,7 @@ def _device_channels(channels, device: str | None, kind: str, path: str):
     "at a search bound or is not identified); marked FORCED in the file. Without it such an export writes "
     "nothing and exits 2, naming the axes and why.",
 )
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 def export(
     runs: tuple[str, ...],
     fmt: str,
@@ -79,6 +66,7 @@ def export(
     topic: str,
     inflate: str | None,
     force: bool,
+    warmup: str,
 ) -> None:
     """Fit every axis of RUN and write the noise parameters a VIO tool expects.
 
@@ -101,44 +89,35 @@ def export(
     [run] = joined
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
-    from imustation.analysis.pipeline.channel import DegenerateChannel, analyze_channel
     from imustation.analysis.pipeline.loaders import load_run
-    from imustation.analysis.reports.export import export_text, inflate_sensors, parse_inflation, sensor_noise
+    from imustation.analysis.pipeline.warmup import check_warmup, cut_channels
+    from imustation.analysis.reports.export import (
+        export_channels,
+        export_text,
+        fit_axes,
+        inflate_sensors,
+        parse_inflation,
+        sensor_noise,
+    )
 
     factors = parse_inflation(inflate) if inflate is not None else None  # a bad value fails before the fits
+    check_warmup(warmup)
 
-    channels = load_run(run)
-    gyros = _device_channels(channels, device, "gyro", run)
-    if not gyros:
-        raise InputError(f"{run}: no gyroscope channels" + (f" on device {device}" if device else ""))
-    accels = [] if gyro_only else _device_channels(channels, accel_device or gyros[0].meta["device"], "accel", run)
-    if accel_device is None and not accels and not gyro_only:
-        accels = _device_channels(channels, None, "accel", run)  # e.g. the BMX055's separate accelerometer die
-    if not accels and not gyro_only:
-        raise InputError(
-            f"{run}: no accelerometer channels"
-            + (f" on device {accel_device}" if accel_device else "")
-            + "; name one with --accel-device or pass --gyro-only"
-        )
-
+    gyros, accels = export_channels(load_run(run), run, device=device, accel_device=accel_device, gyro_only=gyro_only)
+    cuts = cut_channels([*gyros, *accels], warmup)  # the cut analyze/report/fleet make for this --warmup
+    for cut in cuts.values():
+        click.echo(f"warm-up {cut.describe()}", err=True)
     skipped: list[str] = []
 
-    def fit(chs, kind):
-        out = []
-        for ch in chs:
-            click.echo(f"fitting {ch.id} ({ch.n} samples) ...", err=True)
-            try:
-                out.append(analyze_channel(ch, model=model))
-            except DegenerateChannel as exc:  # the sensor's other axes are exported
-                click.echo(f"warning: {exc}", err=True)
-                skipped.append(str(exc))
-            ch.release()
-        if chs and not out:
-            raise InputError(f"{run}: every {kind} axis was skipped ({'; '.join(skipped)})")
-        return out
+    def note(line: str) -> None:
+        click.echo(line, err=True)
 
-    gyro = sensor_noise(fit(gyros, "gyroscope"), "gyro", source, rw, force=force)
-    accel = sensor_noise(fit(accels, "accelerometer"), "accel", source, rw, force=force) if accels else None
+    gyro = sensor_noise(fit_axes(gyros, "gyroscope", run, model, skipped, note), "gyro", source, rw, force=force)
+    accel = (
+        sensor_noise(fit_axes(accels, "accelerometer", run, model, skipped, note), "accel", source, rw, force=force)
+        if accels
+        else None
+    )
     if factors is not None:
         gyro, accel = inflate_sensors(gyro, accel, *factors)
         for s in (gyro, accel):
@@ -154,7 +133,8 @@ def export(
                 click.echo(f"warning: {a.channel}: noise density doubtful: {a.noise_warning}", err=True)
             if a.warning:
                 click.echo(f"warning: {a.channel}: random walk doubtful: {a.warning}", err=True)
-    text = export_text(gyro, accel, fmt, topic=topic, origin=run, skipped=skipped)
+    text = export_text(gyro, accel, fmt, topic=topic, origin=run, skipped=skipped,
+                       warmup=[c.describe() for c in cuts.values()])  # fmt: skip
     if output:
         with open(output, "w", encoding="utf-8") as fh:
             fh.write(text)

@@ -13,6 +13,16 @@ if TYPE_CHECKING:
     from imustation.runfile.holes import HoleCheck
 
 
+def _clock(a) -> str:
+    """The host clock's state as the run file stores it (docs/runfile.md, "Host clock")."""
+    text = str(a["clock_sync"])
+    if "clock_est_error_s" in a:
+        text += f", estimated error {float(a['clock_est_error_s']) * 1e3:.1f} ms"
+    if "clock_max_error_s" in a:
+        text += f", at most {float(a['clock_max_error_s']) * 1e3:.1f} ms"
+    return text
+
+
 def _ended(rf) -> str:
     """``ended_utc``: the end of the data. Imports made before it was (issue 23) hold the time of the
     conversion there: then the end of the data is derived from the last sample and said so."""
@@ -93,6 +103,8 @@ def _inspect(run: str) -> None:
             click.echo(f"  stopped early: {a['stopped']}")
         if a.get("recovered"):
             click.echo(f"  recovered {a.get('recovered_utc')}: {a['recovered']}")
+        if "clock_sync" in a:
+            click.echo(f"  host clock at the start: {_clock(a)}")
         events = rf.events()
         tally = EventTally()
         tally.add(events)

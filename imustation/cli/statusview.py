@@ -46,6 +46,16 @@ def _celsius(value: float | None) -> str:
     return "-" if value is None else f"{value:.1f}°C"
 
 
+def _clock(clock: dict[str, Any]) -> str:
+    """The host clock in the header: its error when synchronised, else loud; and its steps."""
+    sync, err = clock.get("sync"), clock.get("est_error_s")
+    text = {"synchronised": "clock synced", "unsynchronised": "clock UNSYNCHRONISED"}.get(sync, "clock sync unknown")
+    if sync == "synchronised" and err is not None:
+        text += f" ±{err * 1e3:.1f} ms"
+    steps = clock.get("steps") or 0
+    return text + (f", STEPPED {steps}x" if steps else "")
+
+
 def header(status: dict[str, Any]) -> list[str]:
     """The header's fields: state, elapsed of planned, time left, file size (and part), free disk, speed."""
     elapsed, planned = max(0.0, status["elapsed_s"]), status["duration_s"]
@@ -61,7 +71,11 @@ def header(status: dict[str, Any]) -> list[str]:
         fields.append(f"{format_bytes(status['file_bytes'])} written{part}")
     if status.get("disk_free_bytes") is not None:
         fields.append(f"{format_bytes(status['disk_free_bytes'])} free")
+    clock = status.get("clock")
     speed = status.get("speed")
+    # the host clock where it matters (a real capture) and needs a look: not synchronised, or stepped
+    if clock and (speed is None or speed <= 1.5) and (clock.get("sync") != "synchronised" or clock.get("steps")):
+        fields.append(_clock(clock))
     if speed is not None and speed > 1.5:  # a simulation: virtual time runs faster
         fields.append(f"{speed:.0f}x real time")
     return fields

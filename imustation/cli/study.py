@@ -76,7 +76,7 @@ def study(
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
     lv = _floats(levels, "--levels")
     seconds = parse_duration(duration, "--duration")
-    from imustation.analysis.estimators.reference import TABLE_III_MEAN
+    from imustation.analysis.estimators.models.reference import TABLE_III_MEAN
     from imustation.analysis.pipeline.study import markdown, run_study, summarize
 
     fits = run_study(

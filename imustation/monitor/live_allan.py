@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.estimators.allan import oadev
-from imustation.analysis.estimators.mli import fit_integrated
-from imustation.analysis.estimators.pattern import integrate
+from imustation.analysis.estimators.classical.allan import oadev
+from imustation.analysis.estimators.engine.pattern import integrate
+from imustation.analysis.estimators.ml.mli import fit_integrated
 from imustation.errors import ImustationError
 from imustation.units import display_units
 

@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from imustation.analysis.estimators.models import StandardModel
-from imustation.analysis.pipeline.loaders import locate_breaks
-from imustation.analysis.reports.temperature import TEMP_READ_HZ, fit_warmup
+from imustation.analysis.estimators.classical.temperature import fit_warmup
+from imustation.analysis.estimators.models.standard import StandardModel
+from imustation.analysis.pipeline.loaders import TEMP_READ_HZ, locate_breaks
 from imustation.errors import ImustationError
 from imustation.monitor.live_allan import MAX_ROWS, GyroBuffer, allan_curves, model_curves
 from imustation.runfile import Event, RunFile, latest_part, open_run

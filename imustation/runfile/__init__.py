@@ -16,6 +16,8 @@ lost and files stay small.
 - :mod:`~imustation.runfile.series`: :func:`open_series`, the parts of a rotated capture
   read as one run (:class:`RunSeries`), and :func:`join_parts` for a command's inputs;
 - :mod:`~imustation.runfile.breaks`: where logged gaps break a device's record;
+- :mod:`~imustation.runfile.holes`: holes in a device's record found from its times (or counter)
+  and matched with its logged losses;
 - :mod:`~imustation.runfile.disk`: durable renames and the full-disk ballast.
 
 Nothing else touches the HDF5 layout. Every name is importable from

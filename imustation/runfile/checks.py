@@ -1,6 +1,6 @@
 """Validation of a run file on read: every reader gets a sound file or one line saying why not.
 
-:func:`check_run` runs once when :func:`imustation.runfile.open_run` opens a
+:func:`check_structure` runs once when :func:`imustation.runfile.open_run` opens a
 file. It visits every object the readers use (root, ``/devices/*``,
 ``/thermometers/*``, ``/events`` and their attributes), so damaged metadata
 fails here, as one :class:`~imustation.errors.RunFileError`, instead of as an
@@ -137,13 +137,6 @@ def _rows(key: Any) -> str:
     if isinstance(k, slice):
         return f"{k.start or 0}:{'' if k.stop is None else k.stop}"
     return str(k) if isinstance(k, (int, np.integer)) else "..."
-
-
-def _visit(path: str, obj: h5py.HLObject, name: str) -> None:
-    """Read every attribute of ``obj`` (loads its object header and attribute messages)."""
-    with damaged_file(path, name):
-        for key in obj.attrs:
-            obj.attrs[key]
 
 
 def _members(path: str, group: h5py.Group, name: str) -> dict[str, h5py.HLObject]:
@@ -344,7 +337,7 @@ def _check_events(path: str, ds: Any, complete: bool) -> None:
     _check_extents(path, "events", {"": ds}, complete)
 
 
-def check_run(h5: h5py.File, path: str) -> dict[str, Any]:
+def check_structure(h5: h5py.File, path: str) -> dict[str, Any]:
     """Refuse a damaged or contradictory run file with one line (see the module docstring).
 
     Returns the root attributes as plain Python values.

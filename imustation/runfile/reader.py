@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 
 from imustation.errors import RunFileError
-from imustation.runfile.checks import CheckedDataset, check_run, damaged_file, plain_value, read_events
+from imustation.runfile.checks import CheckedDataset, check_structure, damaged_file, plain_value, read_events
 from imustation.runfile.schema import CELSIUS, COUNTER, DEVICES, EVENTS, THERMOMETERS, TIME, Event
 from imustation.runfile.swmr import open_swmr_reader
 
@@ -203,7 +203,7 @@ def open_run(path: str | os.PathLike, *, live: bool = False) -> RunFile:
         except OSError as exc:
             raise RunFileError(f"{p}: not a readable HDF5 file ({exc.__class__.__name__})") from None
     try:
-        attrs = check_run(h5, p)
+        attrs = check_structure(h5, p)
     except RunFileError:
         h5.close()
         raise

@@ -143,11 +143,6 @@ def join_parts(paths: Sequence[str]) -> list[str]:
     return [names.get(p, p) for p in paths if names.get(p, p)]
 
 
-def is_run_name(name: str) -> bool:
-    """A run file or a series name (by its extension): what ``report`` and ``export`` read."""
-    return name.lower().endswith((".h5", ".hdf5"))
-
-
 def open_series(name: str | os.PathLike, *, live: bool = False) -> RunFile | RunSeries:
     """Open a run file, or the parts a series name stands for as one :class:`RunSeries`.
 

@@ -7,6 +7,10 @@ every dataset exists before recording starts, data are appended in blocks and
 flushed at least every ``flush_interval_s`` seconds of host time, so a file cut
 off by a crash opens and reads up to the last flush, and readers may open it
 while it is being written. ``ended_utc`` is set only by a clean close.
+
+Over 500 lines on purpose: one class that alone knows how the layout is written (datasets
+made before recording, appends, flushes, the clean close); reading and checking the format
+live in their own modules.
 """
 
 from __future__ import annotations
@@ -98,6 +102,7 @@ class RunWriter:
         ``<path>.ballast`` beside the file, deleted when a write fails with
         ENOSPC (a file HDF5 cannot flush stays half-open in the process, and
         the library crashes at exit). 0 disables it.
+    attrs : extra root attributes (additive: the host clock's synchronisation state, docs/runfile.md).
     """
 
     def __init__(
@@ -120,6 +125,7 @@ class RunWriter:
         fsync: bool = True,
         min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
         ballast_bytes: int = DEFAULT_BALLAST_BYTES,
+        attrs: Mapping[str, Any] | None = None,
     ):
         self.path = os.fspath(path)
         self.flush_interval_s = float(flush_interval_s)
@@ -169,6 +175,8 @@ class RunWriter:
             f.attrs["previous_part"] = previous_part
             f.attrs["run_id"] = run_id
             f.attrs["part_started_utc"] = part_started_utc or utc_now_iso()
+        for key, value in (attrs or {}).items():  # additive root attributes (the host clock's state)
+            f.attrs[key] = _attr_value(value)
 
         self.devices = {d.name: d for d in devices}
         self._buffers: dict[tuple[str, str], list[np.ndarray]] = {}
