@@ -92,6 +92,13 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
 )
 @click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
+@click.option(
+    "-v",
+    "--verbose",
+    is_flag=True,
+    help="Below the table (one row per channel) and what needs attention: every fitted block (comparison "
+    "fits, the automatic choice, each adequacy test) and every verdict reason. The JSON has all of it.",
+)
 @cluster_options
 @field_options
 def analyze(
@@ -107,6 +114,7 @@ def analyze(
     need: str | None,
     warmup: str,
     as_json: bool,
+    verbose: bool,
     workers: int | None,
     scheduler: str | None,
     memory_limit: str,
@@ -161,10 +169,10 @@ def analyze(
     opts = AnalysisOptions(
         pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need), warmup
     )
-    _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit)
+    _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit, verbose)
 
 
-def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -> None:
+def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit, verbose: bool = False) -> None:
     """Run one task per channel (serially or on a cluster) and print the table or JSON."""
     from imustation.analysis.pipeline.channel import analysis_document
     from imustation.analysis.reports.analyzetable import results_table
@@ -189,7 +197,7 @@ def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -
             doc["failures"] = [f.as_dict() for f in failures]
         click.echo(json.dumps(doc))
     else:
-        click.echo(results_table(done))
+        click.echo(results_table(done, verbose=verbose))
         cuts = {(r.channel.source, r.channel.meta["warmup"].device): r.channel.meta["warmup"] for r in done
                 if "warmup" in r.channel.meta}  # fmt: skip
         sources = {src for src, _ in cuts}
