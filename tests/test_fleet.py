@@ -397,3 +397,23 @@ def test_repeatability_leaves_out_flagged_values_and_random_walks_without_warnin
         (rep,) = repeatability(flag_outliers(rows))
     assert rep.mean["tau_b"] == math.inf and math.isnan(rep.std["tau_b"])
     assert rep.counted["sigma_b"] == 2 and rep.counted["sigma_w"] == 3
+
+
+def test_a_too_short_run_is_listed_and_left_out_in_every_output(fleet_runs, tmp_path):
+    """A 12 s run was accepted and judged an outlier; it is listed (stderr, CSV status 'left out', the
+    Markdown's left-out table) and counted in neither the repeatability nor the outlier test."""
+    runs = fleet_runs[0]
+    short = tmp_path / "short.h5"
+    capture(_config(tmp_path, 5), short, 20.0, simulate=True)
+    out = tmp_path / "o"
+    r = CliRunner().invoke(cli, ["fleet", *runs, str(short), "-o", str(out), "--channel", GLOB, "--model", "wn+gm"])
+    assert r.exit_code == 0, r.output
+    left = [ln for ln in r.stderr.splitlines() if ln.startswith("left out: ")]
+    assert len(left) == 4 and all("short.h5" in ln and "too short (20 s < 60 s)" in ln for ln in left)
+    rows = _rows(out)
+    assert {x["status"] for x in rows if x["run"] == str(short)} == {"left out"}
+    assert all(x["z_sigma_w"] == "nan" for x in rows if x["run"] == str(short))
+    assert all(x["warmup"].endswith("(auto: no temperature channel)") or "cut" in x["warmup"] for x in rows)
+    md = (out / "fleet.md").read_text()
+    assert "**Left out of the repeatability and the outlier test**" in md and "4 axes left out" in r.stdout
+    assert "| wn+gm | 2 |" in md  # repeatability per device and model, the short run not counted

@@ -107,6 +107,8 @@ class FleetRow:
     #: quantities that are not plain estimates (tables.NOT_FITTED, AT_BOUND, NOT_IDENTIFIED, DOUBTFUL)
     flags: dict[str, str] = field(default_factory=dict)
     excluded: str = ""
+    #: what ``--warmup`` cut from the run's device (:meth:`.warmup.WarmupCut.describe`; "" when not known)
+    warmup: str = ""
 
     @property
     def group(self) -> tuple[str, str, str]:
