@@ -207,7 +207,7 @@ def data_verdict(
         else:
             reasons.append(f"{name} = {iv.value:.3g} within a factor {sp:.2f} (90 %)")
     if math.isinf(tau_b_s):
-        reasons.append("random-walk bias: no correlation time to compare the record with")
+        reasons.append("random-walk or bias-instability bias: no correlation time to compare the record with")
     elif math.isfinite(tau_b_s) and tau_b_s > 0:
         ratio = duration_s / tau_b_s
         if ratio < MARGINAL_TAU_B_MULTIPLE:
@@ -255,12 +255,16 @@ def data_verdict(
 
 
 def longest_correlation_time(fit) -> float:
-    """The slowest fitted correlation time (s): inf for a random walk, NaN when the fit did not converge."""
+    """The slowest fitted correlation time (s): inf for a random walk or a bias instability without a
+    Gauss-Markov term (neither has one: a wn+fl model was 'no converged finite tau_b', marginal),
+    NaN when the fit did not converge."""
     if fit is None or not fit.converged:
         return math.nan
     if "sigma_k" in fit.params:
         return math.inf
     taus = [v for k, v in fit.params.items() if k.startswith("tau_b") and math.isfinite(v)]
+    if not taus and "B" in fit.params:
+        return math.inf
     return max(taus) if taus else math.nan
 
 
