@@ -37,3 +37,28 @@ def test_verdict_and_adequacy_text_never_print_absurd_numbers():
     e = np.zeros(0)
     adq = Adequacy("does not fit", 0.0, 1e4, 30, 0.0, 0.0, 0.05, 2.0, e, e, e, e)
     assert adq.summary() == "does not fit (p<1e-4)"
+
+
+def test_analyze_and_fleet_of_a_short_lab_record_leak_no_warnings(tmp_path):
+    """numpy RuntimeWarnings leaked from fleet and analyze (e.g. the std of [inf, inf]); a 12 s capture of
+    the realistic lab, every gyro x axis, through the analysis, the table and the fleet statistics."""
+    import warnings
+
+    from imustation.acquisition import capture, load_config
+    from imustation.analysis.pipeline.fleet import flag_outliers, repeatability
+    from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks, run_tasks
+    from imustation.analysis.reports.analyzetable import results_table
+    from imustation.analysis.reports.fleettable import fleet_markdown, fleet_rows
+    from imustation.configs import config_path
+
+    path = tmp_path / "lab.h5"
+    capture(load_config(config_path("lab-realistic.toml")), path, 12.0, simulate=True, sim_level="model")
+    tasks, _ = plan_tasks([str(path)], ["*/gyro/x"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res, _ = run_tasks(tasks, AnalysisOptions())
+        done = [r for r in res if r is not None]
+        text = results_table(done, verbose=True)
+        rows = flag_outliers(fleet_rows(done))
+        fleet_markdown(rows, repeatability(rows))
+    assert done and "e+17" not in text and "e-3" not in text.split("details:")[0]
