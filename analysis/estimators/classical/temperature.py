@@ -324,7 +324,10 @@ def fit_warmup(
     fit = WarmupFit(t0, amp, float(tau), drift, float(coef[0]), t0, "none", 0.0, step, duration)
     # end: after it the smooth slope stays within the limit (the transient decays, the drift is constant)
     grid = np.linspace(0.0, duration, 2001)
-    slope = drift - amp / tau * np.exp(-grid / tau) * 3600.0
+    # a drift that moves the readings by fewer than MIN_WARMUP_STEPS over the whole record is not
+    # resolved (one 0.5 K step late in a 40 min record reads as 1.3 K/h): it does not keep the record unsettled
+    resolved = abs(drift) * duration / 3600.0 >= MIN_WARMUP_STEPS * step
+    slope = (drift if resolved else 0.0) - amp / tau * np.exp(-grid / tau) * 3600.0
     fast = np.abs(slope) > max_rate_c_per_h
     if not fast.any():
         return none
