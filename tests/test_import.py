@@ -253,9 +253,9 @@ def test_csv_log_auto_detected(tmp_path):
         np.testing.assert_array_equal(run_.read("imu", "gyro"), g)
         assert run_.devices["imu"].rate_hz == pytest.approx(FS, rel=1e-6)
     # direct analysis of the log (no --rate: a timed log)
-    res = run("analyze", str(p), "--channel", "imu/gyro/z", "-m", "100")
+    res = run("analyze", str(p), "--channel", "imu/gyro/z", "-m", "100", "--verbose")
     assert res.exit_code == 0, res.output
-    assert "enough data? imu/gyro/z:" in res.output
+    assert "imu/gyro/z:\n" in res.output and "  enough data? " in res.output
 
 
 def test_tsv_with_options_ms_and_degrees(tmp_path):

@@ -17,9 +17,9 @@ def test_a_model_with_a_device_filter_works_without_naming_the_pattern(tmp_path)
     x, fs = record("mpu9150", 0.25, SIGMA_W, seed=5)
     p = tmp_path / "mpu.npy"
     np.save(p, x)
-    r = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(fs), "--model", "wn+rw+lp"])
+    r = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(fs), "--model", "wn+rw+lp", "--verbose"])
     assert r.exit_code == 0, r.output
-    assert "ML_i-F" in r.output and "ML_i" in r.output
+    assert "  noise_model: ML_i-F wn+rw+lp" in r.output and "  mli: ML_i wn+rw+lp" in r.output
     r = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(fs), "--model", "wn+rw+lp", "--pattern", "log"])
     assert r.exit_code == 2
     (line,) = [ln for ln in r.output.splitlines() if ln.strip()]
