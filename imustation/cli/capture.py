@@ -182,7 +182,9 @@ def capture(
         raise InputError("--resume continues the run at -o; --overwrite would replace it: give one of them")
     cfg = load_config(config)
     if check is not None:
-        _bring_up_check(cfg, parse_duration(check), simulate=simulate, sim_level=sim_level, fsync=not no_fsync)
+        _bring_up_check(
+            cfg, parse_duration(check, "--check"), simulate=simulate, sim_level=sim_level, fsync=not no_fsync
+        )
         return
     # outputs before any device is touched (existing parts of a rotated capture: the recorder's check)
     check_file(output, overwrite=overwrite or bool(rotate) or resume)
