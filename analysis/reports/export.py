@@ -34,8 +34,10 @@ noise dominates anyway; beyond it the random walk over-states the floor.
 With ``source="ieee"`` the densities come from the IEEE-952 fit of the Allan
 curve instead: ``sigma_g = N``, ``sigma_bg = K``.
 
-Each tool takes one value per sensor, not per axis: the largest axis value is
-written (conservative); every axis's value goes into the header comments.
+Each tool takes one value per sensor, not per axis: per quantity the largest value among
+the axes whose fit vouches for it is written (:func:`choose_axes`: conservative among the
+trustworthy ones; none left: :class:`Untrustworthy`, unless forced); the rule, the axes left
+out and every axis's value go into the header comments.
 
 **Inflation for the filter** (:func:`inflate`, ``export --inflate``): the measured
 densities describe a static sensor on a bench; a moving platform adds vibration,
