@@ -22,11 +22,12 @@ from imustation.acquisition.readers import ReaderOptions
 from imustation.acquisition.realtime import READER_PRIORITY
 from imustation.acquisition.recorder import Recorder, reserve_resumed
 from imustation.acquisition.resume import resumed_nothing
-from imustation.acquisition.station import STATUS_INTERVAL_S, CaptureSummary, Station
+from imustation.acquisition.station import DEFAULT_THERMOMETER_RATE_HZ, STATUS_INTERVAL_S, CaptureSummary, Station
 from imustation.clock import Clock, MonotonicClock
 from imustation.drivers.bus.trace import Trace, TraceWriter
-from imustation.errors import DiskFullError
+from imustation.errors import DiskFullError, InputError
 from imustation.runfile import DEFAULT_BALLAST_BYTES, DEFAULT_MIN_FREE_BYTES
+from imustation.units import format_duration
 
 #: opens every part file of a model-level simulated capture
 MODEL_LEVEL_NOTE = (
@@ -46,6 +47,32 @@ class _StopFlag:
 
     def handler(self, signum, frame) -> None:  # noqa: ARG002 - signal handler signature
         self.signum = signum
+
+
+def shortest_capture_s(config: StationConfig) -> tuple[float, str]:
+    """The shortest capture of ``config`` that records anything (s), and what sets it: one flush
+    interval (nothing is on disk before the first flush) or the slowest configured sample period
+    of a device or thermometer (it would get no sample)."""
+    best = (
+        float(config.flush_interval_s),
+        f"one flush interval (station.flush_interval_s {config.flush_interval_s:g} s)",
+    )
+    for dev in (*config.devices, *config.thermometers):
+        rate = dev.settings.get("rate_hz", DEFAULT_THERMOMETER_RATE_HZ if dev in config.thermometers else None)
+        if isinstance(rate, (int, float)) and rate > 0 and 1.0 / rate > best[0]:
+            best = (1.0 / float(rate), f"one sample period of {dev.name} ({float(rate):g} Hz)")
+    return best
+
+
+def check_capture_duration(config: StationConfig, duration_s: float) -> None:
+    """Refuse (:class:`InputError`) a ``duration_s`` shorter than :func:`shortest_capture_s`: it
+    would write a file without samples that every analysis then rejects."""
+    least, why = shortest_capture_s(config)
+    if not duration_s >= least:
+        raise InputError(
+            f"--duration {format_duration(duration_s)} is shorter than {why}: nothing would be recorded; "
+            f"use at least {format_duration(least)}"
+        )
 
 
 def capture(
@@ -109,7 +136,8 @@ def capture(
 
     Returns the summary; ``summary.stop_reason`` says why a capture ended early.
     Raises :class:`~imustation.errors.DiskFullError` after finishing the file
-    when the disk filled up.
+    when the disk filled up, :class:`~imustation.errors.InputError` before anything is
+    written for a duration shorter than one flush or sample period (:func:`check_capture_duration`).
     """
     check_options(
         simulate=simulate,
@@ -121,6 +149,7 @@ def capture(
         rotate=rotate_s is not None,
         real_time=real_time,
     )
+    check_capture_duration(config, duration_s)  # the planned duration, before a resume shortens it
     lock, point = (
         reserve_resumed(output, config, duration_s, simulated=simulate, now=resume_now) if resume else (None, None)
     )

@@ -77,30 +77,39 @@ def display_units(kind: str | None, dimension: str) -> tuple[str, str, float]:
 
 # longest unit first: with "m" before "min"/"ms" the alternation stopped at "m" and 90min, 500ms failed
 _DURATION_RE = re.compile(r"(\d+(?:\.\d*)?|\.\d+)\s*(min|ms|d|h|m|s)?", re.IGNORECASE)
-_UNIT_S = {"d": 86400.0, "h": 3600.0, "m": 60.0, "min": 60.0, "s": 1.0, "ms": 1e-3, None: 1.0}
+_UNIT_S = {"d": 86400.0, "h": 3600.0, "m": 60.0, "min": 60.0, "s": 1.0, "ms": 1e-3}
+#: the units a duration takes, for messages
+DURATION_UNITS = "ms, s, m or min, h, d"
 
 
-def parse_duration(text: str | float | int) -> float:
-    """Parse ``"12h"``, ``"1h30m"``, ``"90min"``, ``"500ms"``, ``"2.5h"`` or plain seconds into seconds.
+def parse_duration(text: str | float | int, what: str = "duration") -> float:
+    """Parse ``"12h"``, ``"1h30m"``, ``"90min"``, ``"500ms"``, ``"2.5h"``, ``"2 h"`` into seconds.
 
-    Raises :class:`InputError` naming the text and the accepted forms.
+    Every number needs its unit (:data:`DURATION_UNITS`): a bare ``"12"`` is refused, since
+    someone meaning 12 h would otherwise record 12 s. Spaces are allowed anywhere. A Python
+    number (not text) is already seconds. Raises :class:`InputError` naming ``what`` (the option,
+    e.g. ``"--duration"``), the text and the accepted forms.
     """
     if isinstance(text, (int, float)):
         seconds = float(text)
     else:
-        s = text.strip().replace(" ", "")
+        s = "".join(text.split())
+        if not s:
+            raise InputError(f"{what} is empty: use a number with a unit ({DURATION_UNITS}), e.g. 2h, 90m, 45s")
         pos, seconds = 0, 0.0
         while pos < len(s):
             match = _DURATION_RE.match(s, pos)
             if not match:
-                raise InputError(f"duration {text!r}: use a number with a unit, e.g. 2h, 90m, 1h30m, 45s")
-            unit = match.group(2).lower() if match.group(2) else None
-            seconds += float(match.group(1)) * _UNIT_S[unit]
+                raise InputError(
+                    f"{what} {text!r}: use numbers with units ({DURATION_UNITS}), e.g. 2h, 90m, 1h30m, 45s"
+                )
+            if match.group(2) is None:
+                n = match.group(1)
+                raise InputError(f"{what} {text!r}: {n} needs a unit ({DURATION_UNITS}), e.g. {n}s, {n}m or {n}h")
+            seconds += float(match.group(1)) * _UNIT_S[match.group(2).lower()]
             pos = match.end()
-        if not s:
-            raise InputError("duration is empty: use e.g. 2h, 90m, 45s")
     if not math.isfinite(seconds) or seconds <= 0:
-        raise InputError(f"duration {text!r} must be positive")
+        raise InputError(f"{what} {text!r} must be positive")
     return seconds
 
 

@@ -6,6 +6,7 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.cli import cli
+from imustation.errors import InputError
 
 
 def run(*args):
@@ -111,12 +112,66 @@ def test_no_matching_channel(tmp_path, sim_run):
 
 @pytest.mark.parametrize(
     "text,seconds",
-    [("90min", 5400.0), ("500ms", 0.5), ("1h30m", 5400.0), ("5m30s", 330.0), ("1d2h", 93600.0), ("45", 45.0)],
+    [
+        ("90min", 5400.0),
+        ("500ms", 0.5),
+        ("1h30m", 5400.0),
+        ("5m30s", 330.0),
+        ("1d2h", 93600.0),
+        ("2 h", 7200.0),
+        (" 1 h 30 m ", 5400.0),
+        ("45 s", 45.0),
+    ],
 )
 def test_parse_duration_takes_every_unit_it_defines(text, seconds):
     from imustation.units import parse_duration
 
     assert parse_duration(text) == pytest.approx(seconds)
+
+
+@pytest.mark.parametrize("text", ["12", "1h30", "2.5"])
+def test_a_bare_number_is_not_a_duration(text):
+    """'--duration 12' recorded 12 s for someone meaning 12 h: every number needs its unit."""
+    from imustation.units import parse_duration
+
+    with pytest.raises(InputError, match=r"--duration .*needs a unit \(ms, s, m or min, h, d\)"):
+        parse_duration(text, "--duration")
+
+
+def test_capture_duration_words_and_units(tmp_path, demo_config):
+    out = tmp_path / "r.h5"
+    res = run("capture", demo_config.path, "--simulate", "--quiet", "-o", str(out), "--duration", "12")
+    assert_one_line_error(res, "--duration '12'", "needs a unit", "12h")
+    assert not out.exists()
+    # unquoted '--duration 2 s' is two shell words: joined, not 'unexpected extra argument'
+    res = run("capture", demo_config.path, "--simulate", "--quiet", "-o", str(out), "--duration", "2", "s")
+    assert res.exit_code == 0, res.output
+    assert ", 2s in" in res.output and out.exists()
+
+
+@pytest.mark.parametrize("duration,shown", [("10ms", "0.01s"), ("0.5s", "0.5s")])
+def test_capture_shorter_than_a_flush_is_refused_before_recording(tmp_path, demo_config, duration, shown):
+    """--duration 10ms wrote a 0-sample file that every analysis command then rejected."""
+    out = tmp_path / "r.h5"
+    res = run("capture", demo_config.path, "--simulate", "-o", str(out), "--duration", duration)
+    assert_one_line_error(res, f"--duration {shown}", "shorter than one flush interval", "at least 1s")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_shortest_capture_is_set_by_the_slowest_device(tmp_path):
+    from imustation.acquisition import load_config
+    from imustation.acquisition.capture import check_capture_duration, shortest_capture_s
+
+    p = tmp_path / "slow.toml"
+    p.write_text(
+        '[station]\nflush_interval_s = 0.5\n[[device]]\nname = "g"\ndriver = "bmx055"\nbus = "i2c:1"\n'
+        "address = 0x68\nrate_hz = 400\n"
+        '[[thermometer]]\nname = "slow"\ndriver = "mcp9804"\nbus = "i2c:2"\naddress = 0x18\nrate_hz = 0.25\n',
+    )
+    cfg = load_config(p)
+    assert shortest_capture_s(cfg)[0] == 4.0
+    with pytest.raises(InputError, match="one sample period of slow"):
+        check_capture_duration(cfg, 2.0)
 
 
 @pytest.mark.parametrize(

@@ -181,8 +181,8 @@ def test_analyze_json_has_a_noise_model_block_with_the_mli_keys_plus_method(tmp_
     assert ch["noise_model"]["method"] == "ML_i-F" and ch["mli"]["estimator"] == "ML_i"
     other = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--json", "--estimator", "gmwm"])
     assert json.loads(other.output)["channels"][0]["noise_model"]["method"] == "GMWM"
-    table = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS)])
-    assert "ML_i-F" in table.output and "ML_i ok" in table.output
+    table = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--verbose"])
+    assert "  noise_model: ML_i-F " in table.output and "  mli: ML_i " in table.output
     bad = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--estimator", "nope"])
     assert bad.exit_code == 2
 

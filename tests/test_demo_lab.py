@@ -40,6 +40,8 @@ def test_demo_lab_short(tmp_path):
     assert units[("accel", "sigma_w")] == "m/s²/√Hz" and units[("gyro", "sigma_w")] == "rad/s/√Hz"
     assert units[("gyro", "sigma_b")] == "rad/s²/√Hz" and units[("accel", "tau_b")] == "s"
     assert "m/s³/√Hz" in r.output
+    # without -o the run file is a temporary one: its path, gone when the demo ends, is not printed
+    assert "a temporary run file, deleted at the end (-o RUN.h5 keeps it)" in r.output and "demo.h5" not in r.output
 
 
 SMALL_DATASHEET_LAB = """

@@ -60,16 +60,31 @@ def analysed():
 def test_analyze_table_gives_each_kind_its_units(analysed):
     text = results_table(analysed)
     acc_block, gyro_block = text.split("\n\n")[:2]
-    assert acc_block.startswith("accelerometers (m/s²)") and "m/s²/√Hz" in acc_block and "µg/√Hz" in acc_block
+    assert acc_block.startswith("accelerometers (m/s²)") and "N [µg/√Hz]" in acc_block and "K [µg/√s]" in acc_block
     assert "°/h" not in acc_block and "deg/h" not in acc_block
-    assert gyro_block.startswith("gyroscopes (rad/s)") and "rad/s/√Hz" in gyro_block and "°/h/√Hz" in gyro_block
-    # the accelerometer's sigma_w in micro-g/sqrt(Hz): 7e-4 m/s^2/sqrt(Hz) = 71.4 ug/sqrt(Hz)
+    assert gyro_block.startswith("gyroscopes (rad/s)") and "N [°/h/√Hz]" in gyro_block and "B [°/h]" in gyro_block
+    # the accelerometer's N (the model's sigma_w) in micro-g/sqrt(Hz): 7e-4 m/s^2/sqrt(Hz) = 71.4 ug/sqrt(Hz)
     acc_row = next(ln for ln in acc_block.splitlines() if ln.startswith("imu/accel/x"))
-    assert float(acc_row.split()[4]) == pytest.approx(7e-4 / G0 * 1e6, rel=0.05)
+    assert float(acc_row.split()[2]) == pytest.approx(7e-4 / G0 * 1e6, rel=0.05)
     assert "sigma_w (unit)/s*sqrt(s)" not in text
     # tau_b at its search bound is printed as such, with a legend line
     fog = next(ln for ln in gyro_block.splitlines() if ln.startswith("fog/gyro/z"))
     assert "at bound" in fog and "at bound: the fit stopped at its search bound" in text
+
+
+def test_analyze_table_is_one_row_per_channel_and_a_short_attention_list(analysed):
+    """199 lines of analyze text for one 3 h file (comparison fits, 45 'does not fit' lines, verdicts of
+    250-400 characters): now one row per channel, a short list of what needs attention, details with -v."""
+    text = results_table(analysed)
+    rows = [ln for ln in text.splitlines() if ln.split()[:1] and ln.split()[0] in ("imu/accel/x", "imu/gyro/x",
+                                                                                    "fog/gyro/z")]  # fmt: skip
+    assert len(rows) == 3 and "ML_i" not in text and "model fit?" not in text
+    head, _, todo = text.partition("needs attention (")
+    assert todo and "fog/gyro/z: " in todo and "tau_b at the search bound" in todo
+    assert max(len(ln) for ln in todo.splitlines()) < 250
+    assert "details:" not in text
+    verbose = results_table(analysed, verbose=True)
+    assert verbose.startswith(text) and "details:" in verbose and "  mli: ML_i wn+gm" in verbose
 
 
 def test_summary_and_flags(analysed):

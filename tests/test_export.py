@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -187,8 +188,17 @@ def test_short_record_random_walk_is_flagged(tmp_path, demo_config):
 
     path = tmp_path / "short.h5"
     capture(demo_config, path, 30.0, simulate=True)
-    r = CliRunner().invoke(cli, ["export", str(path), "--format", "kalibr", "--gyro-only"])
-    assert r.exit_code == 0
+    out = tmp_path / "k.yaml"
+    # no axis's bias fit vouches for a random walk: nothing written, exit 2, the axes named with why
+    r = CliRunner().invoke(cli, ["export", str(path), "--format", "kalibr", "--gyro-only", "-o", str(out)])
+    assert r.exit_code == 2 and not out.exists()
+    (line,) = [ln for ln in r.stderr.splitlines() if ln.startswith("imustation: error:")]
+    assert "nothing written" in line and "gyro random walk" in line and "--force" in line
+    assert all(f"bmx055/gyro/{a}: " in line for a in "xyz"), line
+    # --force writes it, marked in the file and flagged per axis
+    r = CliRunner().invoke(cli, ["export", str(path), "--format", "kalibr", "--gyro-only", "--force"])
+    assert r.exit_code == 0, r.output
+    assert "#   FORCED gyro random walk: the largest of every axis (x, y, z)" in r.output
     flagged = [ln for ln in r.output.splitlines() if ln.startswith("#   WARNING")]
     assert flagged, r.output
 
@@ -231,3 +241,50 @@ def test_a_noise_density_the_model_cannot_vouch_for_is_flagged(wn_rw_analysis, t
     gyro = SensorNoise("gyro", 200.0, (a,), "model", "diffusion")
     text = export_text(gyro, None, "kalibr")
     assert "WARNING mpu/gyro/x: noise density doubtful: the model does not fit" in text
+
+
+def test_each_quantity_comes_from_the_axes_whose_fit_vouches_for_it():
+    """The Kalibr case of issue 34: the y axis's fit put tau_b at 0.3 s and the 'largest axis' rule wrote its
+    random walk, ~100x the others. Each quantity now comes from the axes whose fit vouches for it, the rule and
+    what was left out stated in the file; nothing left: one error naming every axis and why; --force marks it."""
+    from imustation.analysis.reports.export import Untrustworthy, choose_axes
+
+    fast = "tau_b = 0.3 s < 1 s: that bias acts as white noise"
+    axes = (
+        AxisNoise("mpu/gyro/x", 1.6e-4, 2.1e-5),
+        AxisNoise("mpu/gyro/y", 1.7e-4, 2.14e-3, warning=fast, walk_untrusted=fast),
+        AxisNoise("mpu/gyro/z", 1.5e-4, 1.9e-5),
+    )
+    gyro = choose_axes(SensorNoise("gyro", 200.0, axes, "model", "diffusion"))
+    assert gyro.random_walk == 2.1e-5 and gyro.noise_density == 1.7e-4  # y's noise density is fine
+    text = export_text(gyro, None, "kalibr")
+    assert yaml.safe_load(text)["gyroscope_random_walk"] == pytest.approx(2.1e-5)
+    assert f"#   gyro random walk: the largest of the axes whose fit vouches for it (x, z); y left out: {fast}" in text
+    assert "#   gyro noise density: the largest of the axes whose fit vouches for it (x, y, z)" in text
+    bad = "the model does not fit the Allan deviation (does not fit (p<1e-4))"
+    none = tuple(replace(a, noise_untrusted=bad, walk_untrusted=bad) for a in axes)
+    with pytest.raises(Untrustworthy) as err:
+        choose_axes(SensorNoise("gyro", 200.0, none, "model", "diffusion"))
+    msg = str(err.value)
+    assert "nothing written" in msg and all(f"mpu/gyro/{a}: {bad}" in msg for a in "xyz")
+    forced = choose_axes(SensorNoise("gyro", 200.0, none, "model", "diffusion"), force=True)
+    assert forced.forced == ("noise", "walk") and forced.random_walk == 2.14e-3
+    assert "#   FORCED gyro random walk: the largest of every axis (x, y, z); no fit vouches for it" in export_text(
+        forced, None, "kalibr"
+    )
+
+
+def test_a_sigma_b_column_never_holds_a_random_walk(wn_rw_analysis):
+    """The noise table's sigma_b column held sigma_b on one axis and K (tau_b inf) on the next: a model
+    without a Gauss-Markov term now shows '—' there, in the noise table and in the report's summary."""
+    from imustation.analysis.reports.summary import summary_rows
+    from imustation.analysis.reports.tables import NOT_FITTED, noise_rows, table_markdown
+
+    res, _, _ = wn_rw_analysis
+    assert res.noise_model.model == "wn+rw" and math.isinf(res.noise_model.tau_b)  # sigma_b is its sigma_k
+    (row,) = noise_rows([res])
+    assert row.flag("sigma_b") == NOT_FITTED and row.flag("tau_b") == NOT_FITTED
+    cells = table_markdown([row]).splitlines()[-1].split(" | ")
+    assert cells[4:7] == ["—", "—", "—"] and cells[11] not in ("—", "")  # sigma_b SI, display, tau_b; K shown
+    (summary,) = summary_rows([res])
+    assert summary.values["sigma_b"].flag == NOT_FITTED and summary.values["tau_b"].flag == NOT_FITTED

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -188,9 +189,14 @@ def test_repeatability_matches_numpy(fleet_runs, fleet_out):
     for key, rr in rep.items():
         assert rr.runs == 2
         for q in ("sigma_w", "sigma_b", "tau_b"):
-            v = np.array([float(x[q]) for x in rows if x["device_key"] == key])
-            assert rr.mean[q] == pytest.approx(np.mean(v), rel=1e-12)
-            assert rr.std[q] == pytest.approx(np.std(v, ddof=1), rel=1e-12)
+            # a flagged value (at bound, not identified, doubtful) is no estimate: not averaged
+            mine = [x for x in rows if x["device_key"] == key]
+            v = np.array([float(x[q]) for x in mine if f"{q} " not in x["value_flags"]])
+            assert rr.counted[q] == len(v)
+            if len(v):
+                assert rr.mean[q] == pytest.approx(np.mean(v), rel=1e-12)
+            if len(v) > 1:
+                assert rr.std[q] == pytest.approx(np.std(v, ddof=1), rel=1e-12)
     md = (out / "fleet.md").read_text()
     assert "repeatability per device" in md
 
@@ -250,7 +256,7 @@ def test_a_doubtful_noise_density_is_not_judged():
     def row(sw: float, lo: float, hi: float, flags: dict) -> FleetRow:
         vals = {"sigma_w": sw, "sigma_b": 1e-6, "tau_b": 300.0}
         se = {"sigma_w": 0.002 * sw, "sigma_b": 1e-7, "tau_b": 30.0}
-        return FleetRow("r", "lab", "g", "mpu9150", "", "k", "gyro", "x", 1, 200.0, "wn+gm", True, vals, se,
+        return FleetRow("r", "lab", "g", "mpu9150", "", "k", "gyro", "x", 2_160_000, 200.0, "wn+gm", True, vals, se,
                         {**vals, "sigma_w": lo}, {**vals, "sigma_w": hi}, flags=flags)  # fmt: skip
 
     sws = [1.000e-4, 1.001e-4, 0.999e-4, 1.002e-4, 0.998e-4]
@@ -339,3 +345,75 @@ def test_model_auto_gives_one_model_per_driver_sensor_and_axis():
             before.adequacy["noise_model"] if before.noise_model.model == model else c[model].check
         )
     assert common_models(results[:1])[0] is results[0]  # a group of one is left alone
+
+
+def _row(run: str, sw: float, sw_se: float, *, model: str = "wn+gm", n: int = 2_160_000, key: str = "k",
+         sb: float = 1e-6) -> FleetRow:  # fmt: skip
+    vals = {"sigma_w": sw, "sigma_b": sb, "tau_b": 300.0}
+    se = {"sigma_w": sw_se, "sigma_b": 0.01 * sb, "tau_b": 3.0}
+    lo = {q: v - 1.645 * se[q] for q, v in vals.items()}
+    hi = {q: v + 1.645 * se[q] for q, v in vals.items()}
+    return FleetRow(run, "lab", "g", "mti", "", key, "gyro", "x", n, 200.0, model, True, vals, se, lo, hi)
+
+
+def test_a_short_run_is_listed_and_left_out_and_each_run_is_judged_with_its_own_interval():
+    """A 12 s run's sigma_w 25.4 +- 0.32 was an outlier (z -5.2) against six 3 h runs at 25.6 +- 0.01: it is
+    left out as too short; a 20 min run of 25.4 +- 0.32 is judged with its own interval: no outlier."""
+    long = [_row(f"r{i}", 25.6 + 0.01 * (i % 3 - 1), 0.01) for i in range(6)]
+    short = _row("short", 25.4, 0.32, n=2400)  # 12 s at 200 Hz
+    judged = flag_outliers([*long, short])
+    assert judged[-1].excluded.startswith("too short (12 s") and not judged[-1].outliers
+    assert math.isnan(judged[-1].z["sigma_w"])
+    assert all(r.key != "short" for r in repeatability(judged)) and repeatability(judged)[0].runs == 6
+    medium = _row("medium", 25.4, 0.32, n=240_000)  # 20 min: kept, within its own interval of the others
+    judged = flag_outliers([*long, medium])
+    assert not judged[-1].excluded and abs(judged[-1].z["sigma_w"]) < 1.0 and not judged[-1].outliers
+    # the same value with the long runs' precision is an outlier
+    assert "sigma_w" in flag_outliers([*long, _row("precise", 25.4, 0.01)])[-1].outliers
+
+
+def test_fleet_statistics_compare_only_comparable_models_and_groups_of_five():
+    """sigma_b of a random-walk model is its rate random walk: never averaged or judged with a Gauss-Markov
+    sigma_b; sigma_w means the same in every model. Four runs are not judged (the MAD of 3-4 values is noise)."""
+    gm = [_row(f"g{i}", 25.6, 0.01, sb=1e-6 * (1 + 0.01 * i)) for i in range(4)]
+    rw = [_row("w0", 25.6, 0.01, model="wn+rw", sb=1e-9)]
+    judged = flag_outliers(gm + rw)
+    assert math.isfinite(judged[-1].z["sigma_w"])  # five runs for sigma_w, over both models
+    assert all(math.isnan(r.z["sigma_b"]) for r in judged)  # four wn+gm, one wn+rw: not judged
+    assert not any(r.outliers for r in judged)
+    rep = repeatability(judged)
+    assert [(r.model, r.runs) for r in rep] == [("wn+gm", 4), ("wn+rw", 1)]
+    assert rep[0].mean["sigma_b"] == pytest.approx(1.015e-6) and rep[1].mean["sigma_b"] == 1e-9
+    # without the model split the sigma_b of the wn+rw run (1e-9) was the outlier of one mixed group of 5
+    assert not flag_outliers(gm[:3] + rw)[-1].outliers
+
+
+def test_repeatability_leaves_out_flagged_values_and_random_walks_without_warnings():
+    rows = [_row(f"r{i}", 25.6, 0.01) for i in range(3)]
+    rows = [replace(r, values={**r.values, "tau_b": math.inf}) for r in rows]
+    rows[0] = replace(rows[0], flags={"sigma_b": "at bound"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # np.std of [inf, inf] warned 'invalid value' in fleet
+        (rep,) = repeatability(flag_outliers(rows))
+    assert rep.mean["tau_b"] == math.inf and math.isnan(rep.std["tau_b"])
+    assert rep.counted["sigma_b"] == 2 and rep.counted["sigma_w"] == 3
+
+
+def test_a_too_short_run_is_listed_and_left_out_in_every_output(fleet_runs, tmp_path):
+    """A 12 s run was accepted and judged an outlier; it is listed (stderr, CSV status 'left out', the
+    Markdown's left-out table) and counted in neither the repeatability nor the outlier test."""
+    runs = fleet_runs[0]
+    short = tmp_path / "short.h5"
+    capture(_config(tmp_path, 5), short, 20.0, simulate=True)
+    out = tmp_path / "o"
+    r = CliRunner().invoke(cli, ["fleet", *runs, str(short), "-o", str(out), "--channel", GLOB, "--model", "wn+gm"])
+    assert r.exit_code == 0, r.output
+    left = [ln for ln in r.stderr.splitlines() if ln.startswith("left out: ")]
+    assert len(left) == 4 and all("short.h5" in ln and "too short (20 s < 60 s)" in ln for ln in left)
+    rows = _rows(out)
+    assert {x["status"] for x in rows if x["run"] == str(short)} == {"left out"}
+    assert all(x["z_sigma_w"] == "nan" for x in rows if x["run"] == str(short))
+    assert all(x["warmup"].endswith("(auto: no temperature channel)") or "cut" in x["warmup"] for x in rows)
+    md = (out / "fleet.md").read_text()
+    assert "**Left out of the repeatability and the outlier test**" in md and "4 axes left out" in r.stdout
+    assert "| wn+gm | 2 |" in md  # repeatability per device and model, the short run not counted

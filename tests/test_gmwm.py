@@ -217,9 +217,9 @@ def test_analyze_method_both_json(tmp_path):
     ch = json.loads(res.output)["channels"][0]
     assert ch["gmwm"].keys() == ch["mli"].keys()
     assert ch["gmwm"]["estimator"] == "GMWM" and ch["mli"]["estimator"] == "ML_i"
-    table = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--method", "gmwm"])
+    table = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--method", "gmwm", "--verbose"])
     assert table.exit_code == 0, table.output
-    assert "GMWM ok" in table.output and " ML_i ok" not in table.output  # the ML_i comparison fit is not run
+    assert "  gmwm: GMWM " in table.output and "  mli: ML_i " not in table.output  # no ML_i comparison fit run
     bad = CliRunner().invoke(cli, ["analyze", str(p), "--rate", str(FS), "--method", "xx"])
     assert bad.exit_code == 2
 

@@ -253,9 +253,9 @@ def test_csv_log_auto_detected(tmp_path):
         np.testing.assert_array_equal(run_.read("imu", "gyro"), g)
         assert run_.devices["imu"].rate_hz == pytest.approx(FS, rel=1e-6)
     # direct analysis of the log (no --rate: a timed log)
-    res = run("analyze", str(p), "--channel", "imu/gyro/z", "-m", "100")
+    res = run("analyze", str(p), "--channel", "imu/gyro/z", "-m", "100", "--verbose")
     assert res.exit_code == 0, res.output
-    assert "enough data? imu/gyro/z:" in res.output
+    assert "imu/gyro/z:\n" in res.output and "  enough data? " in res.output
 
 
 def test_tsv_with_options_ms_and_degrees(tmp_path):
@@ -333,6 +333,12 @@ def test_verdict_rules():
     nofit = data_verdict(36000.0, math.nan, 200.0)
     assert nofit.verdict == "marginal"
     assert json.dumps(nofit.as_dict())
+    # still warming at the end: nothing cut, said so; too short to tell: said so, not a warm-up 'until its end'
+    warming = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, warmup_state="unsettled", temp_span_c=0.5)
+    assert warming.verdict == "marginal" and any("still warming up" in r for r in warming.reasons)
+    assert warming.as_dict()["warmup_state"] == "unsettled"
+    unknown = data_verdict(36000.0, 300.0, 200.0, warmup_s=0.0, warmup_state="unknown", temp_span_c=0.5)
+    assert unknown.verdict == "enough" and any("too short to tell" in r for r in unknown.reasons)
 
 
 # --- the streaming ROS 1 reader (acquisition/importers/rosbag1.py, ros1.py) -----

@@ -381,3 +381,15 @@ def test_decimate_and_warmup_summary():
     assert w["warming"] is True and w["warmup_end_s"] is None and w["steady"] is False
     assert warmup_summary(t[:100], c[:100])["warming"] is None
     assert math.isclose(warmup_summary(t, np.full_like(t, 20.0))["slope_c_per_h"], 0.0, abs_tol=1e-9)
+
+
+def test_the_allan_section_says_it_waits_for_data():
+    """The Allan section was empty, with no word, until the first curve: the page says it waits, before the
+    first answer and for a device whose data are still too short for one Allan point."""
+    import importlib.resources
+
+    static = importlib.resources.files("imustation.monitor") / "static"
+    page = (static / "index.html").read_text(encoding="utf-8")
+    assert '<div id="allan-note">waiting for data&hellip;</div>' in page
+    js = (static / "monitor.js").read_text(encoding="utf-8")
+    assert ': waiting for data (" + (d.samples || 0) + " samples so far)' in js

@@ -142,6 +142,10 @@ def test_a_failed_report_leaves_no_folder_and_overwrite_replaces(tmp_path, small
 def test_export_overwrite_replaces_the_file(tmp_path, small_run):
     k = tmp_path / "k.yaml"
     k.write_text("old")
+    # 10 s of a synthetic gyro identify no random walk: refused, the old file left alone ...
     res = _run("export", small_run, "--format", "kalibr", "-o", k, "--overwrite")
+    assert res.exit_code == 2 and k.read_text() == "old"
+    # ... and with --force replaced
+    res = _run("export", small_run, "--format", "kalibr", "-o", k, "--overwrite", "--force")
     assert res.exit_code == 0, res.output
     assert "gyroscope_noise_density" in k.read_text()

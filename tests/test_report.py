@@ -62,7 +62,7 @@ def test_report_opens_with_the_summary_then_figures_then_details(sim_run, tmp_pa
 def test_report_rejects_bad_warmup(sim_run, tmp_path):
     path, _ = sim_run
     r = CliRunner().invoke(cli, ["report", str(path), "-o", str(tmp_path), "--warmup", "soon"])
-    assert r.exit_code == 2 and "duration 'soon'" in r.output
+    assert r.exit_code == 2 and "--warmup 'soon'" in r.output and "(or auto, or 0 for nothing)" in r.output
 
 
 def test_report_two_runs_has_combined_table(sim_run, tmp_path):

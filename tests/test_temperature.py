@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -11,8 +12,9 @@ from imustation.analysis.estimators.classical.temperature import (
     detect_warmup,
     fit_tempco,
     fit_warmup,
+    reading_step,
 )
-from imustation.analysis.pipeline.loaders import device_temperature
+from imustation.analysis.pipeline.loaders import device_temperature, device_temperature_record
 from imustation.analysis.reports.plots import bias_track
 from imustation.errors import InputError
 
@@ -84,7 +86,62 @@ def test_warmup_detection():
     end = detect_warmup(t, _warm_temperature(t), window_s=600.0, max_rate_c_per_h=1.0)
     assert settle - 600 <= end <= settle + 300
     assert detect_warmup(t, np.full_like(t, 25.0)) == 0.0
-    assert detect_warmup(t, 25 + t / 600.0) == pytest.approx(t[-1])  # 6 degC/h: never settles
+    # a steady 6 degC/h drift has no transient to cut up to: nothing settles, nothing is cut
+    drift = fit_warmup(t, 25 + t / 600.0)
+    assert drift.state == "unsettled" and drift.cut_s == 0.0 and drift.drift_c_per_h == pytest.approx(6.0)
+    assert drift.describe().startswith("temperature still changing at the end (+24 K")
+    # the first 10 minutes of a 4 K, 15 min warm-up: no transient to tell from a drift, but far from settled
+    first = fit_warmup(t[:600], 25 + 4 * (1 - np.exp(-t[:600] / 900.0)), step_c=1 / 340)
+    assert first.state == "unsettled" and first.cut_s == 0.0
+    # a 0.5 degC/h drift is settled by the limit: no warm-up
+    assert fit_warmup(t, 25 + t / 7200.0).state == "none"
+    # a real warm-up cut off before it settles: still warming, nothing settled to keep
+    early = fit_warmup(t[:1800], _warm_temperature(t[:1800]))
+    assert early.state == "unsettled" and early.end_s == t[1799] and early.cut_s == 0.0
+
+
+def test_one_quantisation_step_is_not_a_warmup():
+    # configs/demo.toml, 1.5 h: the die reads a flat 30.0 degC, then 30.5 from one step on (0.5 K LSB);
+    # the old fit read a transient 'until 824 s' into it and report cut 13 min that analyze kept
+    t = np.arange(0.5, 5400.0, 1.0)
+    for at in (100.0, 600.0, 1800.0, 4000.0):
+        temp = np.where(t < at, 30.0, 30.5)
+        temp[np.searchsorted(t, at)] = 30.05  # a 1 s block mean straddling the step
+        fit = fit_warmup(t, temp, step_c=0.5)
+        assert fit.state == "none" and fit.cut_s == 0.0, (at, fit)
+        assert fit_warmup(t, temp).state == "none", at  # the step estimated from these block means
+
+
+def test_a_record_too_short_is_unknown_not_warming_until_its_end():
+    # 12 s: the old fit solved a 1-block least-squares problem (level 0.96 degC, drift 19000 degC/h)
+    # and called the whole record warm-up ('until 12 s')
+    t = np.arange(0.5, 12.0, 1.0)
+    for temp in (np.full_like(t, 30.0), 30.0 + 0.01 * t):
+        fit = fit_warmup(t, temp)
+        assert fit.state == "unknown" and math.isnan(fit.end_s) and fit.cut_s == 0.0
+        assert "too short" in fit.describe()
+        assert math.isnan(detect_warmup(t, temp))
+
+
+def test_room_drift_against_a_fine_thermometer_is_not_a_warmup():
+    # the 3 h lab (configs/lab-example.toml): a die at 30 degC following a slow room swing of 0.5 K,
+    # read in 1/340 K steps; the old fit's transient (2.5 K, tau 5370 s) and drift (-0.68 K/h)
+    # cancelled and it reported 'warm-up transient until 22 s' on every MPU and MTi channel
+    t = np.arange(0.5, 3 * 3600.0, 1.0)
+    rng = np.random.default_rng(3)
+    true = 30.0 + 0.5 * np.sin(np.pi * t / 10800.0) ** 2
+    temp = np.round((true + rng.normal(0, 0.002, len(t))) * 340.0) / 340.0
+    fit = fit_warmup(t, temp, step_c=1 / 340)
+    assert fit.state == "none" and fit.cut_s == 0.0, fit
+    # the same room with a real 4 K, 15 min warm-up on top is found, many steps of change
+    warm = fit_warmup(t, temp - 4.0 * np.exp(-t / 900.0), step_c=1 / 340)
+    assert warm.state == "transient" and 2000 < warm.cut_s < 3200 and warm.change_c > 3.5
+    assert re.fullmatch(r"warm-up 4 K until \d+ s", warm.describe())
+
+
+def test_reading_step_from_the_data():
+    assert reading_step(np.array([30.0, 30.0, 30.5, 30.5, 30.0, 31.0])) == 0.5
+    assert reading_step(np.full(5, 25.0)) == 0.0
 
 
 def _quantised(temp, step=0.5):
@@ -116,7 +173,10 @@ def test_quantised_exponential_warmup_is_found_near_the_truth(seed):
 
 def test_device_temperature_from_run(sim_run):
     path, _ = sim_run
+    rec = device_temperature_record(str(path), "bmx055")
     t, c = device_temperature(str(path), "bmx055")
+    # the raw readings' step (BMX055: 0.5 K LSB), not the block means' (which may be constant)
+    assert rec.step_c in (0.0, 0.5) and rec.step_c >= reading_step(c)
     assert len(t) == pytest.approx(1200, abs=2) and np.all(np.diff(t) > 0)
     assert 10.0 < np.median(c) < 50.0
     with pytest.raises(InputError, match="no temperature channel"):

@@ -26,6 +26,7 @@ from imustation.analysis.pipeline.choices import (
     DEFAULT_METHOD,
     DEFAULT_MODEL,
     ESTIMATORS,
+    FILTER_TERM,
     METHODS,
     MODEL_AUTO,
     PAPER_MODEL,
@@ -127,7 +128,7 @@ def without_sinusoids(ch: Channel) -> tuple[tuple[Component, ...], Channel]:
 def analyze_channel(
     ch: Channel,
     *,
-    pattern: str = "log",
+    pattern: str | None = None,
     m: int = 1000,
     model: str = DEFAULT_MODEL,
     compare: tuple[str, ...] = (),
@@ -142,7 +143,9 @@ def analyze_channel(
 
     ``estimator`` (``"mli-f"``, ``"mli"`` or ``"gmwm"``) fills ``noise_model``,
     the result reports and exports use. ``method``: the comparison blocks
-    ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's.
+    ``"mli"``, ``"gmwm"`` or ``"both"``; ``pattern`` and ``m`` are ML_i's (``pattern`` None: the
+    paper's ``"log"``, or ``"uniform"`` for a model with a device filter, which the log pattern
+    cannot hold).
     ``compare``: further models fitted by ML_i to the same integrated record (AIC/BIC).
     ``need``: the parameters the "enough data?" verdict judges (:func:`.verdict.channel_verdict`).
     ``model="auto"``: ML_i-F chooses the model (:func:`choose_model`, the device's
@@ -168,8 +171,10 @@ def analyze_channel(
     ieee = ieee_coefficients(allan, tau_min=tau_min)
     mli, models, gmwm = None, (), None
     if method in ("mli", "both") or estimator == "mli":
-        inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
         mli_model = PAPER_MODEL if choice is not None else model  # the paper's estimator with its model
+        if pattern is None:
+            pattern = "uniform" if FILTER_TERM in mli_model.split("+") else "log"
+        inc = integrate(ch.data, ch.fs_hz, m=m, pattern=pattern, scale=ch.scale, segments=ch.segments)
         mli = fit_integrated(inc, mli_model)
         models = tuple(compare_models(inc, tuple(dict.fromkeys((mli_model, *compare))))) if compare else ()
     if method in ("gmwm", "both") or estimator == "gmwm":
@@ -178,7 +183,10 @@ def analyze_channel(
         if choice is not None:
             best = as_choice_result(choice)
         else:
-            best = fit_composite(ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments)
+            # the device's filter settings, as --model auto gets them: a model with lp needs its scale
+            best = fit_composite(
+                ch.data, ch.fs_hz, model, scale=ch.scale, segments=ch.segments, hint=filter_hint(ch.meta, ch.fs_hz)
+            )
     else:
         best = mli if estimator == "mli" else gmwm
     # only the requested comparison blocks are reported
@@ -245,6 +253,8 @@ def channel_document(res: ChannelAnalysis) -> dict:
             "duration_s": ch.n / ch.fs_hz,
             "source": ch.source,
             "gaps": ch.gaps,
+            # the start left out (--warmup; analysis/pipeline/warmup.py): what was cut and why
+            **({"warmup": ch.meta["warmup"].as_dict()} if "warmup" in ch.meta else {}),
             **(_noise_blocks(res) if res.noise_model is not None else {}),
             **({"mli": _block(res, "mli", res.mli)} if res.mli is not None else {}),
             **({"gmwm": _block(res, "gmwm", res.gmwm)} if res.gmwm is not None else {}),

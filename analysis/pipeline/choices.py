@@ -27,15 +27,41 @@ MODEL_HELP = (
     "Noise model: 'auto' (default: the simplest model of the family that fits, chosen by BIC and a check "
     "against the Allan deviation; the paper's wn+gm is reported beside it) or terms joined by '+' - "
     + "; ".join(f"{code} {text}" for code, text in MODEL_TERMS.items())
-    + ". E.g. wn+gm (the paper's standard model), wn+2gm, wn+fl+rw+lp (docs/noise-model.md)."
+    + ". E.g. wn+gm (the paper's standard model), wn+2gm, wn+fl+rw+lp (docs/noise-model.md). --model says WHAT "
+    "is fitted; analyze's --estimator says HOW the reported fit is made, --method which comparison fits are shown."
 )
+#: the model term of a device filter: ML_i's log pattern cannot hold it (its first intervals are
+#: shorter than the filter's memory), so ML_i fits such a model on the uniform pattern
+FILTER_TERM = "lp"
+#: ``analyze --pattern`` choices; None (the default): log, or uniform for a model with a filter
+PATTERNS = ("log", "uniform")
 #: noise-model methods of ``analyze --method`` (analysis/pipeline/channel.py) and the default
 METHODS = ("mli", "gmwm", "both")
 DEFAULT_METHOD = "mli"
+#: help of ``analyze --estimator`` and ``--method``: how they differ from ``--model``
+ESTIMATOR_HELP = (
+    "HOW the reported noise model is fitted (the table's first row per channel, the JSON 'noise_model' block, "
+    "what report/export/fleet use): mli-f (default: ML_i's integrated likelihood + the fine-scale Allan "
+    "variance, docs/noise-model.md), mli (the paper's ML_i) or gmwm. Works with every --model."
+)
+METHOD_HELP = (
+    "Comparison fits shown BESIDE the reported one (rows below it, JSON 'mli'/'gmwm'): mli (the paper's ML_i; "
+    "with --model auto it fits the paper's wn+gm), gmwm (docs/gmwm.md) or both. They never change the reported "
+    "numbers."
+)
 #: estimators that can fill the ``noise_model`` block (``analyze --estimator``)
 ESTIMATORS = ("mli-f", "mli", "gmwm")
 #: the default: ML_i-F won the Monte Carlo study of docs/noise-model.md
 DEFAULT_ESTIMATOR = "mli-f"
+
+#: ``--warmup``: its default in every command that analyses run files (analysis/pipeline/warmup.py)
+DEFAULT_WARMUP = "auto"
+WARMUP_HELP = (
+    "Start of each device's record left out of the analysis: auto (default: up to the end of a warm-up its "
+    "own temperature shows - a real change of many reading steps and a fitted transient; nothing otherwise), "
+    "0 (nothing), or a duration such as 1h (the paper discards at least the first hour). analyze, report, "
+    "export, fleet and demo cut the same for the same option and say what they cut."
+)
 
 #: estimators of the Monte Carlo study (``study --estimators``, analysis/pipeline/study.py)
 STUDY_ESTIMATORS = ("mli-log", "mli-uniform", "ml-log", "ml-uniform", "gmwm", "gmwm-single", "mli-f")

@@ -11,15 +11,24 @@
   where the chip reports one (ADIS16448 ``serial=``, Xsens ``device_id=``, or a
   ``serial`` device setting in the config), otherwise ``station/device name`` (chips
   such as the BMX055 or MPU-6500 only report a chip id, the same on every part).
-* :func:`repeatability` — per device and axis, mean and standard deviation
-  (``ddof=1``) of ``sigma_w``, ``sigma_b``, ``tau_b`` over its runs (the paper's Table III).
+* :func:`repeatability` — per device, axis and model, mean and standard deviation
+  (``ddof=1``) of ``sigma_w``, ``sigma_b``, ``tau_b`` over its runs (the paper's Table III);
+  runs of different models are not averaged together (``sigma_b`` of a random-walk model is
+  its rate random walk, not a Gauss-Markov density).
 * :func:`flag_outliers` — robust z-score of ``log10`` of each of ``sigma_w``,
-  ``sigma_b``, ``tau_b`` against the fleet of the same driver, sensor and axis:
-  ``z = 0.6745 (x - median) / MAD`` (Iglewicz & Hoaglin); ``|z| > 3.5`` is an outlier.
-  The spread has a floor, the median stated standard error of the group's
-  values (in log10: ``se / (x ln 10)``), so values that agree to within their
-  uncertainty (e.g. sigma_w equal to three digits, MAD ~ 0) are not called outliers. Groups of fewer than
-  :data:`MIN_GROUP` values are not judged (``z`` NaN).
+  ``sigma_b``, ``tau_b`` against the fleet of the same driver, sensor and axis (and, for
+  ``sigma_b`` and ``tau_b``, the same model: only comparable parameters are compared):
+  ``z = (x - median) / sqrt(s^2 + se_i^2)`` with ``s = MAD / 0.6745`` (Iglewicz & Hoaglin)
+  and ``se_i`` the run's own standard error (in log10: ``se / (x ln 10)``, from its 90 %
+  interval when it has no standard error); ``|z| > 3.5`` is an outlier. A run whose own
+  interval reaches the group's median is no outlier, however tight the others are (a 12 s
+  run's sigma_w 25.4 +- 0.32 was 'z -5.2' against 25.6). ``s`` has a floor, the median
+  stated standard error of the group's values, so values that agree to within their
+  uncertainty (e.g. sigma_w equal to three digits, MAD ~ 0) are not called outliers. Groups
+  of fewer than :data:`MIN_GROUP` values are not judged (``z`` NaN): the MAD of three or
+  four values flags trivial differences.
+* Too-short runs are listed and left out of both (:attr:`FleetRow.excluded`): shorter than
+  :data:`MIN_RUN_S`, or than :data:`MIN_RUN_FRACTION` of the median length of their group.
 
 The rows' text (CSV, Markdown) is :mod:`imustation.analysis.reports.fleettable`'s.
 """
@@ -34,6 +43,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis, split_channel_id
+from imustation.analysis.pipeline.verdict import MIN_RECORD_S
 
 #: quantities of the fleet table (SI): ML_i standard model, then IEEE-952
 FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")
@@ -41,8 +51,13 @@ FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")
 MODEL_QUANTITIES = ("sigma_w", "sigma_b", "tau_b")
 #: robust |z| above which a run is flagged
 Z_LIMIT = 3.5
-#: fewest runs of a driver/sensor/axis group for outlier flags
-MIN_GROUP = 3
+#: fewest runs of a driver/sensor/axis group for outlier flags (the MAD of 3-4 values is itself noise)
+MIN_GROUP = 5
+#: a run shorter than this (s) is left out of the fleet statistics: the verdict's shortest record
+MIN_RUN_S = MIN_RECORD_S
+#: ... and one shorter than this fraction of its group's median length: its estimates rest on
+#: other scales than the rest of the group's
+MIN_RUN_FRACTION = 0.1
 #: consistency constant of the MAD for a normal distribution (Iglewicz & Hoaglin)
 _MAD_K = 0.6745
 #: two-sided 90 % normal quantile for intervals built from a standard error
@@ -67,7 +82,8 @@ class FleetRow:
     """One axis of one run; ``values``, ``stderr``, ``lo``, ``hi`` in SI keyed by :data:`FLEET_QUANTITIES`.
 
     ``z``: robust z-scores of :data:`MODEL_QUANTITIES` (NaN when not judged);
-    ``outliers``: the quantities with ``|z| > Z_LIMIT``.
+    ``outliers``: the quantities with ``|z| > Z_LIMIT``; ``excluded``: why the run is left out
+    of the outlier test and the repeatability ("" when it is not).
     """
 
     run: str
@@ -90,11 +106,19 @@ class FleetRow:
     outliers: tuple[str, ...] = ()
     #: quantities that are not plain estimates (tables.NOT_FITTED, AT_BOUND, NOT_IDENTIFIED, DOUBTFUL)
     flags: dict[str, str] = field(default_factory=dict)
+    excluded: str = ""
+    #: what ``--warmup`` cut from the run's device (:meth:`.warmup.WarmupCut.describe`; "" when not known)
+    warmup: str = ""
 
     @property
     def group(self) -> tuple[str, str, str]:
         """(driver, sensor, axis): the population an outlier is judged against."""
         return (self.driver, self.sensor, self.axis)
+
+    @property
+    def duration_s(self) -> float:
+        """The run's length (s) from its sample count and rate."""
+        return self.n / self.fs_hz if self.fs_hz > 0 else math.nan
 
 
 def by_model(candidates) -> dict:
@@ -149,7 +173,7 @@ def common_models(results: Sequence[ChannelAnalysis]) -> list[ChannelAnalysis]:
     return out
 
 
-def robust_z(x: np.ndarray, se: np.ndarray | None = None) -> np.ndarray:
+def robust_z(x: np.ndarray, se: np.ndarray | None = None, own_se: np.ndarray | None = None) -> np.ndarray:
     """Modified z-scores ``(x - median) / s`` of finite ``x`` (NaN stays NaN), ``s = MAD / 0.6745``.
 
     With MAD = 0 (over half the values equal) the mean absolute deviation
@@ -158,6 +182,8 @@ def robust_z(x: np.ndarray, se: np.ndarray | None = None) -> np.ndarray:
     their median (a floor: values that agree within their stated uncertainty get
     small z however tight the group; the median, as the MAD, is not moved by a
     few fits with a degenerate standard error). Equal values without a floor get 0.
+    ``own_se``: each value's own standard error, added in quadrature to ``s`` for that value:
+    ``(x_i - median) / sqrt(s^2 + own_se_i^2)`` (an unusable one counts as 0).
     """
     x = np.asarray(x, dtype=np.float64)
     z = np.full(x.shape, np.nan)
@@ -173,7 +199,13 @@ def robust_z(x: np.ndarray, se: np.ndarray | None = None) -> np.ndarray:
         floor = floor[np.isfinite(floor) & (floor > 0)]
         if len(floor):
             spread = max(spread, float(np.median(floor)))
-    z[ok] = (x[ok] - med) / spread if spread > 0 else 0.0  # spread 0: every value equal
+    scale = np.full(int(ok.sum()), spread)
+    if own_se is not None:
+        own = np.asarray(own_se, dtype=np.float64)[ok]
+        own = np.where(np.isfinite(own) & (own > 0), own, 0.0)
+        scale = np.hypot(scale, own)
+    with np.errstate(divide="ignore", invalid="ignore"):  # scale 0: every value equal
+        z[ok] = np.where(scale > 0, (x[ok] - med) / np.where(scale > 0, scale, 1.0), 0.0)
     return z
 
 
@@ -189,17 +221,39 @@ def _log10_se(row: FleetRow, q: str) -> float:
     return math.nan
 
 
+def too_short(rows: Sequence[FleetRow]) -> list[FleetRow]:
+    """Rows with ``excluded`` set for runs too short for the fleet statistics: shorter than
+    :data:`MIN_RUN_S`, or than :data:`MIN_RUN_FRACTION` of their group's median length."""
+    lengths: dict[tuple[str, str, str], list[float]] = {}
+    for r in rows:
+        lengths.setdefault(r.group, []).append(r.duration_s)
+    median = {g: float(np.median(v)) for g, v in lengths.items()}
+    out = []
+    for r in rows:
+        d = r.duration_s
+        why = ""
+        if not d >= MIN_RUN_S:
+            why = f"too short ({d:.3g} s < {MIN_RUN_S:g} s)"
+        elif d < MIN_RUN_FRACTION * median[r.group]:
+            why = f"too short ({d:.3g} s < {MIN_RUN_FRACTION:g} x the group's median {median[r.group]:.3g} s)"
+        out.append(replace(r, excluded=why) if why else r)
+    return out
+
+
 def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group: int = MIN_GROUP) -> list[FleetRow]:
-    """Rows with ``z`` and ``outliers`` set: robust z of log10 of each model quantity within its group,
-    its spread floored by the group's median standard error (module docstring)."""
-    groups: dict[tuple[str, str, str], list[int]] = {}
+    """Rows with ``excluded`` (:func:`too_short`), ``z`` and ``outliers`` set: robust z of log10 of each
+    model quantity within its group of comparable runs, with each run's own standard error (module docstring)."""
+    rows = too_short(rows)
+    groups: dict[tuple, list[int]] = {}
     for i, r in enumerate(rows):
-        groups.setdefault(r.group, []).append(i)
+        if not r.excluded:
+            groups.setdefault((*r.group, "*"), []).append(i)  # sigma_w: one meaning in every model
+            groups.setdefault((*r.group, r.model), []).append(i)
     zs: list[dict[str, float]] = [{q: math.nan for q in MODEL_QUANTITIES} for _ in rows]
-    for idx in groups.values():
+    for key, idx in groups.items():
         if len(idx) < min_group:
             continue
-        for q in MODEL_QUANTITIES:
+        for q in ("sigma_w",) if key[-1] == "*" else ("sigma_b", "tau_b"):
             v = np.array([rows[i].values[q] for i in idx])
             with np.errstate(divide="ignore", invalid="ignore"):
                 logv = np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), np.nan)
@@ -207,7 +261,7 @@ def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group:
             # at a bound / not identified: no estimate; doubtful: an interval far wider than the group spread
             logv[[bool(rows[i].flags.get(q)) for i in idx]] = np.nan
             se = np.array([_log10_se(rows[i], q) for i in idx])
-            for i, z in zip(idx, robust_z(logv, se), strict=True):
+            for i, z in zip(idx, robust_z(logv, se, own_se=se), strict=True):
                 zs[i][q] = float(z)
     out = []
     for r, z in zip(rows, zs, strict=True):
@@ -219,7 +273,8 @@ def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group:
 
 @dataclass(frozen=True)
 class RepeatRow:
-    """Repeatability of one device axis over its runs: mean and std (ddof=1) per model quantity (SI)."""
+    """Repeatability of one device axis over its runs of one ``model``: mean and std (ddof=1) per
+    model quantity (SI)."""
 
     key: str
     driver: str
@@ -228,19 +283,33 @@ class RepeatRow:
     runs: int
     mean: dict[str, float]
     std: dict[str, float]
+    model: str = ""
+    #: per quantity, the runs whose value entered the mean: a flagged value (at its search bound, not
+    #: identified, doubtful) is left out, as in the outlier test; an infinite tau_b (a random walk)
+    #: is the mean only when every run has it
+    counted: dict[str, int] = field(default_factory=dict)
 
 
 def repeatability(rows: Sequence[FleetRow]) -> list[RepeatRow]:
-    """Table III: per device key and axis, in first-appearance order; std NaN for a single run."""
-    groups: dict[tuple[str, str, str], list[FleetRow]] = {}
+    """Table III: per device key, axis and model (runs of different models are different
+    parameters), in first-appearance order; std NaN for a single run. Runs left out
+    (:attr:`FleetRow.excluded`) are not counted, nor flagged values (:attr:`RepeatRow.counted`)."""
+    groups: dict[tuple[str, str, str, str], list[FleetRow]] = {}
     for r in rows:
-        groups.setdefault((r.key, r.sensor, r.axis), []).append(r)
+        if not r.excluded:
+            groups.setdefault((r.key, r.sensor, r.axis, r.model), []).append(r)
     out = []
-    for (key, sensor, axis), rs in groups.items():
-        mean, std = {}, {}
+    for (key, sensor, axis, model), rs in groups.items():
+        mean, std, counted = {}, {}, {}
         for q in MODEL_QUANTITIES:
-            v = np.array([r.values[q] for r in rs])
-            mean[q] = float(np.mean(v))
-            std[q] = float(np.std(v, ddof=1)) if len(v) > 1 else math.nan
-        out.append(RepeatRow(key, rs[0].driver, sensor, axis, len(rs), mean, std))
+            v = np.array([r.values[q] for r in rs if not r.flags.get(q)])
+            counted[q] = len(v)
+            if len(v) and np.all(np.isinf(v)) and len(set(v.tolist())) == 1:
+                mean[q], std[q] = float(v[0]), math.nan  # e.g. tau_b inf on every run: a random walk
+            elif len(v) and np.all(np.isfinite(v)):
+                mean[q] = float(np.mean(v))
+                std[q] = float(np.std(v, ddof=1)) if len(v) > 1 else math.nan
+            else:
+                mean[q] = std[q] = math.nan
+        out.append(RepeatRow(key, rs[0].driver, sensor, axis, len(rs), mean, std, model, counted))
     return out

@@ -306,11 +306,25 @@ def _t0_ns(run) -> int:
     return min(firsts) if firsts else 0
 
 
-def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
-    """A device's ``temp`` channel: times (s from the run's first sample) and °C, block-averaged to ~1 Hz.
+@dataclass(frozen=True)
+class TemperatureRecord:
+    """A device's temperature: ``t_s`` (s from the run's first sample), ``temp_c`` (°C, block means
+    at ~:data:`TEMP_READ_HZ`) and ``step_c``, the resolution of its raw readings (K,
+    :func:`~imustation.analysis.estimators.classical.temperature.reading_step` of the unaveraged
+    readings: the block means hide the quantisation)."""
+
+    t_s: np.ndarray
+    temp_c: np.ndarray
+    step_c: float
+
+
+def device_temperature_record(path: str, device: str) -> TemperatureRecord:
+    """A device's ``temp`` channel as a :class:`TemperatureRecord`.
 
     Raises :class:`InputError` if the device has no temperature channel.
     """
+    from imustation.analysis.estimators.classical.temperature import reading_step
+
     with open_series(path) as run:
         info = run.devices.get(device)
         if info is None or "temp" not in info.channels:
@@ -322,10 +336,20 @@ def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
         if k == 0:
             raise InputError(f"{path}: device {device} has fewer than {m} temperature samples")
         raw = run.read(device, "temp", 0, k * m).astype(np.float64)
+        step = reading_step(raw.reshape(len(raw), -1)[:, 0]) * abs(ch.scale)
         raw = raw.reshape(k, m, -1).mean(axis=(1, 2)) if raw.ndim > 1 else raw.reshape(k, m).mean(axis=1)
         t = run.read(device, "t", 0, k * m).astype(np.int64).reshape(k, m)[:, m // 2]
         t0 = _t0_ns(run)
-    return (t - t0) * 1e-9, raw * ch.scale + ch.offset
+    return TemperatureRecord((t - t0) * 1e-9, raw * ch.scale + ch.offset, step)
+
+
+def device_temperature(path: str, device: str) -> tuple[np.ndarray, np.ndarray]:
+    """A device's ``temp`` channel: times (s from the run's first sample) and °C, block-averaged to ~1 Hz.
+
+    Raises :class:`InputError` if the device has no temperature channel.
+    """
+    rec = device_temperature_record(path, device)
+    return rec.t_s, rec.temp_c
 
 
 def thermometer_temperature(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:

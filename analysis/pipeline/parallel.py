@@ -29,8 +29,9 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis, DegenerateChannel, analyze_channel
-from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL
+from imustation.analysis.pipeline.choices import DEFAULT_ESTIMATOR, DEFAULT_METHOD, DEFAULT_MODEL, DEFAULT_WARMUP
 from imustation.analysis.pipeline.loaders import Channel, NoChannelsError, load_inputs
+from imustation.analysis.pipeline.warmup import cut_channels
 from imustation.errors import ImustationError, InputError
 from imustation.runfile import join_parts
 
@@ -80,7 +81,7 @@ class TaskFailure:
 class AnalysisOptions:
     """Options of :func:`analyze_channel` plus the sampling rate of plain arrays (Hz)."""
 
-    pattern: str = "log"
+    pattern: str | None = None
     m: int = 1000
     model: str = DEFAULT_MODEL
     compare: tuple[str, ...] = ()
@@ -89,6 +90,8 @@ class AnalysisOptions:
     estimator: str = DEFAULT_ESTIMATOR
     #: parameters the "enough data?" verdict judges (None: the model's sigma_w, sigma_b, tau_b)
     need: tuple[str, ...] | None = None
+    #: ``--warmup``: the start of each run-file device's record left out (:mod:`.warmup`)
+    warmup: str = DEFAULT_WARMUP
 
 
 def _message(path: str, channel: str | None, exc: BaseException) -> str:
@@ -154,6 +157,7 @@ def analyze_task(path: str, channel: str, options: AnalysisOptions, data: Channe
         if not picked:
             raise InputError(f"{path}: no channel {channel}")
         ch = picked[0]
+    cut_channels([ch], options.warmup)  # the same cut every command makes (run-file channels only)
     res = analyze_channel(
         ch,
         pattern=options.pattern,
@@ -175,6 +179,8 @@ def _analyze_mapped(path: str, channel: str, data: Channel | None, options: Anal
 
 #: ``on_done(done, total, failure)`` after each task; ``failure`` None when it succeeded
 Progress = Callable[[int, int, "TaskFailure | None"], None]
+#: ``on_task(task)`` after each task: which one finished (for a progress line naming the channel)
+TaskDone = Callable[["ChannelTask"], None]
 
 
 def run_tasks(
@@ -182,6 +188,7 @@ def run_tasks(
     options: AnalysisOptions,
     client=None,
     on_done: Progress | None = None,
+    on_task: TaskDone | None = None,
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
     """Analyse every task, in this process (``client`` None) or on a dask ``distributed.Client``.
 
@@ -200,6 +207,8 @@ def run_tasks(
             fail = failed[i] = TaskFailure(t.path, t.channel, _message(t.path, t.channel, exc), kind)
         else:
             results[i] = res
+        if on_task is not None:
+            on_task(tasks[i])
         if on_done is not None:
             on_done(count, total, fail)
 
@@ -242,12 +251,13 @@ def execute(
     memory_limit: str | float | None = "auto",
     on_start: Callable[[object | None], None] | None = None,
     on_done: Progress | None = None,
+    on_task: TaskDone | None = None,
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
     """Analyse every task: in this process, on a local cluster of ``workers`` processes, or on the
     cluster at ``scheduler`` -- the one path of ``analyze`` and ``fleet``.
 
-    ``on_start(client)`` is called once the client (None when serial) is ready, ``on_done`` after
-    each task (see :func:`run_tasks`). Returns the results in task order (None where a task
+    ``on_start(client)`` is called once the client (None when serial) is ready, ``on_done`` and
+    ``on_task`` after each task (see :func:`run_tasks`). Returns the results in task order (None where a task
     failed) and the failures. Raises :class:`InputError` when both ``workers`` and ``scheduler``
     are given or the scheduler cannot be reached.
     """
@@ -258,7 +268,7 @@ def execute(
     with dask_client(workers, scheduler, memory_limit=memory_limit) as client:
         if on_start is not None:
             on_start(client)
-        return run_tasks(tasks, options, client, on_done)
+        return run_tasks(tasks, options, client, on_done, on_task)
 
 
 @contextlib.contextmanager

@@ -17,11 +17,15 @@ the verdict is the worst:
   :data:`ENOUGH_SPREAD` (3: known within about a factor 1.7 either way);
   up to :data:`MARGINAL_SPREAD` (25: a factor 5 either way) *marginal*; wider,
   missing, or a parameter at its search bound -> *not enough*;
+* a record shorter than :data:`MIN_RECORD_S` (60 s) -> *not enough*;
 * the record spans at least :data:`MIN_TAU_B_MULTIPLE` (10) times the longest
   fitted correlation time, else *marginal*; below :data:`MARGINAL_TAU_B_MULTIPLE`
   (3) *not enough*: the slowest process is barely observed;
 * a detected warm-up (``warmup_s > 0``: the smooth temperature fit of
-  :func:`.temperature.fit_warmup`) -> *marginal*, discard it (``report --warmup``);
+  :func:`.temperature.fit_warmup`, a real temperature change of many reading steps) that the
+  analysis did not cut (``warmup_cut_s``, :mod:`.warmup`: ``--warmup auto`` cuts it) ->
+  *marginal*, discard it; a cut warm-up is a reason, not a fault; a record still warming up at its end ->
+  *marginal*; a record too short to tell says so;
 * a temperature span above :data:`MAX_TEMP_SPAN_C` (2 K) after the warm-up ->
   *marginal*: temperature drift may dominate the bias.
 
@@ -44,6 +48,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: a record shorter than this (s) is *not enough* whatever its intervals say: the bias terms need
+#: Allan clusters of tens of seconds, ten times over (a 12 s record was 'marginal')
+MIN_RECORD_S = 60.0
 MIN_TAU_B_MULTIPLE = 10.0
 MARGINAL_TAU_B_MULTIPLE = 3.0
 MIN_ALLAN_CLUSTERS = 10.0
@@ -64,7 +71,8 @@ LEVELS = ("enough", "marginal", "not enough")
 @dataclass(frozen=True)
 class Verdict:
     """``verdict`` one of :data:`LEVELS`; ``reasons`` one sentence each; ``need`` the judged
-    parameters and ``spread`` their 90 % interval spreads hi/lo (NaN when unknown)."""
+    parameters and ``spread`` their 90 % interval spreads hi/lo (NaN when unknown); ``warmup_s``
+    the warm-up ``--warmup auto`` cuts (s), ``warmup_cut_s`` what this analysis cut (s)."""
 
     verdict: str
     duration_s: float
@@ -75,6 +83,11 @@ class Verdict:
     reasons: tuple[str, ...] = field(default_factory=tuple)
     need: tuple[str, ...] = ()
     spread: dict[str, float] = field(default_factory=dict)
+    #: the warm-up fit's state (:data:`.temperature.WARMUP_STATES`); "" without a temperature channel
+    warmup_state: str = ""
+    warmup_cut_s: float = 0.0
+    #: the reasons that made the verdict worse than "enough" (a subset of ``reasons``), for a short list
+    problems: tuple[str, ...] = ()
 
     @property
     def enough(self) -> bool:
@@ -90,8 +103,11 @@ class Verdict:
             "tau_b_s": num(self.tau_b_s),
             "allan_min_tau_s": num(self.allan_min_tau_s),
             "warmup_s": num(self.warmup_s),
+            "warmup_state": self.warmup_state or None,
+            "warmup_cut_s": num(self.warmup_cut_s),
             "temp_span_c": num(self.temp_span_c),
             "reasons": list(self.reasons),
+            "problems": list(self.problems),
             "need": list(self.need),
             "spread": {k: num(v) for k, v in self.spread.items()},
         }
@@ -118,6 +134,8 @@ class Interval:
     why: str = ""
     #: a term not detected: the upper bound (90 %) the record sets instead of an interval
     upper: float = math.nan
+    #: the name the reasons print ("" : the needed name); a random walk's sigma_k stands for sigma_b
+    label: str = ""
 
     @property
     def spread(self) -> float:
@@ -144,8 +162,9 @@ def fit_intervals(fit, need: Sequence[str]) -> dict[str, Interval]:
         lo, hi = fit.ci90[key]
         value = float(fit.params.get(key, getattr(fit, name, math.nan)))
         bound = [b for b in fit.at_bound if b == key or b.rstrip("0123456789") == key]
-        why = f"{name} at its search bound: not identified" if bound else ""
-        out[name] = Interval(value, float(lo), float(hi), why)
+        label = "sigma_k (the rate random walk, for sigma_b)" if key != name else ""
+        why = f"{label or name} at its search bound: not identified" if bound else ""
+        out[name] = Interval(value, float(lo), float(hi), why, label)
     return out
 
 
@@ -174,6 +193,8 @@ def data_verdict(
     *,
     allan_min_at_end: bool = False,
     warmup_s: float = math.nan,
+    warmup_state: str = "",
+    warmup_cut_s: float = 0.0,
     temp_span_c: float = math.nan,
     intervals: Mapping[str, Interval] | None = None,
     need: Sequence[str] = (),
@@ -186,18 +207,26 @@ def data_verdict(
     (:func:`fit_intervals`); ``need`` the names asked for (``"B"`` judges the Allan minimum);
     ``judge_tau_b`` False: the record length against tau_b is reported, not judged (the IEEE-952
     quantities are judged by their intervals).
+    ``warmup_s`` the warm-up's end ``--warmup auto`` cuts at (s) and ``warmup_state`` the warm-up
+    fit's state (:data:`.temperature.WARMUP_STATES`; ``""``: a ``warmup_s`` > 0 is a transient);
+    ``warmup_cut_s`` what the analysis cut (s).
     """
     level = 0
     reasons: list[str] = []
+    problems: list[str] = []
 
     def worse(lv: int, why: str) -> None:
         nonlocal level
         level = max(level, lv)
         reasons.append(why)
+        problems.append(why)
 
+    if not duration_s >= MIN_RECORD_S:
+        worse(2, f"record of {duration_s:.3g} s is shorter than {MIN_RECORD_S:g} s: too short for any bias term")
     spread: dict[str, float] = {}
-    for name, iv in (intervals or {}).items():
-        sp = spread[name] = iv.spread
+    for key, iv in (intervals or {}).items():
+        sp = spread[key] = iv.spread
+        name = iv.label or key
         if not iv.why and not math.isfinite(sp) and math.isfinite(iv.upper):
             reasons.append(f"{name} not detected: {name} < {iv.upper:.3g} (90 %)")
             continue
@@ -206,7 +235,8 @@ def data_verdict(
         elif not math.isfinite(sp):
             worse(2, f"{name}: no interval")
         elif sp > MARGINAL_SPREAD:
-            worse(2, f"{name} = {iv.value:.3g}: its 90 % interval spans a factor {sp:.1f} (> {MARGINAL_SPREAD:g})")
+            # the factor itself can be 1e63 (an interval reaching its search range): not worth printing
+            worse(2, f"{name} = {iv.value:.3g}: its 90 % interval spans more than a factor {MARGINAL_SPREAD:g}")
         elif sp > ENOUGH_SPREAD:
             worse(1, f"{name} = {iv.value:.3g}: its 90 % interval spans a factor {sp:.1f} (> {ENOUGH_SPREAD:g})")
         else:
@@ -215,7 +245,7 @@ def data_verdict(
         if math.isfinite(tau_b_s) and tau_b_s > 0:
             reasons.append(f"record is {duration_s / tau_b_s:.1f} x tau_b ({tau_b_s:.3g} s) of the chosen model")
     elif math.isinf(tau_b_s):
-        reasons.append("random-walk bias: no correlation time to compare the record with")
+        reasons.append("random-walk or bias-instability bias: no correlation time to compare the record with")
     elif math.isfinite(tau_b_s) and tau_b_s > 0:
         ratio = duration_s / tau_b_s
         if ratio < MARGINAL_TAU_B_MULTIPLE:
@@ -239,11 +269,18 @@ def data_verdict(
             worse(1, f"Allan minimum at {allan_min_tau_s:.3g} s is only {clusters:.1f} clusters of the record")
         else:
             reasons.append(f"Allan minimum at {allan_min_tau_s:.3g} s ({clusters:.0f} clusters)")
-    if math.isfinite(warmup_s):
-        if warmup_s > 0:
-            worse(1, f"warm-up transient until {warmup_s:.0f} s: discard it")
+    if warmup_state == "unsettled":
+        worse(1, "still warming up at the end of the record: no settled data")
+    elif warmup_state == "unknown":
+        reasons.append("record too short to tell a warm-up")
+    elif math.isfinite(warmup_s):
+        if warmup_s > 0 and warmup_cut_s >= warmup_s:
+            reasons.append(f"warm-up until {warmup_s:.0f} s cut ({warmup_cut_s:.0f} s left out)")
+        elif warmup_s > 0:
+            cut = f"only {warmup_cut_s:.0f} s" if warmup_cut_s > 0 else "nothing"
+            worse(1, f"warm-up transient until {warmup_s:.0f} s, {cut} cut: discard it (--warmup auto)")
         else:
-            reasons.append("no warm-up transient")
+            reasons.append("no warm-up transient" + (f" ({warmup_cut_s:.0f} s cut)" if warmup_cut_s > 0 else ""))
     else:
         reasons.append("no temperature: warm-up and drift not checked")
     if math.isfinite(temp_span_c):
@@ -252,16 +289,20 @@ def data_verdict(
         elif math.isfinite(warmup_s):
             reasons.append(f"temperature spans {temp_span_c:.2g} K")
     return Verdict(LEVELS[level], duration_s, tau_b_s, allan_min_tau_s, warmup_s, temp_span_c, tuple(reasons),
-                   tuple(need), spread)  # fmt: skip
+                   tuple(need), spread, warmup_state, warmup_cut_s, tuple(problems))  # fmt: skip
 
 
 def longest_correlation_time(fit) -> float:
-    """The slowest fitted correlation time (s): inf for a random walk, NaN when the fit did not converge."""
+    """The slowest fitted correlation time (s): inf for a random walk or a bias instability without a
+    Gauss-Markov term (neither has one: a wn+fl model was 'no converged finite tau_b', marginal),
+    NaN when the fit did not converge."""
     if fit is None or not fit.converged:
         return math.nan
     if "sigma_k" in fit.params:
         return math.inf
     taus = [v for k, v in fit.params.items() if k.startswith("tau_b") and math.isfinite(v)]
+    if not taus and "B" in fit.params:
+        return math.inf
     return max(taus) if taus else math.nan
 
 
@@ -277,14 +318,17 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None, summary: 
     """
     duration = ch.n / ch.fs_hz
     tau_min, at_end = allan_minimum_tau(allan.tau, allan.adev)
-    warmup, span = math.nan, math.nan
+    warmup, span, state = math.nan, math.nan, ""
+    applied = ch.meta.get("warmup")  # the cut the analysis made (.warmup.apply_warmup)
+    cut_s = float(applied.cut_s) if applied is not None else 0.0
+    duration -= min(cut_s, duration)
     device = ch.meta.get("device") if ch.ref is not None else None
     if device:
         try:
             mtime = os.stat(ch.source).st_mtime_ns
         except OSError:
             mtime = 0
-        warmup, span = _warmup_and_span(ch.source, device, mtime)
+        warmup, span, state = _warmup_and_span(ch.source, device, mtime, cut_s)
     ieee_mode = summary is not None and fit is not None and need is None
     if ieee_mode:
         need = IEEE_NEED
@@ -307,6 +351,8 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None, summary: 
         tau_min,
         allan_min_at_end=at_end,
         warmup_s=warmup,
+        warmup_state=state,
+        warmup_cut_s=cut_s,
         temp_span_c=span,
         intervals=intervals,
         need=tuple(need),
@@ -315,18 +361,20 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None, summary: 
 
 
 @functools.lru_cache(maxsize=16)
-def _warmup_and_span(path: str, device: str, mtime_ns: int) -> tuple[float, float]:
-    """(end of warm-up s, temperature span after it K) of a device; NaN without a temperature channel."""
-    from imustation.analysis.estimators.classical.temperature import detect_warmup
-    from imustation.analysis.pipeline.loaders import device_temperature
+def _warmup_and_span(path: str, device: str, mtime_ns: int, cut_s: float) -> tuple[float, float, str]:
+    """(end of the warm-up ``--warmup auto`` cuts s, temperature span K after it and after ``cut_s``,
+    warm-up state) of a device (:func:`.warmup.auto_warmup`); NaN and ``""`` without a temperature channel."""
+    from imustation.analysis.pipeline.loaders import device_temperature_record
+    from imustation.analysis.pipeline.warmup import auto_warmup
     from imustation.errors import InputError
 
+    state, _, end = auto_warmup(path, device, mtime_ns)
+    if not state:
+        return math.nan, math.nan, ""
     try:
-        t_s, temp_c = device_temperature(path, device)
+        rec = device_temperature_record(path, device)
     except InputError:
-        return math.nan, math.nan
-    if len(t_s) < 3:
-        return math.nan, math.nan
-    warmup = detect_warmup(t_s, temp_c)
-    after = temp_c[t_s >= warmup]
-    return warmup, float(after.max() - after.min()) if len(after) else math.nan
+        return math.nan, math.nan, ""
+    warmup = end if state == "transient" else 0.0
+    after = rec.temp_c[rec.t_s >= max(warmup, cut_s)]
+    return warmup, float(after.max() - after.min()) if len(after) else math.nan, state

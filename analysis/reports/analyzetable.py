@@ -1,47 +1,125 @@
-"""The text table ``imustation analyze`` prints: one block per sensor kind, every column with its unit.
+"""The text table ``imustation analyze`` prints: one row per channel, then what needs attention.
 
-The CLI parses and prints; the table is built here from the per-channel analyses
-(:class:`~imustation.analysis.pipeline.channel.ChannelAnalysis`), beside the report's tables.
+One block per sensor kind, in the display units of that kind (the paper's Table IV units;
+:func:`imustation.units.display_units`). Every column keeps one meaning on every row, the
+report's summary table's (:func:`.summary.channel_estimates`: the same numbers): N (the noise
+model's sigma_w), B and K (bias instability and rate random walk of the IEEE-952 Allan fit),
+the bias model's Gauss-Markov sigma_b and tau_b ("—" for a model without one: a random walk's
+K is not a sigma_b), each with its 90 % interval; then the model, whether it fits the Allan
+deviation and the "enough data?" verdict. A value that is not an estimate is printed as such
+("—", "at bound (...)", "not identified", an interval reaching its search range as
+"[~0, unbounded]": :mod:`.numbers`).
+
+Below the table one short line per channel that needs attention (the model does not fit, a
+parameter at its bound or not identified, the fit did not converge, not enough data), its
+first reasons; ``verbose`` adds every fitted block (the comparison fits, the automatic choice,
+the adequacy of each, every reason). The JSON (``--json``) has all of it.
 """
 
 from __future__ import annotations
 
 import math
+import os
 
-
-def _g(x: float, fmt: str = ".3e") -> str:
-    return format(x, fmt) if math.isfinite(x) else ("inf" if x == math.inf else "-")
-
+from imustation.analysis.estimators.selection.adequacy import NO_FIT
+from imustation.analysis.reports.numbers import EXTREME_FACTOR, interval
+from imustation.analysis.reports.summary import SUMMARY_QUANTITIES, Estimate, channel_estimates
+from imustation.analysis.reports.tables import AT_BOUND, NOT_IDENTIFIED, fmt_flagged, fmt_number, param_flag
+from imustation.units import display_units, sensor_kind
 
 #: sensor kind -> the heading of its block in the text table
 _KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "plain arrays, in their own unit"}
+#: reasons shown per channel in the attention list (the rest: --verbose, --json)
+ATTENTION_REASONS = 1
+#: what the columns are, printed under the table
+KEY = (
+    "N: the noise model's sigma_w; B, K: IEEE-952 Allan fit; sigma_b, tau_b: the model's Gauss-Markov bias; "
+    "[90 % interval]; fit: the model against the Allan deviation"
+)
+#: what the flags in the table mean, printed under it when one occurs
+LEGEND = (
+    "—: no such term in the model (or not needed by the Allan fit); at bound: the fit stopped at its search "
+    "bound (no estimate); not identified: the 90 % interval is missing or spans more than two decades"
+)
 
 
-def results_table(results) -> str:
-    """The text table of ``analyze``: one block per sensor kind, every column with its own unit.
+def cell(e: Estimate, factor: float = 1.0) -> str:
+    """``35.1 [35.0, 35.2]`` (times ``factor``); a flagged value as :func:`.tables.fmt_flagged`; an
+    interval reaching its search range as :func:`.numbers.interval` (``[~0, unbounded]``)."""
+    v = e.value * factor
+    if e.flag or not math.isfinite(v):
+        return fmt_flagged(v, e.flag)
+    lo, hi = e.lo * factor, e.hi * factor
+    if not (math.isfinite(lo) and math.isfinite(hi)) and math.isnan(lo) and math.isnan(hi):
+        return fmt_number(v)
+    if not (lo > v / EXTREME_FACTOR and hi < v * EXTREME_FACTOR):
+        return f"{fmt_number(v)} {interval(v, lo, hi)}"
+    digits = 3  # enough digits that a narrow interval does not print as [x, x]
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+        digits += 1
+    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
 
-    sigma_w and sigma_b in SI and in the display units of the paper's Table IV
-    (deg/h/sqrt(Hz), deg/h/sqrt(h) for gyros; micro-g/sqrt(Hz), micro-g/sqrt(s) for
-    accelerometers; imustation.units.display_units); a parameter at its search bound or
-    not identified is printed as such (analysis/reports/tables.py).
-    """
-    import os
 
-    from imustation.analysis.reports.tables import AT_BOUND, NOT_IDENTIFIED, param_flag
-    from imustation.units import display_units, sensor_kind
+def _fit_word(r) -> str:
+    adq = r.adequacy_of(r.noise_model)
+    word = "—" if adq is None else adq.verdict
+    return word if r.noise_model.converged or r.noise_model.at_bound else f"{word}, not converged"
 
-    # channels of several inputs: every row starts with its input's name
+
+def attention(r) -> list[str]:
+    """What needs attention on one channel (empty when nothing): the model does not fit, parameters
+    at their bound or not identified, no convergence, the verdict's problems."""
+    fit = r.noise_model
+    out = []
+    adq = r.adequacy_of(fit)
+    if adq is not None and adq.verdict == NO_FIT:
+        where = adq.misfit[0].describe() + (" ..." if len(adq.misfit) > 1 else "") if adq.misfit else ""
+        out.append(f"{fit.model} does not fit the Allan deviation" + (f" ({where})" if where else ""))
+    flagged = {q: param_flag(fit, q) for q in ("sigma_b", "tau_b")}
+    bound = [q for q, f in flagged.items() if f == AT_BOUND]
+    unident = [q for q, f in flagged.items() if f == NOT_IDENTIFIED]
+    if bound:
+        out.append(f"{', '.join(bound)} at the search bound")
+    if unident:
+        out.append(f"{', '.join(unident)} not identified")
+    if not fit.converged and not fit.at_bound:
+        out.append("fit not converged")
+    v = r.verdict
+    if v is not None and v.verdict != "enough":
+        more = len(v.problems) - ATTENTION_REASONS
+        first = "; ".join(v.problems[:ATTENTION_REASONS])
+        out.append(f"{v.verdict} data: {first}" + (f" (+{more} more)" if more > 0 else ""))
+    return out
+
+
+def _details(r, label: str) -> list[str]:
+    """--verbose: every fitted block, the automatic choice, each adequacy and every verdict reason."""
+    lines = [f"{label}:"]
+    for key, fit in r.blocks().items():
+        flag = "converged" if fit.converged else fit.message
+        adq = r.adequacy_of(fit)
+        s = r.ieee952(fit)
+        nbk = "  ".join(
+            f"{q} {fmt_number(s[q])} {interval(s[q], *s[f'{q}_ci90'])}" for q in ("N", "B", "K") if s[q] is not None
+        )
+        lines.append(f"  {key}: {fit.estimator} {fit.model}  {nbk}  ({flag}; {adq.summary() if adq else 'not tested'})")
+    if r.choice is not None:
+        lines.append(f"  choice: {r.choice.reason}")
+    if r.verdict is not None:
+        lines.append(f"  enough data? {r.verdict.verdict}: " + "; ".join(r.verdict.reasons))
+    return lines
+
+
+def results_table(results, verbose: bool = False) -> str:
+    """The text of ``analyze``: the table (one row per channel), what needs attention, and with
+    ``verbose`` every block's details (module docstring)."""
     inputs = {r.channel.source: os.path.basename(r.channel.source) for r in results}
     if len(set(inputs.values())) < len(inputs):  # same file name in two folders
         inputs = {src: src for src in inputs}
-    width = max(map(len, inputs.values()), default=0) if len(inputs) > 1 else 0
+    several = len(inputs) > 1
 
-    def where(r) -> str:
-        return f"{inputs[r.channel.source]:<{width}} " if width else ""
-
-    def cell(fit, name: str, value: float, fmt: str) -> str:
-        flag = param_flag(fit, name)
-        return {AT_BOUND: "at bound", NOT_IDENTIFIED: "not ident."}.get(flag) or _g(value, fmt)
+    def label(r) -> str:
+        return f"{inputs[r.channel.source]}: {r.channel.id}" if several else r.channel.id
 
     groups: dict = {}
     for r in results:
@@ -49,89 +127,36 @@ def results_table(results) -> str:
     lines: list[str] = []
     flagged = False
     for kind, rs in groups.items():
-        dens, dens_d, kd = display_units(kind, "density")
-        drift, drift_d, kb = display_units(kind, "drift")
-        rate = display_units(kind, "rate")[0]
-        # a channel of unknown kind (a plain array) has no display unit: those columns stay empty
-        shown = kind is not None
-        w_d, b_d = ("sigma_w", "sigma_b") if shown else ("", "")
-        names = ("channel", "n", "fs Hz", "sigma_w", w_d, "sigma_b", b_d, "tau_b", "b_on", "ADEV(1s)", "model fit")
-        units = ("", "", "", dens, dens_d if shown else "", drift, drift_d if shown else "", "s", rate, rate, "")
-        widths = (22, 9, 7, 10, 9, 11, 9, 10, 10, 10, 12)
-        row = "{:<22} {:>9} {:>7} {:>10} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10} {:>12}  {}"
-        pad = f"{'':<{width}} " if width else ""
-        head = (f"{'input':<{width}} " if width else "") + row.format(*names, "fit")
+        factors = {key: display_units(kind, dim) for key, _, dim in SUMMARY_QUANTITIES}
+        head = (["input"] if several else []) + ["channel", "model"]
+        head += [f"{title} [{factors[key][1]}]" for key, title, _ in SUMMARY_QUANTITIES] + ["fit", "enough data?"]
+        body = []
+        for r in rs:
+            est = channel_estimates(r)
+            cells = ([inputs[r.channel.source]] if several else []) + [r.channel.id, r.noise_model.model]
+            cells += [cell(est[key], factors[key][2]) for key, _, _ in SUMMARY_QUANTITIES]
+            cells += [_fit_word(r), r.verdict.verdict if r.verdict is not None else "—"]
+            flagged |= any(e.flag for e in est.values())
+            body.append(cells)
+        widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head))]
         if lines:
             lines.append("")
-        lines += [f"{_KIND_TITLES[kind]} ({rate})", head, pad + row.format(*units, ""), "-" * len(head)]
-        for r in rs:
-            adev1 = _interp_adev(r.allan, 1.0)
-            fits = [f for f in (r.noise_model, r.mli, r.gmwm) if f is not None]
-            fits = [f for k, f in enumerate(fits) if all(f is not g for g in fits[:k])]
-            for m in fits:
-                flag = "ok" if m.converged else f"! {m.message}"
-                name = r.channel.id if m is r.noise_model else f"  {m.estimator}"
-                sb = cell(m, "sigma_b", m.sigma_b, ".3e")
-                sb_d = cell(m, "sigma_b", m.sigma_b * kb, ".4g") if shown else ""
-                sw_d = _g(m.sigma_w * kd, ".4g") if shown else ""
-                tb = cell(m, "tau_b", m.tau_b, ".1f")
-                adq = r.adequacy_of(m)
-                flagged |= any(c in ("at bound", "not ident.") for c in (sb, tb))
-                lines.append(
-                    where(r)
-                    + row.format(
-                        name[: widths[0]] if len(name) > widths[0] and m is not r.noise_model else name,
-                        r.channel.n, f"{r.channel.fs_hz:g}", _g(m.sigma_w), sw_d,
-                        sb, sb_d, tb, _g(m.b_on), _g(adev1), adq.verdict if adq else "-", f"{m.estimator} {flag}",
-                    )
-                )  # fmt: skip
-            if r.choice is not None:
-                lines += [where(r) + line for line in _choice_lines(r)]
-            for alt in r.models:
-                lines.append(where(r) + f"    {alt.model:<18} nll {alt.nll:.2f}  AIC {alt.aic:.2f}  BIC {alt.bic:.2f}")
-    for r in results:
-        for m in {id(f): f for f in r.blocks().values()}.values():
-            adq = r.adequacy_of(m)
-            if adq is not None and not adq.fits:
-                lines.append(f"model fit? {r.channel.id} {m.estimator} {m.model}: {adq.summary()}")
-    for r in results:
-        if r.verdict is not None:
-            label = f"{inputs[r.channel.source]}: {r.channel.id}" if width else r.channel.id
-            lines.append(f"enough data? {label}: {r.verdict.verdict} - {'; '.join(r.verdict.reasons)}")
+        lines.append(f"{_KIND_TITLES[kind]} ({display_units(kind, 'rate')[0]})")
+        for row in [head, *body]:
+            lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
+            if row is head:
+                lines.append("-" * len(lines[-1]))
+    lines.append(KEY)
     if flagged:
-        lines.append(
-            "at bound: the fit stopped at its search bound (no estimate); not ident.: the 90 % interval is "
-            "missing or spans more than two decades (--json has the numbers)"
-        )
+        lines.append(LEGEND)
+    todo = [(label(r), attention(r)) for r in results]
+    todo = [(lab, items) for lab, items in todo if items]
+    if todo:
+        head = f"needs attention ({len(todo)} of {len(results)} channels; --verbose or --json for every reason):"
+        lines += ["", head]
+        lines += [f"  {lab}: " + "; ".join(items) for lab, items in todo]
+    if verbose:
+        lines += ["", "details:"]
+        for r in results:
+            lines += _details(r, label(r))
     return "\n".join(lines)
-
-
-def _choice_lines(r) -> list[str]:
-    """The automatic choice of one channel: chosen model with N, B, K (90 % intervals), the paper's model."""
-
-    def nbk(fit) -> str:
-        s = r.ieee952(fit)
-        parts = []
-        for q in ("N", "B", "K"):
-            if s[q] is not None:
-                lo, hi = s[f"{q}_ci90"]
-                parts.append(f"{q} {_g(s[q])} [{_g(lo)}, {_g(hi)}]")
-        return "  ".join(parts)
-
-    c = r.choice
-    head = f"    model {c.chosen.model} ({'fits' if c.fits else 'NO MODEL FITS'}): {nbk(r.noise_model)}"
-    out = [head]
-    if not c.fits:
-        out.append(f"      {c.reason}")
-    if c.paper is not None:
-        flag = "ok" if c.paper.converged else f"! {c.paper.message}"
-        out.append(f"    paper's wn+gm: sigma_w {_g(c.paper.sigma_w)}  {nbk(c.paper)}  {flag}")
-    return out
-
-
-def _interp_adev(allan, tau: float) -> float:
-    import numpy as np
-
-    if tau < allan.tau[0] or tau > allan.tau[-1]:
-        return float("nan")
-    return float(np.exp(np.interp(np.log(tau), np.log(allan.tau), np.log(allan.adev))))

@@ -34,8 +34,10 @@ noise dominates anyway; beyond it the random walk over-states the floor.
 With ``source="ieee"`` the densities come from the IEEE-952 fit of the Allan
 curve instead: ``sigma_g = N``, ``sigma_bg = K``.
 
-Each tool takes one value per sensor, not per axis: the largest axis value is
-written (conservative); every axis's value goes into the header comments.
+Each tool takes one value per sensor, not per axis: per quantity the largest value among
+the axes whose fit vouches for it is written (:func:`choose_axes`: conservative among the
+trustworthy ones; none left: :class:`Untrustworthy`, unless forced); the rule, the axes left
+out and every axis's value go into the header comments.
 
 **Inflation for the filter** (:func:`inflate`, ``export --inflate``): the measured
 densities describe a static sensor on a bench; a moving platform adds vibration,
@@ -79,7 +81,8 @@ from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
 from imustation.analysis.pipeline.choices import RW_CONVERSIONS
 from imustation.analysis.pipeline.loaders import Channel
-from imustation.analysis.reports.tables import density_flag
+from imustation.analysis.reports.numbers import interval
+from imustation.analysis.reports.tables import UNIDENTIFIED_RATIO, density_flag
 from imustation.errors import InputError
 from imustation.units import G0
 
@@ -121,7 +124,15 @@ def random_walk_from_params(params: dict[str, float], rw: str = "diffusion") -> 
 
 @dataclass(frozen=True)
 class AxisNoise:
-    """One axis: white-noise density (unit/sqrt(Hz)) and random-walk density (unit/s/sqrt(Hz))."""
+    """One axis: white-noise density (unit/sqrt(Hz)) and random-walk density (unit/s/sqrt(Hz)).
+
+    ``noise_untrusted`` / ``walk_untrusted``: why no value of that quantity may be written from
+    this axis ("" when it may): its model does not fit the Allan deviation, a parameter sits at its
+    search bound, the fit did not converge, or the value is not identified (its interval missing or
+    far too wide; a bias faster than :data:`WHITE_LIKE_TAU_B_S`). ``warning`` / ``noise_warning``
+    also hold doubts that do not forbid the value (a noise density whose interval is wider than
+    a factor 1.1 but identified).
+    """
 
     channel: str
     noise_density: float
@@ -131,12 +142,29 @@ class AxisNoise:
     #: why the noise-density figure is doubtful ("" when it is not): the model does not fit the Allan
     #: deviation, or its interval is wide (slow terms at the fine scales, docs/noise-model.md "Limit")
     noise_warning: str = ""
+    noise_untrusted: str = ""
+    walk_untrusted: str = ""
+
+    @property
+    def axis(self) -> str:
+        return self.channel.rsplit("/", 1)[-1]
+
+
+class Untrustworthy(InputError):
+    """Nothing a fit vouches for is left of a sensor's quantity: no file is written (``--force`` writes it)."""
+
+
+#: quantities of an export, as the file's comments name them
+QUANTITY_NAMES = {"noise": "noise density", "walk": "random walk"}
 
 
 @dataclass(frozen=True)
 class SensorNoise:
-    """One sensor (gyroscope or accelerometer) of a device; the exported value is the largest axis,
-    times the inflation factors ``inflate_noise`` and ``inflate_walk`` (1: the measured value)."""
+    """One sensor (gyroscope or accelerometer) of a device. Per quantity the exported value is the
+    largest among the axes whose fit vouches for it (``noise_from`` / ``walk_from``: their channel
+    ids; every axis when built without them), times the inflation factors ``inflate_noise`` and
+    ``inflate_walk`` (1: the measured value). ``forced``: the quantities written from axes no fit
+    vouches for (``export --force``)."""
 
     kind: str
     rate_hz: float
@@ -145,28 +173,48 @@ class SensorNoise:
     rw: str
     inflate_noise: float = 1.0
     inflate_walk: float = 1.0
+    noise_from: tuple[str, ...] | None = None
+    walk_from: tuple[str, ...] | None = None
+    forced: tuple[str, ...] = ()
+
+    def _chosen(self, ids: tuple[str, ...] | None) -> list[AxisNoise]:
+        return [a for a in self.axes if ids is None or a.channel in ids]
 
     @property
     def measured_noise_density(self) -> float:
-        return max(a.noise_density for a in self.axes)
+        return max(a.noise_density for a in self._chosen(self.noise_from))
 
     @property
     def measured_random_walk(self) -> float:
-        return max(a.random_walk for a in self.axes)
+        return max(a.random_walk for a in self._chosen(self.walk_from))
 
     @property
     def noise_density(self) -> float:
-        """The value written: the measured largest axis times ``inflate_noise``."""
+        """The value written: the measured largest trusted axis times ``inflate_noise``."""
         return self.measured_noise_density * self.inflate_noise
 
     @property
     def random_walk(self) -> float:
-        """The value written: the measured largest axis times ``inflate_walk``."""
+        """The value written: the measured largest trusted axis times ``inflate_walk``."""
         return self.measured_random_walk * self.inflate_walk
 
     @property
     def inflated(self) -> bool:
         return self.inflate_noise != 1.0 or self.inflate_walk != 1.0
+
+    def rule(self, quantity: str) -> str:
+        """How the written value of ``quantity`` ('noise'/'walk') was chosen, for the file's comments."""
+        ids = self.noise_from if quantity == "noise" else self.walk_from
+        used = self._chosen(ids)
+        axes = ", ".join(a.axis for a in used)
+        left = [a for a in self.axes if a not in used]
+        why = "; ".join(
+            f"{a.axis} left out: {a.noise_untrusted if quantity == 'noise' else a.walk_untrusted}" for a in left
+        )
+        name = f"{self.kind} {QUANTITY_NAMES[quantity]}"
+        if quantity in self.forced:
+            return f"FORCED {name}: the largest of every axis ({axes}); no fit vouches for it (--force)"
+        return f"{name}: the largest of the axes whose fit vouches for it ({axes})" + (f"; {why}" if why else "")
 
 
 def parse_inflation(text: str) -> tuple[float, float]:
@@ -206,8 +254,17 @@ def _noise_doubts(res: ChannelAnalysis, fit) -> str:
         doubts.append(f"the model does not fit the Allan deviation ({adq.summary()})")
     lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
     if density_flag(fit) or not (lo > 0 and math.isfinite(hi)):  # wide, or no interval at all
-        doubts.append(f"90 % interval {lo:.3g} .. {hi:.3g}")
+        doubts.append(f"90 % interval {interval(fit.sigma_w, lo, hi)}")
     return "; ".join(doubts)
+
+
+def _noise_unidentified(fit) -> str:
+    """Why ``fit``'s white-noise density is not identified ("" if it is): a missing interval or one
+    wider than the noise table's 'not identified' (:data:`~.tables.UNIDENTIFIED_RATIO`)."""
+    lo, hi = fit.ci90.get("sigma_w", (math.nan, math.nan))
+    if not (lo > 0 and math.isfinite(hi)) or hi / lo > UNIDENTIFIED_RATIO:
+        return f"sigma_w not identified (90 % interval {interval(fit.sigma_w, lo, hi)})"
+    return ""
 
 
 def _poorly_determined(fit) -> str:
@@ -217,14 +274,14 @@ def _poorly_determined(fit) -> str:
         if key == "sigma_k" or key == "B" or key.startswith("sigma_b"):
             lo, hi = fit.ci90.get(key, (math.nan, math.nan))
             if not (lo > 0 and math.isfinite(hi)) or hi / lo > WIDE_INTERVAL:
-                return f"{key}: 90 % interval {lo:.2g} .. {hi:.2g}"
+                return f"{key}: 90 % interval {interval(fit.params[key], lo, hi, '.2g')}"
     return ""
 
 
 def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion") -> AxisNoise:
     """White-noise and random-walk densities of one analysed channel (SI)."""
     cid = res.channel.id
-    warning = noise_warning = ""
+    warning = noise_warning = noise_untrusted = walk_untrusted = ""
     if source in ("model", "mli"):
         fit = res.noise_model if source == "model" else res.mli
         if fit is None:
@@ -241,6 +298,12 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
             wide = _poorly_determined(fit)
             if wide:
                 warning = f"bias term poorly determined by this record ({wide})"
+        adq = res.adequacy_of(fit)
+        misfit = (
+            f"the model does not fit the Allan deviation ({adq.summary()})" if adq and adq.verdict == NO_FIT else ""
+        )
+        walk_untrusted = misfit or warning
+        noise_untrusted = misfit or _noise_unidentified(fit)
     elif source == "ieee":
         nd, rwv = res.ieee.N, res.ieee.K
     else:
@@ -250,19 +313,46 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
     if not (math.isfinite(rwv) and rwv > 0):
         hint = " (the Allan fit needs no rate-random-walk term; try --source model)" if source == "ieee" else ""
         raise InputError(f"channel {cid}: random-walk density {rwv} from {source} is not positive{hint}")
-    return AxisNoise(cid, float(nd), float(rwv), warning, noise_warning)
+    return AxisNoise(cid, float(nd), float(rwv), warning, noise_warning, noise_untrusted, walk_untrusted)
 
 
 def sensor_noise(
-    results: list[ChannelAnalysis], kind: str, source: str = "model", rw: str = "diffusion"
+    results: list[ChannelAnalysis], kind: str, source: str = "model", rw: str = "diffusion", *, force: bool = False
 ) -> SensorNoise:
-    """Combine the analysed axes of one sensor (all at one rate)."""
+    """Combine the analysed axes of one sensor (all at one rate) with :func:`choose_axes`."""
     if not results:
         raise InputError(f"no {kind} channels to export")
     rates = {r.channel.fs_hz for r in results}
     if len(rates) != 1:
         raise InputError(f"{kind} channels have different rates {sorted(rates)}: export one device at a time")
-    return SensorNoise(kind, rates.pop(), tuple(axis_noise(r, source, rw) for r in results), source, rw)
+    axes = tuple(axis_noise(r, source, rw) for r in results)
+    return choose_axes(SensorNoise(kind, rates.pop(), axes, source, rw), force=force)
+
+
+def choose_axes(sensor: SensorNoise, *, force: bool = False) -> SensorNoise:
+    """``sensor`` with, per quantity, the axes whose fit vouches for it (:class:`AxisNoise`
+    ``noise_untrusted``/``walk_untrusted`` empty) as the ones its written value comes from.
+
+    Raises :class:`Untrustworthy` naming every axis and why when no axis is left for a quantity,
+    unless ``force`` (then that quantity is chosen among every axis and named in ``forced``).
+    """
+    chosen, forced, refused = {}, [], []
+    for q in QUANTITY_NAMES:
+        why = {a.channel: a.noise_untrusted if q == "noise" else a.walk_untrusted for a in sensor.axes}
+        ok = tuple(c for c, w in why.items() if not w)
+        if not ok:
+            if not force:
+                name = f"{sensor.kind} {QUANTITY_NAMES[q]}"
+                refused.append(f"{name}: " + "; ".join(f"{c}: {w}" for c, w in why.items()))
+            forced.append(q)
+            ok = tuple(why)
+        chosen[q] = ok
+    if refused:
+        raise Untrustworthy(
+            "no axis left that a fit vouches for, nothing written (--force writes the largest axis, marked): "
+            + " | ".join(refused)
+        )
+    return replace(sensor, noise_from=chosen["noise"], walk_from=chosen["walk"], forced=tuple(forced))
 
 
 def export_dict(
@@ -409,9 +499,10 @@ def export_text(
     g_norm: float = G0,
     origin: str = "",
     skipped: Sequence[str] = (),
+    warmup: Sequence[str] = (),
 ) -> str:
     """The file for ``fmt``: keys of :func:`export_dict`, with comments naming units, source and axes
-    (and the axes ``skipped``, each a sentence with its reason)."""
+    (and the axes ``skipped``, each a sentence with its reason, and the ``warmup`` cut per device)."""
     d = export_dict(gyro, accel, fmt, topic=topic, g_norm=g_norm)
     how = (
         "IEEE-952 Allan fit: noise density = N, random walk = K"
@@ -420,6 +511,7 @@ def export_text(
         "docs/reports.md)"
     )
     comments = [f"imustation export --format {fmt}" + (f" of {origin}" if origin else ""), *_units(), how]
+    comments += [f"warm-up {w}" for w in warmup]
     for s in (gyro, accel):
         if s is not None and s.inflated:
             comments.append(
@@ -427,7 +519,12 @@ def export_text(
                 f"measured {s.measured_noise_density:.4e}, {s.measured_random_walk:.4e} -> written "
                 f"{s.noise_density:.4e}, {s.random_walk:.4e}"
             )
-    comments.append("largest axis value written; per axis, measured (noise density, random walk):")
+    comments.append("written per sensor and quantity: the largest axis value among the axes whose fit vouches for")
+    comments.append("it (the model fits the Allan deviation, no parameter at a search bound, the value identified):")
+    for s in (gyro, accel):
+        if s is not None:
+            comments += [f"  {s.rule(q)}" for q in QUANTITY_NAMES]
+    comments.append("per axis, measured (noise density, random walk):")
     for s in (gyro, accel):
         if s is None:
             continue

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.fleet import (
     MIN_GROUP,
+    MIN_RUN_S,
     Z_LIMIT,
     FleetRow,
     common_models,
@@ -53,6 +54,10 @@ class FleetReport:
                 out.append(f"outlier: {r.run} {r.key} {r.sensor}/{r.axis}: {z}")
         return out
 
+    def left_out_lines(self) -> list[str]:
+        """One line per run axis left out of the statistics (too short), with why."""
+        return [f"left out: {r.run} {r.key} {r.sensor}/{r.axis}: {r.excluded}" for r in self.rows if r.excluded]
+
     def summary_line(self) -> str:
         """The summary and where the files are."""
         return f"{self.summary} -> {self.out_dir}/fleet.{{csv,md,html}}, fleet_allan.png"
@@ -62,9 +67,11 @@ def fleet_page(md: str, png: bytes, summary: str) -> str:
     """Self-contained HTML: the Markdown tables as HTML and the Allan figure embedded as base64 PNG."""
     img = base64.b64encode(png).decode("ascii")
     rule = (
-        f"Outliers: robust z = 0.6745 (x − median)/MAD of log10 σ_w, σ_b, τ_b against every run of the same "
-        f"driver, sensor and axis; |z| > {Z_LIMIT:g} is flagged (groups of at least {MIN_GROUP} runs). "
-        "Values: ML_i fit of the standard model (σ_w, σ_b, τ_b), IEEE-952 Allan fit (N, B, K), ± standard error."
+        f"Outliers: robust z = (x − median)/√(s² + se²) of log10 σ_w, σ_b, τ_b, s = MAD/0.6745 of every run of "
+        f"the same driver, sensor and axis (and model, for σ_b and τ_b), se the run's own standard error; "
+        f"|z| > {Z_LIMIT:g} is flagged (groups of at least {MIN_GROUP} runs). Runs shorter than {MIN_RUN_S:g} s or "
+        f"a tenth of their group's median length are listed and left out. Values: the noise-model fit (σ_w, σ_b, "
+        "τ_b), IEEE-952 Allan fit (N, B, K), ± standard error."
     )
     return (
         "<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>imustation fleet</title>"
@@ -110,9 +117,10 @@ def write_fleet_report(
         png = fh.read()
     n_runs = len({r.run for r in rows})
     n_out = sum(1 for r in rows if r.outliers)
+    n_left = sum(1 for r in rows if r.excluded)
     summary = (
         f"{len(rows)} axes of {n_runs} runs, {len({r.key for r in rows})} devices; "
-        f"{n_out} outlier axes; {len(failures)} failures"
+        f"{n_out} outlier axes; {n_left} axes left out (too short); {len(failures)} failures"
     )
     files = [png_path]
     for name, text in (

@@ -70,6 +70,7 @@ def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
                 lo=lo,
                 hi=hi,
                 flags=dict(nr.flags),
+                warmup=meta["warmup"].describe() if "warmup" in meta else "",
             )
         )
     return rows
@@ -84,22 +85,24 @@ def _fmt(x: float, digits: int = 3) -> str:
 
 
 def fleet_csv(rows: Sequence[FleetRow], failures: Sequence[TaskFailure] = ()) -> str:
-    """CSV, one line per run axis (SI; ``status`` ok/outlier) and one ``failed`` line per failure."""
+    """CSV, one line per run axis (SI; ``status`` ok/outlier/left out, ``left_out`` why, ``warmup`` what
+    was cut) and one ``failed`` line per failure."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     head = ["status", "run", "station", "device", "driver", "identity", "device_key", "sensor", "axis"]
     head += ["n", "fs_hz", "model", "converged"]
     for q in FLEET_QUANTITIES:
         head += [q, f"{q}_stderr", f"{q}_lo90", f"{q}_hi90", f"{q}_unit"]
-    head += [f"z_{q}" for q in MODEL_QUANTITIES] + ["outliers", "value_flags", "error"]
+    head += [f"z_{q}" for q in MODEL_QUANTITIES] + ["outliers", "value_flags", "error", "left_out", "warmup"]
     w.writerow(head)
     for r in rows:
-        line = ["outlier" if r.outliers else "ok", r.run, r.station, r.device, r.driver, r.identity, r.key]
+        status = "left out" if r.excluded else "outlier" if r.outliers else "ok"
+        line = [status, r.run, r.station, r.device, r.driver, r.identity, r.key]
         line += [r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model, r.converged]
         for q in FLEET_QUANTITIES:
             line += [repr(r.values[q]), repr(r.stderr[q]), repr(r.lo[q]), repr(r.hi[q]), units_of(r.sensor, q)[0]]
         line += [repr(r.z.get(q, math.nan)) for q in MODEL_QUANTITIES] + [" ".join(r.outliers)]
-        line += ["; ".join(f"{q} {f}" for q, f in r.flags.items()), ""]
+        line += ["; ".join(f"{q} {f}" for q, f in r.flags.items()), "", r.excluded, r.warmup]
         w.writerow(line)
     for f in failures:
         cells = dict.fromkeys(head, "")
@@ -122,44 +125,55 @@ def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failur
              f"{len({r.key for r in rows})} devices, {len(failures)} failures."]  # fmt: skip
     sensors = list(dict.fromkeys(r.sensor for r in rows))
     for sensor in sensors:
-        head = ["run", "device", "identity", "axis"]
+        head = ["run", "device", "identity", "axis", "model"]
         for q in FLEET_QUANTITIES:
             head.append(f"{TITLES[q][0]} [{_sensor_units(sensor, q)[0]}]")
         head.append("flags")
         lines = [f"**{sensor}: every run (value ± standard error)**", "", "| " + " | ".join(head) + " |"]
         lines.append("|" + "---|" * len(head))
         for r in (r for r in rows if r.sensor == sensor):
-            cells = [r.run, r.key, r.identity or "–", f"{r.axis}-{sensor}"]
+            cells = [r.run, r.key, r.identity or "–", f"{r.axis}-{sensor}", r.model]
             for q in FLEET_QUANTITIES:
                 _, k = _sensor_units(sensor, q)
                 f = r.flags.get(q, "")
                 se = f" ± {_fmt(r.stderr[q] * k, 2)}" if not f and math.isfinite(r.stderr[q]) else ""
                 cells.append(fmt_flagged(r.values[q] * k, f) + se)
             flags = [f"outlier {q} (z {r.z[q]:+.1f})" for q in r.outliers]
+            flags += [f"left out: {r.excluded}"] if r.excluded else []
             cells.append("; ".join(flags + ([] if r.converged else ["not converged"])) or "ok")
             lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
         parts.append("\n".join(lines))
     for sensor in sensors:
-        head = ["device", "axis", "runs"]
+        head = ["device", "axis", "model", "runs"]
         for q in MODEL_QUANTITIES:
             u = _sensor_units(sensor, q)[0]
             head += [f"{TITLES[q][0]} mean [{u}]", f"{TITLES[q][0]} std [{u}]"]
-        lines = [f"**{sensor}: repeatability per device (Table III layout: mean and std over runs, ddof=1)**", ""]
+        lines = [f"**{sensor}: repeatability per device and model (Table III layout: mean and std over runs, ddof=1; "
+                 "runs left out and flagged values not counted)**", ""]  # fmt: skip
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for rr in (rr for rr in repeat if rr.sensor == sensor):
-            cells = [rr.key, f"{rr.axis}-{sensor}", str(rr.runs)]
+            cells = [rr.key, f"{rr.axis}-{sensor}", rr.model, str(rr.runs)]
             for q in MODEL_QUANTITIES:
                 _, k = _sensor_units(sensor, q)
                 cells += [_fmt(rr.mean[q] * k), _fmt(rr.std[q] * k, 2)]
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     out = [r for r in rows if r.outliers]
-    lines = [f"**Outliers (robust z of log10 value vs. the same driver/sensor/axis, |z| > {Z_LIMIT:g})**", ""]
+    lines = [f"**Outliers (robust z of log10 value vs. the same driver/sensor/axis and model, each run with its own "
+             f"standard error, |z| > {Z_LIMIT:g})**", ""]  # fmt: skip
     if out:
         lines += ["| run | device | axis | quantity | z |", "|---|---|---|---|---|"]
         for r in out:
             for q in r.outliers:
                 lines.append(f"| {r.run} | {r.key} | {r.axis}-{r.sensor} | {TITLES[q][0]} | {r.z[q]:+.1f} |")
+    else:
+        lines.append("none")
+    parts.append("\n".join(lines))
+    left = [r for r in rows if r.excluded]
+    lines = ["**Left out of the repeatability and the outlier test**", ""]
+    if left:
+        lines += ["| run | device | axis | why |", "|---|---|---|---|"]
+        lines += [f"| {r.run} | {r.key} | {r.axis}-{r.sensor} | {r.excluded} |" for r in left]
     else:
         lines.append("none")
     parts.append("\n".join(lines))

@@ -21,15 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.analysis.estimators.classical.temperature import (
-    TEMPCO_FAMILY_ALPHA,
-    detect_warmup,
-    fit_tempco,
-    holm,
-)
+from imustation.analysis.estimators.classical.temperature import TEMPCO_FAMILY_ALPHA, fit_tempco, holm
 from imustation.analysis.pipeline.channel import DegenerateChannel, analyze_channel
 from imustation.analysis.pipeline.choices import DEFAULT_MODEL
 from imustation.analysis.pipeline.loaders import device_temperature, load_run, thermometer_temperature
+from imustation.analysis.pipeline.warmup import check_warmup, cut_channels
 from imustation.analysis.reports import plots
 from imustation.analysis.reports.pages import CSS, figure_html, html_table
 from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
@@ -47,12 +43,9 @@ from imustation.analysis.reports.tables import (
 from imustation.errors import InputError
 from imustation.outputs import check_folder, fresh_folder
 from imustation.runfile import open_series
-from imustation.units import format_duration, parse_duration
 
 #: bias block length of the temperature figure and regression, s
 BIAS_BLOCK_S = 60.0
-#: ``warmup`` values that exclude nothing
-NO_WARMUP = ("0", "none")
 #: the noise tables written per run and over several runs
 TABLES = (("noise.csv", table_csv), ("noise.md", table_markdown), ("noise.tex", table_latex))
 
@@ -99,14 +92,6 @@ class RunReport:
         return f"{self.path}: {len(self.files)} files in {self.folder}{skip}"
 
 
-def check_warmup(warmup: str) -> float | None:
-    """Seconds to cut from the start of every device, or None for ``"auto"`` (each device's own
-    temperature decides); ``"0"``/``"none"`` cut nothing. Raises :class:`InputError` otherwise."""
-    if warmup == "auto":
-        return None
-    return 0.0 if warmup in NO_WARMUP else parse_duration(warmup)
-
-
 def slug(text: str) -> str:
     """``text`` as a file-name part: letters, digits, ``-`` and ``.`` kept, the rest ``_``."""
     return "".join(c if c.isalnum() or c in "-." else "_" for c in text)
@@ -129,14 +114,6 @@ def write_tables(rows: Sequence[NoiseRow], folder: str) -> list[str]:
     return written
 
 
-def _exclude_start(ch, n0: int) -> None:
-    """Drop the first ``n0`` samples from the channel's segments (warm-up)."""
-    segs = [(max(a, n0), b) for a, b in ch.segments if b > n0]
-    if not segs:
-        raise InputError(f"{ch.id}: the warm-up exclusion ({format_duration(n0 / ch.fs_hz)}) leaves no data")
-    ch.segments = segs
-
-
 def report_run(
     path: str,
     out_dir: str,
@@ -152,7 +129,7 @@ def report_run(
     model fitted; ``warmup``: ``"auto"``, ``"0"``/``"none"`` or a duration (``"20m"``),
     cut from the start of every device; ``progress`` gets a line per channel analysed.
     """
-    fixed = check_warmup(warmup)
+    check_warmup(warmup)
     if not path.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{path}: report needs run files (.h5)")
     os.makedirs(out_dir, exist_ok=True)
@@ -169,17 +146,9 @@ def report_run(
             therms[name] = (t, c)
     written: list[str] = []
     sections: list[str] = []
-    # warm-up: per device, from its own temperature when 'auto'
-    excluded: dict[str, float] = {}
-    for ch in channels:
-        dev = ch.meta["device"]
-        if dev not in excluded:
-            if fixed is None:
-                excluded[dev] = detect_warmup(*temps[dev]) if dev in temps else 0.0
-            else:
-                excluded[dev] = fixed
-        if excluded[dev] > 0:
-            _exclude_start(ch, int(round(excluded[dev] * ch.fs_hz)))
+    # warm-up: the cut every command makes for this option (analysis/pipeline/warmup.py)
+    cuts = cut_channels(channels, warmup)
+    excluded = {dev: cut.cut_s for dev, cut in cuts.items()}
     results = []
     skipped: list[str] = []
     for ch in channels:
@@ -306,14 +275,14 @@ def report_run(
         )  # fmt: skip
     sections.append("<h2>Figures</h2>" + "\n".join(figs))
     sections += details
-    warm = ", ".join(f"{d}: {format_duration(s) if s > 0 else 'none'}" for d, s in excluded.items())
+    warm = "; ".join(cut.describe() for cut in cuts.values())
     esc = html.escape
     name = esc(os.path.basename(path))
     att = {k: esc(str(run_attrs.get(k, d))) for k, d in (("station", ""), ("started_utc", ""), ("ended_utc", "open"))}
     head = (
         f"<p>Run file: {esc(os.path.abspath(path))}<br>station {att['station']}, started {att['started_utc']}, "
         f"ended {att['ended_utc']}{', simulated' if run_attrs.get('simulated') else ''}<br>"
-        f"warm-up excluded ({esc(warmup)}): {esc(warm)}</p>"
+        f"warm-up (--warmup {esc(warmup)}): {esc(warm)}</p>"
     )
     page = (
         "<!DOCTYPE html>\n<html><head><meta charset='utf-8'>"

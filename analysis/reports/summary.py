@@ -96,19 +96,26 @@ def _model_estimate(fit, name: str) -> Estimate:
     return Estimate(value, float(ci[0]), float(ci[1]), param_flag(fit, name))
 
 
+def channel_estimates(r: ChannelAnalysis) -> dict[str, Estimate]:
+    """The summary's quantities of one analysed channel (SI, keys of :data:`SUMMARY_QUANTITIES`):
+    the same numbers wherever a channel is summarised (the report's summary, ``analyze``'s table)."""
+    fit = r.noise_model
+    return {
+        "N": _model_estimate(fit, "sigma_w"),
+        "B": _ieee_estimate(r.ieee.B, r.ieee.B_stderr),
+        "K": _ieee_estimate(r.ieee.K, r.ieee.K_stderr),
+        "sigma_b": _model_estimate(fit, "sigma_b"),
+        "tau_b": _model_estimate(fit, "tau_b"),
+    }
+
+
 def summary_rows(results: list[ChannelAnalysis]) -> list[SummaryRow]:
     """One :class:`SummaryRow` per analysed channel, in the order given."""
     rows = []
     for r in results:
         device, sensor, axis = split_channel_id(r.channel)
         fit = r.noise_model
-        values = {
-            "N": _model_estimate(fit, "sigma_w"),
-            "B": _ieee_estimate(r.ieee.B, r.ieee.B_stderr),
-            "K": _ieee_estimate(r.ieee.K, r.ieee.K_stderr),
-            "sigma_b": _model_estimate(fit, "sigma_b"),
-            "tau_b": _model_estimate(fit, "tau_b"),
-        }
+        values = channel_estimates(r)
         v = r.verdict
         rows.append(
             SummaryRow(

@@ -22,8 +22,10 @@ tau_b      s                       s               s
 
 A number is never printed plainly when it is not an estimate: a coefficient the
 IEEE-952 fit set to zero (its term not needed by the curve) is "not fitted" and
-shows as "—"; a noise-model parameter at its search bound shows as "at bound";
-one whose 90 % interval is missing, infinite or spans more than
+shows as "—", as are ``sigma_b`` and ``tau_b`` of a model without a Gauss-Markov
+bias (a random walk's K is not a sigma_b: every column keeps one meaning); a
+noise-model parameter at its search bound shows as "at bound"; one whose 90 %
+interval is missing, infinite or spans more than
 :data:`UNIDENTIFIED_RATIO` (two decades) is "not identified". The CSV gives the
 number with a ``<q>_flag`` column (and an empty cell for "not fitted").
 
@@ -49,6 +51,7 @@ __all__ = [
     "noise_rows",
     "param_flag",
     "param_key",
+    "has_gauss_markov",
     "ieee_flag",
     "density_flag",
     "by_sensor",
@@ -114,8 +117,17 @@ def param_key(fit, name: str) -> str:
     return name
 
 
+def has_gauss_markov(fit) -> bool:
+    """Whether ``fit``'s model has a Gauss-Markov bias term (``sigma_b``/``tau_b`` mean that term)."""
+    return any(k.startswith("tau_b") for k in fit.params)
+
+
 def param_flag(fit, name: str) -> str:
-    """``AT_BOUND``, ``NOT_IDENTIFIED`` or "" for the noise-model parameter ``name`` (sigma_w, sigma_b, tau_b)."""
+    """``AT_BOUND``, ``NOT_IDENTIFIED`` or "" for the noise-model parameter ``name`` (sigma_w, sigma_b, tau_b);
+    ``NOT_FITTED`` for ``sigma_b``/``tau_b`` of a model without a Gauss-Markov term: a column of sigma_b
+    holds Gauss-Markov densities only (the fit's ``sigma_b`` of a random-walk model is its K, ``tau_b`` inf)."""
+    if name in ("sigma_b", "tau_b") and not has_gauss_markov(fit):
+        return NOT_FITTED
     key = param_key(fit, name)
     if key in fit.at_bound or name in fit.at_bound:
         return AT_BOUND

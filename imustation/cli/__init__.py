@@ -15,6 +15,7 @@ checks this.
 
 from __future__ import annotations
 
+import re
 import sys
 import warnings
 
@@ -23,12 +24,43 @@ import click
 from imustation import __version__
 from imustation.errors import ImustationError, RateCorrected
 
+#: options whose value is a duration (imustation.units.parse_duration)
+DURATION_OPTIONS = ("--duration", "--rotate", "--warmup", "--model-after")
+_NUMBER = re.compile(r"^(\d+(\.\d*)?|\.\d+)$")
+_UNIT = re.compile(r"^(ms|s|m|min|h|d)$", re.IGNORECASE)
+
+
+def join_duration_words(args: list[str]) -> list[str]:
+    """``--duration 2 h`` (unquoted: the shell makes two words) -> ``--duration 2h``.
+
+    Only after a duration option, and only a number followed by a bare unit word (repeated:
+    ``1 h 30 m``), so no file or channel name is ever taken; ``--duration "2 h"`` needs nothing.
+    """
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        out.append(args[i])
+        if args[i] in DURATION_OPTIONS:
+            j, parts = i + 1, []
+            while j + 1 < len(args) and _NUMBER.match(args[j]) and _UNIT.match(args[j + 1]):
+                parts.append(args[j] + args[j + 1])
+                j += 2
+            if parts:
+                out.append("".join(parts))
+                i = j
+                continue
+        i += 1
+    return out
+
 
 class _Group(click.Group):
     """Lists commands in the order they were added and turns user errors into one line."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return list(self.commands)
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        return super().parse_args(ctx, join_duration_words(list(args)))
 
     def invoke(self, ctx: click.Context):
         try:

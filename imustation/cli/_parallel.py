@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
+import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -49,30 +51,55 @@ def run_with_progress(
     label: str = "analysing",
     bar: bool = True,
 ) -> tuple[list[ChannelAnalysis | None], list[TaskFailure]]:
-    """:func:`~imustation.analysis.pipeline.parallel.execute` with the dashboard link, a progress bar
-    (unless ``bar`` is False) and each failure on stderr; a single task shows neither bar nor
-    failure line (its failure becomes the command's one error line)."""
+    """:func:`~imustation.analysis.pipeline.parallel.execute` with the dashboard link, progress per
+    channel on stderr (unless ``bar`` is False) and each failure on stderr; a single task shows
+    neither progress nor failure line (its failure becomes the command's one error line).
+
+    On a terminal the progress is a bar naming the last channel done; otherwise (a log, a pipe:
+    a bar would print its label once and then nothing for minutes) one line per channel done,
+    ``[3/31] mpu9150/gyro/x (12 s)``.
+    """
     from imustation.analysis.pipeline.parallel import execute
 
     several = len(tasks) > 1
+    paths = {t.path for t in tasks}
+    tty = sys.stderr.isatty()
     with contextlib.ExitStack() as stack:
         shown = []
+        count = [0]
+        last = [time.monotonic()]
 
         def on_start(client) -> None:
             if client is not None:
                 click.echo(f"dask dashboard: {client.dashboard_link}", err=True)
-            if several and bar:
+            if several and bar and tty:
                 shown.append(
                     stack.enter_context(
-                        click.progressbar(length=len(tasks), label=label, file=sys.stderr, show_pos=True)
+                        click.progressbar(
+                            length=len(tasks),
+                            label=label,
+                            file=sys.stderr,
+                            show_pos=True,
+                            item_show_func=lambda t: t.channel if t is not None else "",
+                        )
                     )
                 )
+            elif several and bar:
+                click.echo(f"{label} {len(tasks)} channels ...", err=True)
+
+        def on_task(task) -> None:
+            count[0] += 1
+            now = time.monotonic()
+            for progress in shown:
+                progress.update(1, task)
+            if several and bar and not tty:
+                where = f"{os.path.basename(task.path)} " if len(paths) > 1 else ""
+                click.echo(f"[{count[0]}/{len(tasks)}] {where}{task.channel} ({now - last[0]:.0f} s)", err=True)
+            last[0] = now
 
         def on_done(done: int, total: int, fail: TaskFailure | None) -> None:
-            for progress in shown:
-                progress.update(1)
             if fail is not None and several:
-                click.echo(f"\n{failure_line(fail)}", err=True)
+                click.echo(f"\n{failure_line(fail)}" if shown else failure_line(fail), err=True)
 
         return execute(
             tasks,
@@ -82,6 +109,7 @@ def run_with_progress(
             memory_limit=memory_limit,
             on_start=on_start,
             on_done=on_done,
+            on_task=on_task,
         )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import click
 
@@ -46,10 +47,11 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
 )
 @click.option(
     "--pattern",
-    type=click.Choice(["log", "uniform"]),
-    default="log",
-    show_default=True,
-    help="ML_i sampling pattern of the integrated signal.",
+    type=click.Choice(choices.PATTERNS),
+    default=None,
+    help="Sampling pattern of the integrated signal for the ML_i fits (--estimator mli, --method mli): log "
+    "(the paper's; the default) or uniform (the default for a model with a device filter, lp: the log "
+    "pattern's first intervals are shorter than the filter's memory, so --pattern log with lp is refused).",
 )
 @click.option(
     "-m", "m", type=click.IntRange(8, 100000), default=1000, show_default=True, help="Number of ML_i pattern intervals."
@@ -72,15 +74,14 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
     type=click.Choice(choices.ESTIMATORS),
     default=choices.DEFAULT_ESTIMATOR,
     show_default=True,
-    help="Estimator of the noise model reported first and in the JSON 'noise_model' block: ML_i-F (ML_i's "
-    "integrated likelihood + the fine-scale Allan variance, docs/noise-model.md), ML_i or GMWM.",
+    help=choices.ESTIMATOR_HELP,
 )
 @click.option(
     "--method",
     type=click.Choice(choices.METHODS),
     default=choices.DEFAULT_METHOD,
     show_default=True,
-    help="Comparison fits also reported: ML_i (paper), GMWM (docs/gmwm.md) or both (JSON keys 'mli', 'gmwm').",
+    help=choices.METHOD_HELP,
 )
 @click.option(
     "--need",
@@ -90,21 +91,31 @@ def _needed(text: str | None) -> tuple[str, ...] | None:
     "tau_b, sigma_k, ...), B (IEEE-952 bias instability) and N, K (the ieee952 block's). Default: with --model "
     "auto N, B, K (a K not detected by its 90 % upper bound); with a given model its sigma_w, sigma_b, tau_b.",
 )
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 @click.option("--json", "as_json", is_flag=True, help="Print the imustation-analysis JSON document.")
+@click.option(
+    "-v",
+    "--verbose",
+    is_flag=True,
+    help="Below the table (one row per channel) and what needs attention: every fitted block (comparison "
+    "fits, the automatic choice, each adequacy test) and every verdict reason. The JSON has all of it.",
+)
 @cluster_options
 @field_options
 def analyze(
     inputs: tuple[str, ...],
     globs: tuple[str, ...],
     rate_hz: float | None,
-    pattern: str,
+    pattern: str | None,
     m: int,
     model: str,
     compare: bool,
     estimator: str,
     method: str,
     need: str | None,
+    warmup: str,
     as_json: bool,
+    verbose: bool,
     workers: int | None,
     scheduler: str | None,
     memory_limit: str,
@@ -131,22 +142,39 @@ def analyze(
     channel that fails is reported on stderr (and under 'failures' in the
     JSON) and the others finish; the exit status is 2 only when every one
     failed (docs/fleet.md).
+
+    \b
+    --model, --estimator, --method:
+      --model      WHAT is fitted: auto (default) or terms, e.g. wn+gm, wn+fl+rw+lp
+      --estimator  HOW the reported fit is made: mli-f (default), mli, gmwm
+      --method     which comparison fits are shown beside it: mli (default), gmwm, both
+    Every combination works; a model with a device filter (lp) is fitted by
+    ML_i on the uniform pattern (--pattern log is refused for it).
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
+    ml_model = choices.PAPER_MODEL if model == choices.MODEL_AUTO else model  # the one ML_i fits
+    if pattern == "log" and choices.FILTER_TERM in ml_model.split("+") and (method != "gmwm" or estimator == "mli"):
+        raise InputError(
+            f"--pattern log cannot fit --model {model} with ML_i: the log pattern's first intervals are shorter "
+            f"than the device filter's (lp) memory; leave --pattern out (uniform is the default for lp), or "
+            f"--pattern uniform"
+        )
     from imustation.analysis.estimators.ml.mli import DEFAULT_COMPARISON
     from imustation.analysis.pipeline.parallel import AnalysisOptions
+    from imustation.analysis.pipeline.warmup import check_warmup
 
     text = text_options(time_column, gyro_columns, accel_columns, gyro_unit, accel_unit)
     # field recordings are streamed into memory (no run file); other inputs are read by their tasks
     tasks, failures = plan_inputs(inputs, globs, rate_hz, quiet=as_json, topic=topic, time_unit=time_unit, text=text)
+    check_warmup(warmup)  # a bad value fails before any channel is read
     opts = AnalysisOptions(
-        pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need)
+        pattern, m, model, DEFAULT_COMPARISON if compare else (), method, rate_hz, estimator, _needed(need), warmup
     )
-    _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit)
+    _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit, verbose)
 
 
-def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -> None:
+def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit, verbose: bool = False) -> None:
     """Run one task per channel (serially or on a cluster) and print the table or JSON."""
     from imustation.analysis.pipeline.channel import analysis_document
     from imustation.analysis.reports.analyzetable import results_table
@@ -171,7 +199,12 @@ def _analyze(tasks, failures, opts, as_json, workers, scheduler, memory_limit) -
             doc["failures"] = [f.as_dict() for f in failures]
         click.echo(json.dumps(doc))
     else:
-        click.echo(results_table(done))
+        click.echo(results_table(done, verbose=verbose))
+        cuts = {(r.channel.source, r.channel.meta["warmup"].device): r.channel.meta["warmup"] for r in done
+                if "warmup" in r.channel.meta}  # fmt: skip
+        sources = {src for src, _ in cuts}
+        for (src, _), cut in cuts.items():  # what every command cuts for the same --warmup
+            click.echo(f"warm-up {os.path.basename(src) + ' ' if len(sources) > 1 else ''}{cut.describe()}")
         skipped = [f for f in failures if f.skipped]
         for f in skipped:  # named in the table's output too: the table alone must say what is missing
             click.echo(f.error)

@@ -227,7 +227,9 @@ def capture(
         raise InputError("--resume continues the run at -o; --overwrite would replace it: give one of them")
     cfg = load_config(config)
     if check is not None:
-        _bring_up_check(cfg, parse_duration(check), simulate=simulate, sim_level=sim_level, fsync=not no_fsync)
+        _bring_up_check(
+            cfg, parse_duration(check, "--check"), simulate=simulate, sim_level=sim_level, fsync=not no_fsync
+        )
         return
     # outputs before any device is touched (existing parts of a rotated capture: the recorder's check)
     check_file(output, overwrite=overwrite or bool(rotate) or resume)
@@ -235,8 +237,8 @@ def capture(
         check_file(trace_file, overwrite=overwrite, option="--trace")
     if status_file is not None:
         check_file(status_file, overwrite=True, option="--status-file")  # replaced every interval by design
-    seconds = parse_duration(duration)
-    rotate_s = parse_duration(rotate) if rotate else None
+    seconds = parse_duration(duration, "--duration")
+    rotate_s = parse_duration(rotate, "--rotate") if rotate else None
     if not status_interval > 0:
         raise InputError(f"--status-interval {status_interval}: must be > 0 s")
     if sim_speed is not None and not sim_speed > 0:

@@ -59,6 +59,7 @@ PARAM_DIMENSIONS = {"sigma_w": "density", "sigma_b": "drift", "tau_b": "time"}
     help="With --lab: run the byte-level simulated capture (drivers, buses, chip simulators; ~55x real "
     "time on two cores, in two processes) instead of synthesising the run file from the same noise sources (~300x).",
 )
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 @click.option(
     "--table",
     "table_path",
@@ -73,6 +74,7 @@ def demo(
     lab: bool,
     profile: str | None,
     through_drivers: bool,
+    warmup: str,
     table_path: str | None,
 ) -> None:
     """Simulate a capture, analyse it, and compare identified with simulated parameters.
@@ -109,15 +111,19 @@ def demo(
     from imustation.analysis.pipeline.channel import analyze_channel
     from imustation.analysis.pipeline.loaders import load_inputs
     from imustation.analysis.pipeline.truth import nbk_rows
+    from imustation.analysis.pipeline.warmup import check_warmup, cut_channels
     from imustation.drivers.sim import simulated_nbk, simulated_truth
 
+    check_warmup(warmup)  # before hours of simulation
     default_cfg = LAB_CONFIGS[profile or "paper"] if lab else "demo.toml"
     cfg = load_config(config_file or config_path(default_cfg))
-    seconds = parse_duration(duration or (LAB_DURATION if lab else QUICK_DURATION))
+    seconds = parse_duration(duration or (LAB_DURATION if lab else QUICK_DURATION), "--duration")
     globs = ["*/gyro/*", "*/accel/*"] if lab else ["*/gyro/*"]
     with tempfile.TemporaryDirectory() as tmp:
         path = output or os.path.join(tmp, "demo.h5")
-        click.echo(f"simulating {format_duration(seconds)} of {len(cfg.devices)} device(s) -> {path}")
+        # without -o the run file lives in a temporary folder deleted at the end: no path worth printing
+        where = path if output else "a temporary run file, deleted at the end (-o RUN.h5 keeps it)"
+        click.echo(f"simulating {format_duration(seconds)} of {len(cfg.devices)} device(s) -> {where}")
         if lab and not through_drivers:
             t_syn = time.perf_counter()
             with click.progressbar(length=1000, label="  synthesising (noise-model level)", file=sys.stderr) as bar:
@@ -137,6 +143,8 @@ def demo(
             summary = run_capture(cfg, path, seconds, simulate=True, overwrite=overwrite, workers=workers)
             click.echo(f"  {sum(summary.samples.values())} samples in {summary.wall_s:.1f} s wall")
         channels = load_inputs([path], globs)
+        for cut in cut_channels(channels, warmup).values():  # the cut analyze/report/export/fleet make
+            click.echo(f"  warm-up {cut.describe()}")
         head = (
             f"{'channel':<22} {'param':<8} {'simulated':>11} {'identified':>11} {'90% interval':>25} {'error':>8}"
             "  unit (SI)"

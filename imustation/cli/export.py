@@ -44,6 +44,14 @@ from imustation.outputs import check_file
     "margin VIO users add for motion, vibration and temperature (docs/reports.md). The measured values "
     "stay in the file's comments. Default: no inflation.",
 )
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Write a quantity even when no axis's fit vouches for it (it does not fit the Allan deviation, sits "
+    "at a search bound or is not identified); marked FORCED in the file. Without it such an export writes "
+    "nothing and exits 2, naming the axes and why.",
+)
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 def export(
     runs: tuple[str, ...],
     fmt: str,
@@ -57,13 +65,19 @@ def export(
     model: str,
     topic: str,
     inflate: str | None,
+    force: bool,
+    warmup: str,
 ) -> None:
     """Fit every axis of RUN and write the noise parameters a VIO tool expects.
 
     Values are continuous-time densities (SI) — the white-noise density is
     sigma_w = N, not N*sqrt(rate); the bias random walk is K (see docs/reports.md
-    for the conversion from a Gauss-Markov bias). One value per sensor: the
-    largest axis. A rotated capture is one RUN: its base name (week.h5) or all its parts.
+    for the conversion from a Gauss-Markov bias). One value per sensor and
+    quantity: the largest axis among those whose fit vouches for it (the model
+    fits the Allan deviation, nothing at a search bound, the value identified;
+    the rule and every axis are in the file's comments); when no axis is left,
+    nothing is written and the exit status is 2 (--force writes it, marked).
+    A rotated capture is one RUN: its base name (week.h5) or all its parts.
     """
     from imustation.runfile import join_parts
 
@@ -76,6 +90,7 @@ def export(
     if not run.lower().endswith((".h5", ".hdf5")):
         raise InputError(f"{run}: export needs a run file (.h5)")
     from imustation.analysis.pipeline.loaders import load_run
+    from imustation.analysis.pipeline.warmup import check_warmup, cut_channels
     from imustation.analysis.reports.export import (
         export_channels,
         export_text,
@@ -86,16 +101,20 @@ def export(
     )
 
     factors = parse_inflation(inflate) if inflate is not None else None  # a bad value fails before the fits
+    check_warmup(warmup)
 
     gyros, accels = export_channels(load_run(run), run, device=device, accel_device=accel_device, gyro_only=gyro_only)
+    cuts = cut_channels([*gyros, *accels], warmup)  # the cut analyze/report/fleet make for this --warmup
+    for cut in cuts.values():
+        click.echo(f"warm-up {cut.describe()}", err=True)
     skipped: list[str] = []
 
     def note(line: str) -> None:
         click.echo(line, err=True)
 
-    gyro = sensor_noise(fit_axes(gyros, "gyroscope", run, model, skipped, note), "gyro", source, rw)
+    gyro = sensor_noise(fit_axes(gyros, "gyroscope", run, model, skipped, note), "gyro", source, rw, force=force)
     accel = (
-        sensor_noise(fit_axes(accels, "accelerometer", run, model, skipped, note), "accel", source, rw)
+        sensor_noise(fit_axes(accels, "accelerometer", run, model, skipped, note), "accel", source, rw, force=force)
         if accels
         else None
     )
@@ -114,7 +133,8 @@ def export(
                 click.echo(f"warning: {a.channel}: noise density doubtful: {a.noise_warning}", err=True)
             if a.warning:
                 click.echo(f"warning: {a.channel}: random walk doubtful: {a.warning}", err=True)
-    text = export_text(gyro, accel, fmt, topic=topic, origin=run, skipped=skipped)
+    text = export_text(gyro, accel, fmt, topic=topic, origin=run, skipped=skipped,
+                       warmup=[c.describe() for c in cuts.values()])  # fmt: skip
     if output:
         with open(output, "w", encoding="utf-8") as fh:
             fh.write(text)

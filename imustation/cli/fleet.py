@@ -17,6 +17,7 @@ from imustation.cli._parallel import cluster_options, report_failures, run_with_
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to include (default: every gyro/accel axis)."
 )
 @click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP)
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 @cluster_options
 def fleet(
     runs: tuple[str, ...],
@@ -24,6 +25,7 @@ def fleet(
     overwrite: bool,
     globs: tuple[str, ...],
     model: str,
+    warmup: str,
     workers: int | None,
     scheduler: str | None,
     memory_limit: str,
@@ -35,24 +37,32 @@ def fleet(
     fleet_allan.png: per run and axis the device identity, ML_i sigma_w,
     sigma_b, tau_b and IEEE-952 N, B, K with standard errors and 90 %
     intervals; per device and axis the mean and std over its runs (Table III);
-    runs flagged against the fleet (robust z > 3.5). Channels are analysed
+    runs flagged against the fleet (robust z > 3.5, each run with its own
+    uncertainty, comparable models only; too-short runs listed and left
+    out). Channels are analysed
     in parallel with --workers N or --scheduler ADDR (docs/fleet.md). A run
     that fails is reported and listed; the exit status is 2 only when every
     run failed.
     """
     from imustation.analysis.pipeline.parallel import AnalysisOptions, plan_tasks
+    from imustation.analysis.pipeline.warmup import check_warmup
     from imustation.analysis.reports.fleetreport import FLEET_FILES, write_fleet_report
     from imustation.outputs import check_folder
     from imustation.runfile import join_parts
 
+    check_warmup(warmup)  # a bad value fails before anything is analysed
     check_folder(out_dir, overwrite=overwrite, writes=FLEET_FILES)
     runs = tuple(join_parts(runs))  # a rotated capture's parts: one run
     tasks, failures = plan_tasks(runs, globs)
     report_failures(failures)
     results, failed = run_with_progress(
-        tasks, AnalysisOptions(model=model), workers=workers, scheduler=scheduler, memory_limit=memory_limit
+        tasks,
+        AnalysisOptions(model=model, warmup=warmup),
+        workers=workers,
+        scheduler=scheduler,
+        memory_limit=memory_limit,
     )
     rep = write_fleet_report(runs, results, failures + failed, out_dir)
-    for line in rep.outlier_lines():
+    for line in rep.outlier_lines() + rep.left_out_lines():
         click.echo(line, err=True)
     click.echo(rep.summary_line())

@@ -69,7 +69,7 @@ def monitor(run_file: str, host: str, port: int, poll_s: float, allan_every_s: f
         raise InputError(f"--port {port}: must be 0..65535")
     if not (poll_s > 0 and allan_every_s > 0):
         raise InputError("--poll and --allan-every must be > 0 s")
-    model_after_s = parse_duration(model_after)
+    model_after_s = parse_duration(model_after, "--model-after")
     from imustation.monitor import Monitor
     from imustation.monitor.server import bind, is_loopback, new_token, serve
 

@@ -16,12 +16,7 @@ from imustation.cli import cli
     "--channel", "globs", multiple=True, metavar="GLOB", help="Channels to report (default: gyro/accel axes)."
 )
 @click.option("--model", default=choices.DEFAULT_MODEL, show_default=True, help=choices.MODEL_HELP)
-@click.option(
-    "--warmup",
-    default="auto",
-    show_default=True,
-    help="Start of the record to exclude: 'auto' (from the device temperature), 0, or a duration such as 1h.",
-)
+@click.option("--warmup", default=choices.DEFAULT_WARMUP, show_default=True, help=choices.WARMUP_HELP)
 def report(
     runs: tuple[str, ...], out_dir: str, overwrite: bool, globs: tuple[str, ...], model: str, warmup: str
 ) -> None:

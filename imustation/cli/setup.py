@@ -54,8 +54,8 @@ def service(config: str, output: str, duration: str, rotate: str, user: str | No
     from imustation.units import parse_duration
 
     cfg = load_config(config)
-    parse_duration(duration)  # refused now, not by the service at 3 a.m.
-    parse_duration(rotate)
+    parse_duration(duration, "--duration")  # refused now, not by the service at 3 a.m.
+    parse_duration(rotate, "--rotate")
     spec = ServiceSpec(
         config=os.path.abspath(config),
         output=os.path.abspath(output),

@@ -75,7 +75,7 @@ def study(
         check_file(out, overwrite=overwrite)
     est = tuple(e.strip() for e in estimators.split(",") if e.strip())
     lv = _floats(levels, "--levels")
-    seconds = parse_duration(duration)
+    seconds = parse_duration(duration, "--duration")
     from imustation.analysis.estimators.models.reference import TABLE_III_MEAN
     from imustation.analysis.pipeline.study import markdown, run_study, summarize
 

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from imustation.analysis.estimators.classical.temperature import detect_warmup
+from imustation.analysis.estimators.classical.temperature import fit_warmup
 from imustation.analysis.estimators.models.standard import StandardModel
 from imustation.analysis.pipeline.loaders import TEMP_READ_HZ, locate_breaks
 from imustation.errors import ImustationError
@@ -108,9 +108,10 @@ def warmup_summary(t_s: np.ndarray, c: np.ndarray) -> dict[str, Any]:
     """Warm-up state of one temperature series (s, degC).
 
     ``warmup_end_s``: end of the warm-up found by the analysis's
-    :func:`detect_warmup` (``None`` while fewer than ``WARMUP_WINDOW_S`` of
-    readings exist or while still warming); ``warming``: the last window still
-    changes faster than ``STEADY_C_PER_H``; ``slope_c_per_h``: least-squares
+    :func:`fit_warmup` (``None`` while fewer than ``WARMUP_WINDOW_S`` of
+    readings exist, too few to tell or while still warming; 0 when there is
+    no warm-up transient); ``warming``: a warm-up transient has not settled for
+    ``WARMUP_WINDOW_S`` yet (``None`` while too short to tell); ``slope_c_per_h``: least-squares
     slope of the last ``WARMUP_WINDOW_S`` (degC/h); ``steady``: its magnitude
     is within the limit.
     """
@@ -124,9 +125,11 @@ def warmup_summary(t_s: np.ndarray, c: np.ndarray) -> dict[str, Any]:
         out["steady"] = abs(slope) <= STEADY_C_PER_H
     if t_s[-1] - t_s[0] < WARMUP_WINDOW_S:
         return out
-    end = detect_warmup(t_s, c, window_s=WARMUP_WINDOW_S, max_rate_c_per_h=STEADY_C_PER_H)
-    out["warming"] = bool(end >= t_s[-1])
-    out["warmup_end_s"] = None if out["warming"] else end
+    wfit = fit_warmup(t_s, c, window_s=WARMUP_WINDOW_S, max_rate_c_per_h=STEADY_C_PER_H)
+    if wfit.state == "unknown":
+        return out
+    out["warming"] = wfit.state == "unsettled"
+    out["warmup_end_s"] = None if out["warming"] else wfit.cut_s
     return out
 
 

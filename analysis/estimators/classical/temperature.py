@@ -159,14 +159,29 @@ def _acf(x: np.ndarray) -> np.ndarray:
     return a / a[0] if a[0] > 0 else np.zeros(n)
 
 
+#: what a warm-up fit found (:attr:`WarmupFit.state`)
+WARMUP_STATES = ("none", "transient", "unsettled", "unknown")
+
+
 @dataclass(frozen=True)
 class WarmupFit:
     """Smooth fit of a temperature record: ``T(t) = level + drift t + amplitude e^{-t/tau}``.
 
     ``amplitude_c`` (K, 0 when no transient is resolved) and ``tau_s`` (s) describe the
-    warm-up transient, ``drift_c_per_h`` the linear drift; ``end_s`` is the end of the
-    warm-up (s from the first reading): from then on the smooth curve changes slower than
-    the limit. ``t0_s`` is the time of the first reading.
+    warm-up transient, ``drift_c_per_h`` the linear drift; ``t0_s`` is the time of the first
+    reading. ``state`` (one of :data:`WARMUP_STATES`) and ``end_s`` (s, on the readings' time axis):
+
+    * ``"none"``: no warm-up (a flat record, quantisation steps, a drift slower than the limit);
+      ``end_s`` is ``t0_s``;
+    * ``"transient"``: a warm-up that settles inside the record; ``end_s`` its end, after which
+      the smooth curve changes slower than the limit;
+    * ``"unsettled"``: a warm-up still going (or settled too shortly before the last reading to
+      tell), or a temperature drifting faster than the limit to the end without a transient to tell
+      apart; ``end_s`` the last reading: no settled data;
+    * ``"unknown"``: a record too short to tell (:data:`MIN_WARMUP_RECORD_S`); ``end_s`` NaN.
+
+    ``change_c`` is the fitted curve's change over the warm-up (K), ``step_c`` the reading
+    resolution estimated from the data (:func:`reading_step`), ``duration_s`` the record's span.
     """
 
     end_s: float
@@ -175,12 +190,32 @@ class WarmupFit:
     drift_c_per_h: float
     level_c: float
     t0_s: float
+    state: str = "none"
+    change_c: float = 0.0
+    step_c: float = math.nan
+    duration_s: float = math.nan
 
     def smooth(self, t_s: np.ndarray) -> np.ndarray:
         """The fitted curve at ``t_s`` (°C)."""
         u = np.asarray(t_s, dtype=float) - self.t0_s
         tr = self.amplitude_c * np.exp(-u / self.tau_s) if self.amplitude_c else 0.0
         return self.level_c + self.drift_c_per_h / 3600.0 * u + tr
+
+    @property
+    def cut_s(self) -> float:
+        """What a ``--warmup auto`` analysis leaves out (s on the readings' time axis, from its 0):
+        ``end_s`` for ``"transient"``, else 0 (nothing settled to keep, or nothing to cut)."""
+        return self.end_s if self.state == "transient" else 0.0
+
+    def describe(self) -> str:
+        """One phrase for tables and verdicts, e.g. ``"warm-up 2.3 K until 2749 s"``."""
+        if self.state == "transient":
+            return f"warm-up {abs(self.change_c):.2g} K until {self.end_s:.0f} s"
+        if self.state == "unsettled":
+            return f"temperature still changing at the end ({self.change_c:+.2g} K over the record): no settled data"
+        if self.state == "unknown":
+            return f"record too short ({self.duration_s:.0f} s) to tell a warm-up"
+        return "no warm-up"
 
 
 #: smallest warm-up time constant fitted (s): thermal transients of a die take minutes
@@ -189,82 +224,136 @@ MIN_WARMUP_TAU_S = 120.0
 WARMUP_SIGNIFICANCE = 5.0
 #: ... and this amplitude (K)
 MIN_WARMUP_C = 0.05
+#: ... and the fitted curve must change by this many reading steps (:func:`reading_step`) over the
+#: warm-up: one or two quantisation steps of a 0.5 K die thermometer are not a warm-up
+MIN_WARMUP_STEPS = 4.0
 #: readings are averaged over blocks this long (s) before the fit: quantisation steps average out
 WARMUP_BLOCK_S = 60.0
+#: a record shorter than this (s) cannot tell a warm-up (two of the shortest time constants, and
+#: eight blocks): state "unknown", nothing cut
+MIN_WARMUP_RECORD_S = 8 * WARMUP_BLOCK_S
+
+
+def reading_step(temp_c: np.ndarray) -> float:
+    """Resolution of a temperature record (K), from the data: the median size of the changes
+    between consecutive readings that change. One LSB for a quantised thermometer (its readings
+    move by single steps), about the noise for a fine or block-averaged one; 0 for a constant record."""
+    d = np.abs(np.diff(np.asarray(temp_c, dtype=float)))
+    d = d[d > 0]
+    return float(np.median(d)) if len(d) else 0.0
 
 
 def fit_warmup(
-    t_s: np.ndarray, temp_c: np.ndarray, *, window_s: float = 600.0, max_rate_c_per_h: float = 1.0
+    t_s: np.ndarray,
+    temp_c: np.ndarray,
+    *,
+    window_s: float = 600.0,
+    max_rate_c_per_h: float = 1.0,
+    step_c: float | None = None,
 ) -> WarmupFit:
     """Fit the smooth warm-up model to a temperature record and find where the warm-up ends.
 
     t_s, temp_c : readings (s, °C), increasing times.
     window_s : settled data needed after the end (s): a record whose smooth curve settles
-        less than this before its last reading is still warming up (the end is the record's end).
+        less than this before its last reading is still warming up (state ``"unsettled"``).
     max_rate_c_per_h : settled when the smooth curve changes slower than this (°C/h).
+    step_c : the readings' resolution (K); None: :func:`reading_step` of ``temp_c`` (pass the raw
+        readings' step when ``temp_c`` are block means: ``pipeline.loaders.TemperatureRecord.step_c``).
 
     The readings are averaged over :data:`WARMUP_BLOCK_S` blocks and fitted by least squares
     with a level, a linear drift and, for each time constant of a log grid from
     :data:`MIN_WARMUP_TAU_S` to half the record, an exponential transient; the transient is
     kept when its amplitude exceeds :data:`WARMUP_SIGNIFICANCE` standard errors and
-    :data:`MIN_WARMUP_C`. Quantisation steps, a slow drift or a flat record give no transient,
-    so no warm-up; a drift faster than the limit never settles.
+    :data:`MIN_WARMUP_C`. It is a warm-up only when the fitted curve also changes by
+    :data:`MIN_WARMUP_STEPS` reading steps (:func:`reading_step`) and :data:`MIN_WARMUP_C`
+    before it settles: quantisation steps, a slow drift or a flat record give none (a transient
+    and a drift that cancel each other are not a change); a drift faster than the limit without a
+    transient (by many reading steps) is ``"unsettled"``.
+    A record shorter than :data:`MIN_WARMUP_RECORD_S` is ``"unknown"``.
     """
     t_s, temp_c = np.asarray(t_s, float), np.asarray(temp_c, float)
     ok = np.isfinite(t_s) & np.isfinite(temp_c)
     t_s, temp_c = t_s[ok], temp_c[ok]
-    if len(t_s) < 3:
-        return WarmupFit(0.0, 0.0, math.inf, 0.0, float(temp_c.mean()) if len(temp_c) else math.nan, 0.0)
-    t0 = float(t_s[0])
+    duration = float(t_s[-1] - t_s[0]) if len(t_s) else 0.0
+    level = float(np.median(temp_c)) if len(temp_c) else math.nan
+    t0 = float(t_s[0]) if len(t_s) else 0.0
+    step = reading_step(temp_c) if step_c is None else float(step_c)
+    if len(t_s) < 3 or duration < MIN_WARMUP_RECORD_S:
+        return WarmupFit(math.nan, 0.0, math.inf, 0.0, level, t0, "unknown", 0.0, step, duration)
     idx = np.floor((t_s - t0) / WARMUP_BLOCK_S).astype(np.int64)
     cnt = np.bincount(idx)
     keep = cnt > 0
     u = (np.bincount(idx, weights=t_s - t0)[keep]) / cnt[keep]
     y = np.bincount(idx, weights=temp_c)[keep] / cnt[keep]
-    span = float(u[-1] - u[0]) if len(u) else 0.0
-    null = np.stack([np.ones_like(u), u / max(span, 1.0)], axis=1)
+    span = float(u[-1] - u[0])
+    if len(u) < 8 or span < 2 * MIN_WARMUP_TAU_S:  # readings bunched in a few blocks
+        return WarmupFit(math.nan, 0.0, math.inf, 0.0, level, t0, "unknown", 0.0, step, duration)
+    null = np.stack([np.ones_like(u), u / span], axis=1)
     coef0, *_ = np.linalg.lstsq(null, y, rcond=None)
     best = None
-    if len(u) >= 8 and span >= 2 * MIN_WARMUP_TAU_S:
-        for tau in np.geomspace(MIN_WARMUP_TAU_S, span / 2.0, 40):
-            X = np.column_stack([null, np.exp(-u / tau)])
-            coef, res, rank, _ = np.linalg.lstsq(X, y, rcond=None)
-            if rank < 3:
-                continue
-            rss = float(np.sum((y - X @ coef) ** 2))
-            if best is None or rss < best[0]:
-                best = (rss, tau, coef, X)
-    amp, tau, coef = 0.0, math.inf, coef0
-    if best is not None:
-        rss, tau_b, coef_b, X = best
-        s2 = rss / max(len(u) - 4, 1)
-        try:
-            se = math.sqrt(max(float(s2 * np.linalg.inv(X.T @ X)[2, 2]), 0.0))
-        except np.linalg.LinAlgError:  # transient indistinguishable from the drift: none
-            se = math.inf
-        if abs(coef_b[2]) >= max(WARMUP_SIGNIFICANCE * se, MIN_WARMUP_C):
-            amp, tau, coef = float(coef_b[2]), float(tau_b), coef_b
-    drift = float(coef[1]) / max(span, 1.0) * 3600.0
-    fit = WarmupFit(0.0, amp, tau, drift, float(coef[0]), t0)
+    taus = np.geomspace(MIN_WARMUP_TAU_S, span, 40)
+    for tau in taus:
+        X = np.column_stack([null, np.exp(-u / tau)])
+        coef, res, rank, _ = np.linalg.lstsq(X, y, rcond=None)
+        if rank < 3:
+            continue
+        rss = float(np.sum((y - X @ coef) ** 2))
+        if best is None or rss < best[0]:
+            best = (rss, tau, coef, X)
+    drift0 = float(coef0[1]) / span * 3600.0
+    none = WarmupFit(t0, 0.0, math.inf, drift0, float(coef0[0]), t0, "none", 0.0, step, duration)
+    moved = drift0 * duration / 3600.0
+    if abs(drift0) > max_rate_c_per_h and abs(moved) >= max(MIN_WARMUP_STEPS * step, MIN_WARMUP_C):
+        # no transient to tell apart, but the temperature changes faster than the limit to the end (the
+        # first minutes of a warm-up slower than the record, or a drifting room): nothing settled
+        none = WarmupFit(t0 + duration, 0.0, math.inf, drift0, float(coef0[0]), t0, "unsettled", moved, step, duration)
+    if best is None:
+        return none
+    rss, tau, coef, X = best
+    if tau >= taus[-1]:  # at the grid's top: a slow curve, not told apart from the drift (a room swing)
+        return none
+    s2 = rss / max(len(u) - 4, 1)
+    try:
+        se = math.sqrt(max(float(s2 * np.linalg.inv(X.T @ X)[2, 2]), 0.0))
+    except np.linalg.LinAlgError:  # transient indistinguishable from the drift: none
+        return none
+    amp = float(coef[2])
+    if abs(amp) < max(WARMUP_SIGNIFICANCE * se, MIN_WARMUP_C):
+        return none
+    drift = float(coef[1]) / span * 3600.0
+    fit = WarmupFit(t0, amp, float(tau), drift, float(coef[0]), t0, "none", 0.0, step, duration)
     # end: after it the smooth slope stays within the limit (the transient decays, the drift is constant)
-    grid = np.linspace(0.0, float(t_s[-1] - t0), 2001)
-    slope = drift + (-amp / tau * np.exp(-grid / tau) * 3600.0 if amp else np.zeros_like(grid))
+    grid = np.linspace(0.0, duration, 2001)
+    # a drift that moves the readings by fewer than MIN_WARMUP_STEPS over the whole record is not
+    # resolved (one 0.5 K step late in a 40 min record reads as 1.3 K/h): it does not keep the record unsettled
+    resolved = abs(drift) * duration / 3600.0 >= MIN_WARMUP_STEPS * step
+    slope = (drift if resolved else 0.0) - amp / tau * np.exp(-grid / tau) * 3600.0
     fast = np.abs(slope) > max_rate_c_per_h
     if not fast.any():
-        return fit
+        return none
     last = int(np.nonzero(fast)[0][-1])
-    end = float(grid[min(last + 1, len(grid) - 1)])
-    if last + 1 >= len(grid) or end > grid[-1] - window_s:
-        end = float(t_s[-1] - t0)  # not settled long enough to tell
-    return WarmupFit(t0 + end, amp, tau, drift, fit.level_c, t0)
+    unsettled = last + 1 >= len(grid) or grid[last + 1] > duration - window_s
+    end = duration if unsettled else float(grid[last + 1])
+    curve = fit.smooth(t0 + np.array([0.0, end]))
+    change = float(curve[1] - curve[0])
+    if abs(change) < max(MIN_WARMUP_STEPS * step, MIN_WARMUP_C):
+        return none  # a fitted curve that hardly moves the readings: not a temperature change
+    state = "unsettled" if unsettled else "transient"
+    return WarmupFit(t0 + end, amp, float(tau), drift, fit.level_c, t0, state, change, step, duration)
 
 
 def detect_warmup(
-    t_s: np.ndarray, temp_c: np.ndarray, *, window_s: float = 600.0, max_rate_c_per_h: float = 1.0
+    t_s: np.ndarray,
+    temp_c: np.ndarray,
+    *,
+    window_s: float = 600.0,
+    max_rate_c_per_h: float = 1.0,
+    step_c: float | None = None,
 ) -> float:
     """End of the warm-up (s, on the readings' time axis) from :func:`fit_warmup`'s smooth fit.
 
-    Returns 0 (the first reading's time) when the record is settled from the start,
-    and the last reading's time when it never settles.
+    The first reading's time when there is no warm-up, the last reading's time when the record
+    is still warming up at its end, NaN when the record is too short to tell
+    (:attr:`WarmupFit.state` says which).
     """
-    return fit_warmup(t_s, temp_c, window_s=window_s, max_rate_c_per_h=max_rate_c_per_h).end_s
+    return fit_warmup(t_s, temp_c, window_s=window_s, max_rate_c_per_h=max_rate_c_per_h, step_c=step_c).end_s

@@ -203,7 +203,10 @@ def fit_composite_data(
     memory = fine.memory_s if multi and fine.term else 0.0
     if "lp" in spec.codes:
         if not (multi and len(fine.taus) > 1):
-            raise InputError(f"model {spec.name!r}: a device filter needs the two-scale statistic (fine_statistics)")
+            raise InputError(
+                f"model {spec.name!r}: the data show no device filter at the fine scales (the two-scale statistic "
+                f"finds the sample-scale noise white: nothing to fit an lp term to): use the model without lp, or auto"
+            )
         if float(inc.dt.min()) < 10.0 * memory:
             raise InputError(f"pattern intervals of {inc.dt.min():.3g} s: too short against the filter's memory")
     if multi and fine.term and ("lp" in spec.codes or "wa" in spec.codes):

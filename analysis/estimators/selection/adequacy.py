@@ -117,7 +117,9 @@ class Adequacy:
         if self.verdict == FITS:
             return f"fits (p={self.p_value:.2g})"
         where = ", ".join(m.describe() for m in self.misfit)
-        return f"does not fit (p={self.p_value:.1e}){': ' + where if where else ''}"
+        # a p of 1e-300 (or 0.0) says no more than 'far below any level': printed as such
+        p = f"p={self.p_value:.1e}" if self.p_value >= 1e-4 else "p<1e-4"
+        return f"does not fit ({p}){': ' + where if where else ''}"
 
     def as_dict(self) -> dict:
         """The ``adequacy`` block of the analysis JSON (docs/analysis-json.md)."""

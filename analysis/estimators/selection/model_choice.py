@@ -425,10 +425,16 @@ def choose_model(
         raise InputError("no model of the family could be fitted")
     usable = [c for c in cands if c.result.converged] or cands
     worst = min(usable, key=lambda c: c.result.bic)
-    reason = (
-        f"no model of the family fits the Allan deviation ({worst.check.summary()}); "
-        f"{worst.result.model} has the smallest BIC"
-    )
+    if worst.result.converged:
+        reason = (
+            f"no model of the family fits the Allan deviation ({worst.check.summary()}); "
+            f"{worst.result.model} has the smallest BIC"
+        )
+    else:  # its curve may pass the adequacy test, but no fit converged: 'NO MODEL FITS (fits)' said nothing
+        reason = (
+            f"no fit of the family converged ({worst.result.model}, the smallest BIC: {worst.result.message}; "
+            f"its curve against the Allan deviation: {worst.check.summary()})"
+        )
     more = later_octaves(fine, rate, fs_hz, scale=scale, segments=segments)
     chosen = guard_white(worst.result, fine, fs_hz, more)
     return ModelChoice(chosen, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)

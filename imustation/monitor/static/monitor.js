@@ -206,7 +206,11 @@
       const d = doc.devices[name];
       if (d.error) { notes.push(name + ": " + d.error); return; }
       const axes = Object.keys(d.axes || {});
-      if (!d.tau || !d.tau.length || !axes.length) return;
+      if (!d.tau || !d.tau.length || !axes.length) {
+        // data too short for one Allan point yet: said so, not an empty section
+        notes.push(name + ": waiting for data (" + (d.samples || 0) + " samples so far)\u2026");
+        return;
+      }
       const data = [d.tau];
       const series = [{ label: "\u03c4 (s)" }];
       const unit = d.units || "rad/s";
