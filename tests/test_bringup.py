@@ -149,3 +149,15 @@ def test_a_refused_setting_is_not_taken_for_a_baud_mismatch(tmp_path):
     body = '[[device]]\nname = "mti"\ndriver = "mti"\nbus = "serial:/dev/ttyUSB0?baud=115200"\nrate_hz = 400\n'
     (f,) = check_station(config(tmp_path, body), simulate=True, clock=VirtualClock())
     assert not f.ok and f.cause == "a setting the device refuses" and "rate_hz = 200 or less" in f.detail
+
+
+def test_devices_columns_line_up_with_long_bus_urls():
+    """The lab's serial and SPI bus URLs (31 characters) pushed their identity out of the column."""
+    from imustation.configs import config_path
+
+    res = CliRunner().invoke(cli, ["devices", config_path("lab-example.toml"), "--simulate"])
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.startswith(("device", "thermometer"))]
+    keys = ("chip_id", "chip_id", "who_am_i", "who_am_i", "prod_id", "device_id", "no identity", *["manufacturer"] * 3)
+    assert len(lines) == len(keys), res.output
+    assert len({ln.index(key) for ln, key in zip(lines, keys, strict=True)}) == 1, res.output

@@ -80,3 +80,15 @@ def test_a_device_without_data_is_no_go(tmp_path):
     RunWriter(path, station="s", config_text="", simulated=True, devices=[spec], fsync=False).close()
     report = judge(str(path))
     assert not report.go and readings(report, "g")["samples"].why == "the device delivered no data"
+
+
+def test_check_refuses_the_options_it_would_ignore(tmp_path):
+    """``--check 30s -o x.h5`` kept no file and ``--duration 1h`` checked 30 s, silently: now one line, exit 2."""
+    cfg = rig(tmp_path)
+    ignored = (["-o", str(tmp_path / "x.h5")], ["--duration", "1h"], ["--real-time"], ["--resume", "--rotate", "1h"])
+    for extra in ignored:
+        res = CliRunner().invoke(cli, ["capture", str(cfg), "--simulate", "--check", "1s", "--no-fsync", *extra])
+        assert res.exit_code == 2, (extra, res.output)
+        named = res.output.split(":")[2]  # imustation: error: --check with A, B: ...
+        assert all(opt in named for opt in extra if opt.startswith("-")) and "keeps no run" in res.output
+    assert not (tmp_path / "x.h5").exists()

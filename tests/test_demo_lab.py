@@ -94,3 +94,17 @@ def test_demo_lab_datasheet_compares_n_b_k_like_for_like(tmp_path):
     # minutes pin the white noise (the slow terms are what such a short record cannot see)
     held = sum(float(row["ci90_lo"]) <= float(row["simulated"]) <= float(row["ci90_hi"]) for row in n_rows)
     assert held >= 7, [row for row in n_rows if row["note"]]
+
+
+def test_demo_marks_a_value_at_its_bound_or_unidentified(tmp_path):
+    """A 2 min demo cannot identify tau_b (simulated 537-2440 s): the table printed 1.2e+04 and +1720 %
+    as if estimated; each such row now says so (as analyze and report do), in the text and the CSV note."""
+    table = tmp_path / "demo.csv"
+    r = CliRunner().invoke(cli, ["demo", "--duration", "2m", "--table", str(table)])
+    assert r.exit_code == 0, r.output
+    rows = {(row["channel"], row["param"]): row for row in csv.DictReader(table.open())}
+    taus = [rows[(f"bmx055/gyro/{a}", "tau_b")] for a in "xyz"]
+    assert all(row["note"] in ("at bound", "not identified") for row in taus), taus
+    assert all(rows[(f"bmx055/gyro/{a}", "sigma_w")]["note"] == "" for a in "xyz")
+    lines = [ln for ln in r.output.splitlines() if ln.startswith("bmx055/gyro/") and " tau_b " in ln]
+    assert len(lines) == 3 and all(ln.endswith(": no estimate from this record)") for ln in lines)

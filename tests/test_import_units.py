@@ -237,3 +237,11 @@ def test_time_cells_are_read_to_the_ns(cell, exp, ns):
 def test_time_cells_that_are_not_times(cell):
     with pytest.raises(ValueError):
         to_ns(cell, 9)
+
+
+def test_accel_unit_help_says_where_its_default_comes_from():
+    """The help said "default: as --gyro-unit", yet --gyro-unit deg/s alone leaves a unit-less accel refused."""
+    for cmd in ("import", "analyze"):
+        text = " ".join(run(cmd, "--help").output.split())
+        assert "as --gyro-unit" not in text
+        assert "g or mg (default: from the column names or a header comment, as for the gyro" in text

@@ -72,7 +72,8 @@ def field_options(f):
                 "--accel-unit",
                 default=None,
                 metavar="UNIT",
-                help="Text logs: unit of the accel columns: m/s^2, g or mg (default: as --gyro-unit).",
+                help="Text logs: unit of the accel columns: m/s^2, g or mg (default: from the column names or a header "
+                "comment, as for the gyro - never taken from --gyro-unit; a log stating none is refused).",
             ),  # fmt: skip
         ]
     ):

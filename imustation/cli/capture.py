@@ -91,6 +91,39 @@ def _bring_up_check(cfg, seconds: float, *, simulate: bool, sim_level: str, fsyn
         raise SystemExit(1)
 
 
+#: capture options that make or shape a run file: --check records none (a temporary file, then the verdict)
+_NOT_WITH_CHECK = {
+    "output": "-o",
+    "duration": "--duration",
+    "overwrite": "--overwrite",
+    "rotate": "--rotate",
+    "resume": "--resume",
+    "json_status": "--json-status",
+    "status_file": "--status-file",
+    "trace_file": "--trace",
+    "replay_file": "--replay",
+    "with_monitor": "--monitor",
+    "workers": "--workers",
+    "real_time": "--real-time",
+    "reader_cpus": "--reader-cpus",
+}
+
+
+def _refuse_with_check() -> None:
+    """``--check`` with an option it would silently ignore (a file kept, a duration, a host clock): one line."""
+    ctx = click.get_current_context()
+    given = [
+        flag
+        for name, flag in _NOT_WITH_CHECK.items()
+        if ctx.get_parameter_source(name) not in (None, click.core.ParameterSource.DEFAULT)
+    ]
+    if given:
+        raise InputError(
+            f"--check with {', '.join(given)}: the check records DURATION into a temporary file and keeps no run; "
+            "it takes the config, --simulate, --sim-level and its own DURATION only"
+        )
+
+
 @cli.command()
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", default="run.h5", show_default=True, help="Run file to create (HDF5).")
@@ -227,6 +260,7 @@ def capture(
         raise InputError("--resume continues the run at -o; --overwrite would replace it: give one of them")
     cfg = load_config(config)
     if check is not None:
+        _refuse_with_check()
         _bring_up_check(
             cfg, parse_duration(check, "--check"), simulate=simulate, sim_level=sim_level, fsync=not no_fsync
         )

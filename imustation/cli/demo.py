@@ -112,6 +112,7 @@ def demo(
     from imustation.analysis.pipeline.loaders import load_inputs
     from imustation.analysis.pipeline.truth import nbk_rows
     from imustation.analysis.pipeline.warmup import check_warmup, cut_channels
+    from imustation.analysis.reports.tables import param_flag
     from imustation.drivers.sim import simulated_nbk, simulated_truth
 
     check_warmup(warmup)  # before hours of simulation
@@ -187,10 +188,13 @@ def demo(
                 compared = 0 < sim_v < float("inf")
                 err = 100 * (fit_v / sim_v - 1) if compared else float("nan")
                 unit = display_units(sensor_kind(ch.units, ch.id), PARAM_DIMENSIONS[name])[0]
-                rows.append(dict(zip(TABLE_FIELDS, (ch.id, name, sim_v, fit_v, lo, hi, err, unit, ""), strict=True)))
+                # a value at its search bound or unidentified is no estimate: say so, as analyze and report do
+                note = param_flag(res.noise_model, name)
+                rows.append(dict(zip(TABLE_FIELDS, (ch.id, name, sim_v, fit_v, lo, hi, err, unit, note), strict=True)))
                 shown, err_s = (f"{sim_v:>11.4g}", f"{err:>7.1f}%") if compared else (f"{'-':>11}", f"{'':>8}")
                 click.echo(
                     f"{ch.id:<22} {name:<8} {shown} {fit_v:>11.4g} {f'[{lo:.3g}, {hi:.3g}]':>25} {err_s}  {unit}"
+                    + (f"  ({note}: no estimate from this record)" if note else "")
                 )
         click.echo(f"  analysed {len(channels)} channels in {time.perf_counter() - t0:.1f} s")
     if table_path:

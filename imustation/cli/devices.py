@@ -39,8 +39,11 @@ def devices(config: str, simulate: bool, no_baud_probe: bool, host_root: str | N
     findings = check_station(
         cfg, simulate=simulate, clock=clock, view=view, probe_bauds=() if no_baud_probe else PROBE_BAUDS
     )
-    for f in findings:
-        head = f"{f.what:<11} {f.name:<12} {f.driver:<13} {f.where:<16}"
+    # columns as wide as their longest entry: a bus URL such as serial:/dev/ttyUSB1?baud=921600 is 31 characters
+    cols = [(f.what, f.name, f.driver, f.where) for f in findings]
+    widths = [max((len(c[i]) for c in cols), default=0) for i in range(4)]
+    for f, col in zip(findings, cols, strict=True):
+        head = " ".join(s.ljust(w) for s, w in zip(col, widths, strict=True))
         click.echo(f"{head} {f.detail}" if f.ok else f"{head} ERROR: {f.detail}")
         if not f.ok:
             if f.cause and f.cause != f.detail:
