@@ -3,7 +3,9 @@
 One block per sensor kind, in the display units of that kind (the paper's Table IV units;
 :func:`imustation.units.display_units`). Every column keeps one meaning on every row, the
 report's summary table's (:func:`.summary.channel_estimates`: the same numbers): N (the noise
-model's sigma_w), B and K (bias instability and rate random walk of the IEEE-952 Allan fit),
+model's sigma_w), B and K (bias instability and rate random walk the noise model implies, its
+``ieee952`` block, as the verdict and ``export`` read them; "< x" a 90 % upper bound where the
+record does not show the term),
 the bias model's Gauss-Markov sigma_b and tau_b ("—" for a model without one: a random walk's
 K is not a sigma_b), each with its 90 % interval; then the model, whether it fits the Allan
 deviation and the "enough data?" verdict. A value that is not an estimate is printed as such
@@ -33,7 +35,8 @@ _KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "plain ar
 ATTENTION_REASONS = 1
 #: what the columns are, printed under the table
 KEY = (
-    "N: the noise model's sigma_w; B, K: IEEE-952 Allan fit; sigma_b, tau_b: the model's Gauss-Markov bias; "
+    "N: the noise model's sigma_w; B, K: the model's IEEE-952 terms (< x: 90 % upper bound, not detected); "
+    "sigma_b, tau_b: the model's Gauss-Markov bias; "
     "[90 % interval]; fit: the model against the Allan deviation"
 )
 #: what the flags in the table mean, printed under it when one occurs

@@ -1,7 +1,9 @@
 """The summary a run report opens with: one row per sensor and axis.
 
-N (the noise model's sigma_w), B and K (bias instability and rate random walk of the
-IEEE-952 Allan fit), the bias model's sigma_b and tau_b, each with its 90 % interval, the
+N (the noise model's sigma_w), B and K (bias instability and rate random walk the noise
+model implies: its ``ieee952`` block, the numbers the "enough data?" verdict judges and
+``export`` writes; a term the record does not show is its 90 % upper bound, "< x"), the bias
+model's sigma_b and tau_b, each with its 90 % interval, the
 fit verdict and the "enough data?" verdict, in the display units of the axis's own
 sensor (:func:`imustation.units.display_units`). Values that are not estimates are
 flagged as in :mod:`.tables` ("—", "at bound", "not identified").
@@ -18,11 +20,11 @@ from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.reports.tables import (
     DASH,
     NOT_FITTED,
-    Z90,
+    NOT_IDENTIFIED,
+    UPPER_BOUND,
     by_sensor,
     fmt_flagged,
     fmt_number,
-    ieee_flag,
     param_flag,
     param_key,
     split_channel_id,
@@ -51,8 +53,8 @@ class Estimate:
 
 @dataclass(frozen=True)
 class SummaryRow:
-    """One sensor axis: N (the noise model's sigma_w), B and K (IEEE-952 Allan fit), the bias model's
-    ``sigma_b`` and ``tau_b`` (:class:`Estimate` each, SI), the model's name, the fit verdict and
+    """One sensor axis: N (the noise model's sigma_w), B and K (the model's IEEE-952 terms or their upper
+    bounds), the bias model's ``sigma_b`` and ``tau_b`` (:class:`Estimate` each, SI), the model's name, the fit verdict and
     the "enough data?" verdict (with its reasons); ``"—"`` for a verdict the analysis did not give."""
 
     device: str
@@ -83,11 +85,16 @@ def fit_verdict(res: ChannelAnalysis) -> str:
     return text
 
 
-def _ieee_estimate(value: float, stderr: float) -> Estimate:
-    flag = ieee_flag(value)
-    if flag or not math.isfinite(stderr):
-        return Estimate(value, flag=flag)
-    return Estimate(value, max(0.0, value - Z90 * stderr), value + Z90 * stderr)
+def _nbk_estimate(block: dict, q: str) -> Estimate:
+    """B or K of a fit's ``ieee952`` block: the value and its interval where the model carries the term,
+    its 90 % upper bound from the Allan deviation where it does not ("not identified" without one)."""
+    if block.get(f"{q}_detected"):
+        ci = block.get(f"{q}_ci90") or (math.nan, math.nan)
+        return Estimate(float(block[q]), *(math.nan if v is None else float(v) for v in ci))
+    upper = block.get(f"{q}_upper90")
+    if upper is not None and math.isfinite(upper):
+        return Estimate(float(upper), flag=UPPER_BOUND)
+    return Estimate(math.nan, flag=NOT_IDENTIFIED)
 
 
 def _model_estimate(fit, name: str) -> Estimate:
@@ -100,10 +107,11 @@ def channel_estimates(r: ChannelAnalysis) -> dict[str, Estimate]:
     """The summary's quantities of one analysed channel (SI, keys of :data:`SUMMARY_QUANTITIES`):
     the same numbers wherever a channel is summarised (the report's summary, ``analyze``'s table)."""
     fit = r.noise_model
+    block = r.ieee952(fit)  # the verdict's and the export's N, B, K: one answer (issue 34)
     return {
         "N": _model_estimate(fit, "sigma_w"),
-        "B": _ieee_estimate(r.ieee.B, r.ieee.B_stderr),
-        "K": _ieee_estimate(r.ieee.K, r.ieee.K_stderr),
+        "B": _nbk_estimate(block, "B"),
+        "K": _nbk_estimate(block, "K"),
         "sigma_b": _model_estimate(fit, "sigma_b"),
         "tau_b": _model_estimate(fit, "tau_b"),
     }

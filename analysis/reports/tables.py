@@ -94,6 +94,8 @@ NOT_FITTED = "not fitted"
 AT_BOUND = "at bound"
 NOT_IDENTIFIED = "not identified"
 DOUBTFUL = "doubtful"
+#: a term the record does not show: the value is its 90 % upper bound (classical/allan_bounds.py)
+UPPER_BOUND = "upper bound"
 #: what a table cell shows for a value that is absent or not fitted
 DASH = "—"
 
@@ -227,6 +229,8 @@ def fmt_flagged(x: float | None, flag: str, digits: int = 3) -> str:
         return NOT_IDENTIFIED
     if flag == DOUBTFUL:
         return f"doubtful ({fmt_number(x, digits)})"
+    if flag == UPPER_BOUND:
+        return f"< {fmt_number(x, digits)}"
     return fmt_number(x, digits)
 
 
