@@ -55,7 +55,8 @@ class Estimate:
 class SummaryRow:
     """One sensor axis: N (the noise model's sigma_w), B and K (the model's IEEE-952 terms or their upper
     bounds), the bias model's ``sigma_b`` and ``tau_b`` (:class:`Estimate` each, SI), the model's name,
-    the fit verdict and the "enough data?" verdict (with its reasons); ``"—"`` for a verdict the analysis did not give."""
+    the fit verdict and the "enough data?" verdict (with its reasons); ``"—"`` for a verdict the analysis
+    did not give."""
 
     device: str
     sensor: str
