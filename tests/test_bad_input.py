@@ -188,3 +188,18 @@ def test_rotation_is_bounded_before_anything_is_written(tmp_path, demo_config, r
     res = run("capture", demo_config.path, "--simulate", "-o", str(out), "--rotate", rotate, "--duration", duration)
     assert_one_line_error(res, *needles)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_real_capture_whose_bus_is_missing_points_to_devices(tmp_path):
+    """A real capture on a machine without the bus gave only 'cannot open /dev/i2c-99'; 'devices' knows
+    the cause and the remedy (module, permission, udev, port), so the error names it (newcomer run)."""
+    cfg = tmp_path / "one.toml"
+    cfg.write_text(
+        '[station]\nname = "t"\n[[device]]\nname = "bmx055"\ndriver = "bmx055"\nbus = "i2c:99"\n'
+        "address = 0x68\nrate_hz = 400\n"
+    )
+    out = tmp_path / "x.h5"
+    r = CliRunner().invoke(cli, ["capture", str(cfg), "--duration", "10s", "-o", str(out)])
+    assert r.exit_code == 2, r.output
+    assert "cannot open /dev/i2c-99" in r.output and f"imustation devices {cfg}" in r.output
+    assert not out.exists()

@@ -13,7 +13,7 @@ import click
 from imustation import stopsignals
 from imustation.cli import cli
 from imustation.cli.statusview import StatusView
-from imustation.errors import InputError
+from imustation.errors import BusError, DeviceError, InputError, SettingError
 from imustation.outputs import check_file
 from imustation.units import format_duration, parse_duration
 
@@ -320,6 +320,11 @@ def capture(
             reader_cpus=cpus,
             on_note=view.note if view is not None else lambda msg: click.echo(msg, err=True),
         )
+    except (BusError, DeviceError) as exc:
+        if simulate or isinstance(exc, SettingError):
+            raise
+        # a device that does not answer on a real bus: 'devices' knows the causes (module, permission, udev, port)
+        raise DeviceError(f"{exc} - 'imustation devices {config}' names the cause and the remedy") from None
     finally:
         launcher.stop()
         if view is not None:
