@@ -341,6 +341,45 @@ def test_a_dead_reader_process_is_started_again_and_its_devices_record_again(tmp
     assert final["state"] == "ok" and final["faults"] == 1 and final["lost"] == summary.lost["b"]
 
 
+def test_a_successor_killed_too_is_another_attempt_and_the_devices_still_come_back(tmp_path):
+    """Triggers: the reader of i2c:2 is killed at b's first samples, and its successor as soon as a status
+    sees it (mostly while it opens its devices: a failed attempt; if it was already recording, a second
+    fault); once b records again with more samples the capture is stopped. Either way b comes back after
+    its back-offs (1 s, 2 s), every fault has its reconnect, and the file's hole check holds."""
+    cfg = _config([{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}])
+    out = tmp_path / "twice.h5"
+    pids: list[int] = []
+    seen = {"samples": 0, "stop": False}
+    statuses = []
+
+    def on_status(status):
+        statuses.append(status)
+        b = status["devices"]["b"]
+        reader = next((p for p in mp.active_children() if p.name == "imustation-reader-2"), None)
+        if reader is not None and len(pids) < 2 and reader.pid not in pids and (pids or b["samples"] > 0):
+            os.kill(reader.pid, signal.SIGKILL)
+            pids.append(reader.pid)
+            seen["samples"] = b["samples"]
+        elif len(pids) == 2 and not seen["stop"] and b["state"] == "ok" and b["samples"] > seen["samples"]:
+            seen["stop"] = True
+            os.kill(os.getpid(), signal.SIGINT)
+
+    summary = capture(
+        cfg, out, 120.0, simulate=True, real_time=True, reader_priority=0, on_status=on_status, status_interval_s=0.02
+    )
+    assert len(pids) == 2 and seen["stop"] and summary.stop_reason.startswith("stopped by signal")
+    devices, events = _consistent(out)
+    mine = [e for e in events if e.source == "b"]
+    faults = [e for e in mine if e.kind == "fault"]
+    again = [e for e in mine if e.kind == "reconnect"]
+    assert 1 <= len(faults) == len(again) <= 2
+    if len(faults) == 1:  # the successor died opening: one fault, two attempts
+        assert "started again after 2 attempt(s)" in again[0].detail
+    assert devices["b"].n == summary.samples["b"] and sum(e.lost for e in mine) == summary.lost["b"]
+    final = statuses[-1]["devices"]["b"]
+    assert final["state"] == "ok" and final["faults"] == len(faults)
+
+
 def test_restarts_back_off_and_are_capped_per_hour(monkeypatch):
     """A reader that dies at once is started again after 1, 2, 4 ... s, at most 60 s; the eleventh restart
     within an hour waits for the first to be an hour old; a cap of 0 never starts it again."""
