@@ -40,9 +40,21 @@ from collections.abc import Callable, Mapping
 from multiprocessing.connection import Connection
 from typing import Any, Protocol
 
+import numpy as np
+
 from imustation.acquisition.config import StationConfig
-from imustation.acquisition.readers import ReaderOptions, failed_counts, lost_to_end, reader_main
-from imustation.acquisition.sinks import APPEND, MessageSink, Sink, deliver, shifted
+from imustation.acquisition.readers import (
+    PROBE_ROWS,
+    ReaderOptions,
+    carried,
+    failed_counts,
+    file_period_ns,
+    lost_to_end,
+    outage_loss,
+    reader_main,
+    restart_delay,
+)
+from imustation.acquisition.sinks import APPEND, EVENT, TEMPERATURE, MessageSink, Sink, deliver, shifted
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate
 from imustation.errors import ImustationError
@@ -241,32 +253,13 @@ class Worker:
         station_cls: Callable[..., LocalStation],
         host: ReaderOptions | None = None,
     ):
-        ctx = mp.get_context("spawn")  # nothing of the parent's open files, threads or HDF5 state
         self.config = config
         self.host = host
         self.names = [d.name for d in config.devices] + [t.name for t in config.thermometers]
         #: the bus URL(s) it polls
         self.config_bus = ", ".join(dict.fromkeys(d.bus for d in (*config.devices, *config.thermometers)))
-        self.conn, child = ctx.Pipe()
-        data_w = None
-        if host is None:
-            target, args, kind = worker_main, (child, config, sim_level, station_cls), "sim"
-        else:
-            # the data come on a one-way pipe of their own, which the reader writes without blocking
-            self.data, data_w = ctx.Pipe(duplex=False)
-            target, args, kind = reader_main, (child, data_w, config, station_cls, host), "reader"
-        self.process = ctx.Process(target=target, args=args, name=f"imustation-{kind}-{index}", daemon=True)
-        # the child inherits the mask: no stop signal can kill it before it ignores them
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-        try:
-            self.process.start()
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        child.close()
-        if data_w is not None:
-            data_w.close()
-        else:
-            self.data = self.conn
+        self._spawn_args = (index, sim_level, station_cls)
+        self._spawn()
         self.stop_sent: float | None = None
         #: station time the worker has reached, ns
         self.t_ns: int = 0
@@ -286,6 +279,60 @@ class Worker:
         self.end_ns = 0
         #: CPU time the process used, s (reader processes, when done)
         self.cpu_s: float | None = None
+        #: a lost reader process is started again (readers.restart_delay): at this monotonic time (None: not
+        #: waiting), its successor opening its devices (``reopening``), the times it was started again
+        self.restart_at: float | None = None
+        self.reopening = False
+        self._opening_since = 0.0
+        self.restarts: list[float] = []
+        self._attempts = 0
+        self._duration_s = 0.0
+        self._pace: float | None = None
+        #: the counts its earlier processes reached (a restarted reader's are added to them)
+        self._base: tuple = ({}, {})
+        #: each device's counter at its last sample, each thermometer's last reading (station ns); periods, ns;
+        #: counter moduli
+        self.last_c: dict[str, int | None] = {}
+        self.last_reading: dict[str, int] = {}
+        self.periods: dict[str, float] = {}
+        self.moduli: dict[str, int] = {}
+        #: after a restart: the devices and thermometers whose first sample closes the outage, with the
+        #: losses the new reader logged before it
+        self._resync: dict[str, int] = {}
+        #: each device's first sample times (what the file's reader checks its rate against)
+        self._probe: dict[str, list[np.ndarray]] = {}
+        #: outages closed by a first sample whose gap waits for the probe (last, first, logged, reading)
+        self._deferred: dict[str, tuple] = {}
+
+    def _spawn(self) -> None:
+        """Start the process (again, for a lost reader)."""
+        index, sim_level, station_cls = self._spawn_args
+        ctx = mp.get_context("spawn")  # nothing of the parent's open files, threads or HDF5 state
+        self.conn, child = ctx.Pipe()
+        data_w = None
+        if self.host is None:
+            target, args, kind = worker_main, (child, self.config, sim_level, station_cls), "sim"
+        else:
+            # the data come on a one-way pipe of their own, which the reader writes without blocking
+            self.data, data_w = ctx.Pipe(duplex=False)
+            target, args, kind = reader_main, (child, data_w, self.config, station_cls, self.host), "reader"
+        self.process = ctx.Process(target=target, args=args, name=f"imustation-{kind}-{index}", daemon=True)
+        # the child inherits the mask: no stop signal can kill it before it ignores them
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            self.process.start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        child.close()
+        if data_w is not None:
+            data_w.close()
+        else:
+            self.data = self.conn
+
+    @property
+    def restarting(self) -> bool:
+        """A lost reader process waiting to be started again, or its successor opening its devices."""
+        return self.restart_at is not None or self.reopening
 
     @property
     def what(self) -> str:
@@ -300,11 +347,15 @@ class Worker:
         if len(msg) > 3:
             self.scheduling = msg[3]
         self.rates = {od.name: od.info.rate_hz for od in msg[1]}
+        self.periods = {od.name: 1e9 / od.info.rate_hz for od in msg[1]}
+        self.periods.update({name: float(period) for name, (_, period) in msg[2].items()})
+        self.moduli = {od.name: int(od.info.settings.get("counter_modulus", 0) or 0) for od in msg[1]}
         return msg[1], msg[2]
 
     def start(self, duration_s: float, pace: float | None, t0: int | None = None) -> None:
         """Tell the worker to record; ``t0``: the run's origin on the host clock (reader processes)."""
         self.end_ns = round(duration_s * 1e9)
+        self._duration_s, self._pace = duration_s, pace
         if self.host is None:
             self.conn.send(("run", duration_s, pace))
         else:
@@ -312,6 +363,12 @@ class Worker:
             self.conn.send(("run", duration_s, pace, t0))
 
     def stop(self) -> None:
+        if self.restarting and not self.done:
+            # nothing of it is recording: it ends here (its devices' gap runs to now)
+            self.restart_at, self.reopening = None, False
+            self.done, self.reason = True, "stopped"
+            self._kill()
+            return
         if not self.done and self.stop_sent is None:
             self.stop_sent = time.monotonic()
             try:
@@ -331,6 +388,9 @@ class Worker:
         (:meth:`lose`); a simulation worker's failure is raised.
         """
         got = False
+        if self.restarting:
+            self._tend(sink, mirror)
+            return False
         while not self.done and self.data.poll(timeout):
             try:
                 msg = self._recv(self.data)
@@ -351,10 +411,20 @@ class Worker:
             for item in msg[1]:
                 if off:
                     item = shifted(item, off)
+                if self._resync:
+                    self._close_outage(sink, item)
                 if item[0] == APPEND and len(item[2]):
                     last_t[item[1]] = int(item[2][-1])
+                    self.last_c[item[1]] = None if item[4] is None else int(item[4][-1])
+                    probe = self._probe.setdefault(item[1], [])
+                    if sum(map(len, probe)) < PROBE_ROWS:
+                        probe.append(item[2][:PROBE_ROWS])
+                        if item[1] in self._deferred and sum(map(len, probe)) >= PROBE_ROWS:
+                            self.log_outage(sink, item[1])
+                elif item[0] == TEMPERATURE and len(item[2]):
+                    self.last_reading[item[1]] = int(item[2][-1])
                 deliver(sink, item)
-            mirror(msg[2])
+            mirror(carried(self._base, msg[2]))
             self.t_ns = msg[3] + off
             if msg[0] == "done":
                 self.done = True
@@ -365,16 +435,141 @@ class Worker:
 
     def lose(self, sink: Sink, mirror: Callable[[tuple], None], why: str) -> None:
         """A reader process is gone mid-run: each of its devices and thermometers gets a ``fault`` event
-        and is ``failed`` in the status; the capture goes on with the other buses."""
-        self.done = True
+        and is ``failed`` in the status, and the reader is started again after a back-off
+        (:func:`~imustation.acquisition.readers.restart_delay`; never: its devices are not read for the
+        rest of the capture); the capture goes on with the other buses."""
         self.lost_reason = why
+        for name in list(self._deferred):
+            self.log_outage(sink, name)
         t = time.monotonic_ns() - (self.t0 or 0)
         self.t_ns = t
+        self._base = failed_counts(carried(self._base, self._counts), self.rates, self.names)
+        self._counts = ({}, {})
+        self._resync = {}
+        mirror(self._base)
+        self._kill()
+        delay = restart_delay(self.restarts, time.monotonic())
+        then = "not read for the rest of the capture" if delay is None else f"starting it again in {delay:.0f} s"
+        for name in self.names:
+            sink.event(t, name, "fault", f"{self.what} ended during the run ({why}); {then}")
+        if delay is None:
+            self.done = True
+        else:
+            self.restart_at = time.monotonic() + delay
+
+    def _tend(self, sink: Sink, mirror: Callable[[tuple], None]) -> None:
+        """A lost reader process: start it again when its back-off is over, tell it to record once it has
+        opened its devices; a successor that fails to open them is another attempt, backed off in turn."""
+        now = time.monotonic()
+        self.t_ns = time.monotonic_ns() - (self.t0 or 0)  # nothing of it comes from before now
+        if self.t_ns >= self.end_ns:
+            self.restart_at, self.reopening, self.done = None, False, True  # the run is over: gap to its end
+            self._kill()
+            return
+        if self.restart_at is not None:
+            if now < self.restart_at:
+                return
+            self.restart_at = None
+            self._close_pipes()
+            self.restarts.append(now)
+            self._attempts += 1
+            self._spawn()
+            self.reopening, self._opening_since = True, now
+            return
+        try:
+            if not self.conn.poll(0):
+                if now - self._opening_since <= OPEN_TIMEOUT_S:
+                    return
+                raise WorkerError(f"{self.what} did not open them in {OPEN_TIMEOUT_S:g} s")
+            msg = self._recv(self.conn)
+            self.conn.send(("run", self._duration_s, self._pace, self.t0))
+        except Exception as exc:  # noqa: BLE001 - the successor failed too: another attempt later
+            self.reopening = False
+            self._kill()
+            delay = restart_delay(self.restarts, now)
+            if delay is None:
+                self.done = True
+            else:
+                self.restart_at = now + delay
+            self.lost_reason = str(exc) if isinstance(exc, WorkerError) else f"{type(exc).__name__}: {exc}"
+            return
+        self.reopening, self.lost_reason, self.offset_ns = False, "", 0
+        if len(msg) > 3:
+            self.scheduling = msg[3]
+        t = time.monotonic_ns() - (self.t0 or 0)
         for name in self.names:
             sink.event(
-                t, name, "fault", f"{self.what} ended during the run ({why}); not read for the rest of the capture"
+                t,
+                name,
+                "reconnect",
+                f"{self.what} started again after {self._attempts} attempt(s); re-opened with the same settings",
             )
-        mirror(failed_counts(self._counts, self.rates, self.names))
+        self._attempts = 0
+        self._resync = dict.fromkeys(self.names, 0)
+
+    def _close_outage(self, sink: Sink, item: tuple) -> None:
+        """After a restart: the losses the new reader logs before a device's first sample are part of the
+        outage; that first sample closes it with one ``gap`` of the rest, as the hole finder counts it."""
+        name = item[2] if item[0] == EVENT else item[1]
+        if name not in self._resync:
+            return
+        if item[0] == EVENT:
+            self._resync[name] += max(0, int(item[5]))
+            return
+        if item[0] not in (APPEND, TEMPERATURE) or not len(item[2]):
+            return
+        logged = self._resync.pop(name)
+        reading = item[0] == TEMPERATURE
+        first = (int(item[2][0]), None if reading or item[4] is None else int(item[4][0]))
+        prev = self.last_reading.get(name) if reading else self.last_t.get(name)
+        last = None if prev is None else (prev, None if reading else self.last_c.get(name))
+        self._deferred[name] = (last, first, logged, reading)
+        if reading or sum(map(len, self._probe.get(name, ()))) >= PROBE_ROWS:
+            self.log_outage(sink, name)
+        # else: the file's reader fits the device's rate over its first PROBE_ROWS samples, those
+        # after the outage too: the gap is logged once they have come (or at the end)
+
+    def log_outage(self, sink: Sink, name: str) -> None:
+        """Log the outage gap of ``name`` that waits (see :meth:`_close_outage`)."""
+        last, first, logged, reading = self._deferred.pop(name)
+        period = self.periods[name]
+        if not reading and self._probe.get(name):
+            period = file_period_ns(np.concatenate(self._probe[name]), self.rates[name])
+        lost = outage_loss(last, first, period, self.moduli.get(name, 0), reading) - logged
+        if lost <= 0:
+            return
+        prev = None if last is None else last[0]
+        at = int(prev + period) if prev is not None else 0
+        sink.event(at, name, "gap", f"{self.what} was not running: samples not read", lost=lost)
+        devices, thermometers = self._base
+        if name in devices:
+            c = devices[name]
+            devices[name] = dataclasses.replace(c, gaps=c.gaps + 1, lost=c.lost + lost)
+        elif name in thermometers:
+            thermometers[name] = dataclasses.replace(thermometers[name], lost=thermometers[name].lost + lost)
+
+    @property
+    def pending_outage(self) -> dict[str, int]:
+        """After a restart: the devices and thermometers without a sample yet (with what the new reader
+        logged lost before it)."""
+        return self._resync
+
+    def flush_outages(self, sink: Sink, mirror: Callable[[tuple], None]) -> None:
+        """At the end: log the outage gaps still waiting for their devices' first ``PROBE_ROWS`` samples."""
+        if self._deferred:
+            for name in list(self._deferred):
+                self.log_outage(sink, name)
+            mirror(carried(self._base, self._counts))
+
+    def _kill(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join(timeout=5.0)
+
+    def _close_pipes(self) -> None:
+        self.conn.close()
+        if self.data is not self.conn:
+            self.data.close()
 
     def _recv(self, conn: Connection) -> tuple:
         try:
@@ -400,9 +595,7 @@ class Worker:
         if self.process.is_alive():
             self.process.kill()
             self.process.join(timeout=5.0)
-        self.conn.close()
-        if self.data is not self.conn:
-            self.data.close()
+        self._close_pipes()
 
 
 class WorkerPool:
@@ -473,7 +666,7 @@ class WorkerPool:
     def pump(self, sink: Sink, timeout: float = 0.0) -> bool:
         """Hand what the workers sent to ``sink`` (waiting up to ``timeout`` s for any); True if anything came."""
         if timeout > 0:
-            waiting = [w.data for w in self.workers if not w.done]
+            waiting = [w.data for w in self.workers if not w.done and not w.restarting]
             if waiting:
                 multiprocessing.connection.wait(waiting, timeout)
         got = False
@@ -550,10 +743,13 @@ class WorkerPool:
         """Each device of a reader lost mid-run: one ``gap`` after its last sample with the samples its
         rate fits from there to the end of the capture (written + logged losses = produced)."""
         for w in self.workers:
-            if not w.lost_reason or w.t0 is None:
+            w.flush_outages(sink, self._mirror)
+            if w.t0 is None:
                 continue
+            # a reader lost for good, or restarted but ended before a device's first sample
+            rates = w.rates if w.lost_reason else {n: r for n, r in w.rates.items() if n in w.pending_outage}
             end = min(time.monotonic_ns() - w.t0, w.end_ns)
-            for name, lost in lost_to_end(sink, w.what, w.rates, w.last_t, end).items():
+            for name, lost in lost_to_end(sink, w.what, rates, w.last_t, end).items():
                 c = self.devices.get(name)
                 if c is not None:
                     self.devices[name] = dataclasses.replace(c, gaps=c.gaps + 1, lost=c.lost + lost)

@@ -18,7 +18,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 import pytest
 
-from imustation.acquisition import capture, realtime
+from imustation.acquisition import capture, readers, realtime
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.readers import HostOutbox
 from imustation.acquisition.scheduler import Poller, run_deadline
@@ -26,7 +26,7 @@ from imustation.acquisition.sinks import APPEND, EVENT, MessageSink, shifted
 from imustation.clock import VirtualClock
 from imustation.errors import InputError
 from imustation.runfile import open_run
-from imustation.runfile.holes import check_run
+from imustation.runfile.holes import check_run, check_thermometers
 
 GYRO = {"driver": "bmx055", "rate_hz": 400, "bandwidth_hz": 47}
 
@@ -244,10 +244,12 @@ def test_every_bus_in_its_own_reader_process_hands_everything_to_the_writer(tmp_
     assert statuses[-1]["state"] == "done"
 
 
-def test_a_reader_process_that_dies_is_a_logged_fault_not_a_lost_capture(tmp_path):
+def test_a_reader_process_that_dies_is_a_logged_fault_not_a_lost_capture(tmp_path, monkeypatch):
     """Trigger: at the first status showing samples from bus i2c:2, its reader process is killed
-    (SIGKILL). The capture goes on with i2c:1 and finishes the file: the dead reader's device has a
-    fault event naming it, and a gap counting what it did not read to the end; the status says failed."""
+    (SIGKILL); restarts are off (a cap of 0 an hour). The capture goes on with i2c:1 and finishes the
+    file: the dead reader's device has a fault event naming it, and a gap counting what it did not read
+    to the end; the status says failed."""
+    monkeypatch.setattr(readers, "RESTARTS_PER_HOUR", 0)
     cfg = _config([{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}])
     out = tmp_path / "dead.h5"
     killed = []
@@ -267,7 +269,7 @@ def test_a_reader_process_that_dies_is_a_logged_fault_not_a_lost_capture(tmp_pat
     devices, events = _consistent(out)
     fault = [e for e in events if e.source == "b" and e.kind == "fault"]
     assert len(fault) == 1 and "reader process for b ended during the run" in fault[0].detail
-    assert "exit code -9" in fault[0].detail
+    assert "exit code -9" in fault[0].detail and "not read for the rest of the capture" in fault[0].detail
     gap = [e for e in events if e.source == "b" and e.kind == "gap" and "not read to the end" in e.detail]
     assert len(gap) == 1 and gap[0].lost > 0
     assert devices["b"].n == summary.samples["b"] > 0
@@ -275,6 +277,125 @@ def test_a_reader_process_that_dies_is_a_logged_fault_not_a_lost_capture(tmp_pat
     assert devices["a"].n == summary.samples["a"] > devices["b"].n
     final = statuses[-1]["devices"]["b"]
     assert final["state"] == "failed" and final["faults"] == 1 and final["lost"] == summary.lost["b"]
+
+
+def test_a_dead_reader_process_is_started_again_and_its_devices_record_again(tmp_path):
+    """Triggers: at the first status showing samples from bus i2c:2 its reader process is killed
+    (and the thermometer beside it) its reader process is killed (SIGKILL); at the first status after
+    that showing b recording again, with more samples and readings than before the kill, the capture
+    is stopped (SIGINT). The reader was started again after its first
+    back-off (1 s: the outage is at least that long, so b and the thermometer beside it miss samples
+    whatever the machine's speed): b has one fault, one reconnect, one gap for the outage, samples after
+    it, and the file's hole check
+    holds (written + logged losses = produced), for the thermometer on that bus too; the status went
+    failed, then ok; a's reader never died."""
+    cfg = parse_config(
+        {
+            "station": {"seed": 3, "flush_interval_s": 0.2},
+            "device": [{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}],
+            "thermometer": [{"name": "amb", "driver": "mcp9804", "bus": "i2c:2", "address": 0x18, "rate_hz": 4}],
+        }
+    )
+    out = tmp_path / "restart.h5"
+    killed: list[int] = []
+    states: list[str] = []
+    statuses = []
+
+    def on_status(status):
+        statuses.append(status)
+        b, amb = status["devices"]["b"], status["thermometers"]["amb"]
+        if not killed and b["samples"] > 0 and amb["readings"] > 0:
+            reader = next(p for p in mp.active_children() if p.name == "imustation-reader-2")
+            os.kill(reader.pid, signal.SIGKILL)
+            killed.extend((b["samples"], amb["readings"]))
+        elif killed and "stop" not in states:
+            states.append(b["state"])
+            again = b["samples"] > killed[0] and amb["readings"] > killed[1]
+            if b["state"] == "ok" and "failed" in states and again:
+                os.kill(os.getpid(), signal.SIGINT)
+                states.append("stop")
+
+    summary = capture(
+        cfg, out, 120.0, simulate=True, real_time=True, reader_priority=0, on_status=on_status, status_interval_s=0.02
+    )
+    assert killed and "stop" in states and summary.stop_reason.startswith("stopped by signal")
+    devices, events = _consistent(out)
+    mine = [e for e in events if e.source == "b"]
+    fault = [e for e in mine if e.kind == "fault"]
+    assert len(fault) == 1 and "exit code -9" in fault[0].detail and "starting it again in 1 s" in fault[0].detail
+    again = [e for e in mine if e.kind == "reconnect"]
+    assert len(again) == 1 and "started again after 1 attempt(s)" in again[0].detail
+    outage = [e for e in mine if e.kind == "gap" and "was not running" in e.detail]
+    assert len(outage) == 1 and outage[0].lost > 0
+    assert not [e for e in mine if "not read to the end" in e.detail]
+    with open_run(out) as run:
+        t = run.read("b", "t")
+        amb = check_thermometers(run)["amb"]
+    # the thermometer on the dead reader's bus: its readings missed in the outage are logged too
+    assert amb is not None and amb.consistent and amb.holes.samples > 0, amb
+    assert [e.kind for e in events if e.source == "amb" and e.lost] == ["gap"]
+    assert (t > again[0].t_ns).sum() > 0 and (t < fault[0].t_ns).sum() > 0
+    assert devices["b"].n == summary.samples["b"] and sum(e.lost for e in mine) == summary.lost["b"]
+    assert not [e for e in events if e.source == "a" and e.kind in ("fault", "reconnect")]
+    final = statuses[-1]["devices"]["b"]
+    assert final["state"] == "ok" and final["faults"] == 1 and final["lost"] == summary.lost["b"]
+
+
+def test_a_successor_killed_too_is_another_attempt_and_the_devices_still_come_back(tmp_path):
+    """Triggers: the reader of i2c:2 is killed at b's first samples, and its successor as soon as a status
+    sees it (mostly while it opens its devices: a failed attempt; if it was already recording, a second
+    fault); once b records again with more samples the capture is stopped. Either way b comes back after
+    its back-offs (1 s, 2 s), every fault has its reconnect, and the file's hole check holds."""
+    cfg = _config([{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}])
+    out = tmp_path / "twice.h5"
+    pids: list[int] = []
+    seen = {"samples": 0, "stop": False}
+    statuses = []
+
+    def on_status(status):
+        statuses.append(status)
+        b = status["devices"]["b"]
+        reader = next((p for p in mp.active_children() if p.name == "imustation-reader-2"), None)
+        if reader is not None and len(pids) < 2 and reader.pid not in pids and (pids or b["samples"] > 0):
+            os.kill(reader.pid, signal.SIGKILL)
+            pids.append(reader.pid)
+            seen["samples"] = b["samples"]
+        elif len(pids) == 2 and not seen["stop"] and b["state"] == "ok" and b["samples"] > seen["samples"]:
+            seen["stop"] = True
+            os.kill(os.getpid(), signal.SIGINT)
+
+    summary = capture(
+        cfg, out, 120.0, simulate=True, real_time=True, reader_priority=0, on_status=on_status, status_interval_s=0.02
+    )
+    assert len(pids) == 2 and seen["stop"] and summary.stop_reason.startswith("stopped by signal")
+    devices, events = _consistent(out)
+    mine = [e for e in events if e.source == "b"]
+    faults = [e for e in mine if e.kind == "fault"]
+    again = [e for e in mine if e.kind == "reconnect"]
+    assert 1 <= len(faults) == len(again) <= 2
+    if len(faults) == 1:  # the successor died opening: one fault, two attempts
+        assert "started again after 2 attempt(s)" in again[0].detail
+    assert devices["b"].n == summary.samples["b"] and sum(e.lost for e in mine) == summary.lost["b"]
+    final = statuses[-1]["devices"]["b"]
+    assert final["state"] == "ok" and final["faults"] == len(faults)
+
+
+def test_restarts_back_off_and_are_capped_per_hour(monkeypatch):
+    """A reader that dies at once is started again after 1, 2, 4 ... s, at most 60 s; the eleventh restart
+    within an hour waits for the first to be an hour old; a cap of 0 never starts it again."""
+    restarts: list[float] = []
+    delays = []
+    now = 1000.0
+    for _ in range(10):
+        delays.append(readers.restart_delay(restarts, now))
+        now += delays[-1]
+        restarts.append(now)
+    assert delays == [1, 2, 4, 8, 16, 32, 60, 60, 60, 60]
+    assert readers.restart_delay(restarts, now) == pytest.approx(1001.0 + 3600.0 - now)
+    assert readers.restart_delay(restarts, 1001.0 + 3600.0 + 1.0) == 60.0  # the first has aged out
+    assert readers.restart_delay([], 5000.0 + 3 * 3600) == 1.0
+    monkeypatch.setattr(readers, "RESTARTS_PER_HOUR", 0)
+    assert readers.restart_delay([], now) is None
 
 
 def test_reader_messages_pickle_as_the_main_side_expects():
