@@ -12,7 +12,8 @@ Each channel goes through ``analyze_channel`` as ``imustation analyze`` runs it 
 the device's filter settings in the channel's metadata). Printed per channel and summed: the
 error of sigma_w (= N of the ``ieee952`` block) against the output's white-noise density and
 whether its 90 % interval holds it (and by how much it misses); B and K likewise where the truth
-has them (K also by its upper bound when it is not detected, ``K_upper90``); the classic
+has them (K also by its upper bound when it is not detected, ``K_upper90``; ``<`` marks a K not
+detected: its interval starts at 0 or it has none, the point is no measurement); the classic
 IEEE-952 fit's N and whether it is usable; whether the chosen model fits; the analysis time.
 
     python benchmarks/bench_zoo.py [--hours 2] [--workers 2] [--repeats 1] [--only independent|project]
@@ -121,6 +122,8 @@ def run_one(job: tuple) -> dict:
         if s.get("B_detected") is False and s.get("B_upper90") is not None:  # a bound, not a measurement
             row["b_in"], row["b_out"] = b_true <= s["B_upper90"], 0.0
     row["k_true"] = k_true
+    # an interval from 0 (not separable from the other terms) or a bare bound: a statement, not a detection
+    row["k_bound"] = s.get("K_detected") is False
     row["k_err"] = (s["K"] / k_true - 1.0) if s.get("K") and k_true > 0 else None
     k_ci = s.get("K_ci90")
     upper = s.get("K_upper90")
@@ -178,7 +181,7 @@ def main() -> None:
         if r["k_in"] is None:
             k = "     -  "
         else:
-            k = f"{_pct(r['k_err'])} {'y' if r['k_in'] else 'n'}"
+            k = f"{_pct(r['k_err'])} {'y' if r['k_in'] else 'n'}{'<' if r['k_bound'] else ''}"
         flag = " (unusable)" if r["ieee_flag"] else (" BAD" if r["ieee_bad"] else "")
         print(
             f"{r['id'][:46]:46s} {r['model'][:16]:16s} {'y' if r['fits'] else 'n'} {_pct(r['n_err'])} "
@@ -209,7 +212,9 @@ def main() -> None:
     if ks:
         print(
             f"K (truth > 0): inside its interval or under its upper bound {sum(r['k_in'] for r in ks)} of {len(ks)}; "
-            f"no statement (bare null) {sum(not r['k_stated'] for r in ks)}"
+            f"no statement (bare null) {sum(not r['k_stated'] for r in ks)}; not detected (interval from 0 or "
+            f"bound, '<'): {sum(r['k_bound'] for r in ks)}; detected, interval misses: "
+            f"{sum(not r['k_in'] and not r['k_bound'] for r in ks)}"
         )
     k0 = [r for r in rows if r["k_in"] is None]
     print(f"K (truth 0): a statement (interval or bound) on {sum(r['k_stated'] for r in k0)} of {len(k0)}")

@@ -171,12 +171,15 @@ def fit_intervals(fit, need: Sequence[str]) -> dict[str, Interval]:
 def ieee_intervals(summary: Mapping, need: Sequence[str]) -> dict[str, Interval]:
     """The intervals of ``N``, ``B``, ``K`` in ``need`` from an ``ieee952`` summary
     (:func:`~.coefficients.ieee952_summary` with :func:`~.allan_bounds.with_bounds`); K without a
-    random walk, B without a bias term (``B_detected`` false): the upper bound."""
+    random walk or not detected (``K_detected`` false), B without a bias term (``B_detected`` false): the
+    upper bound."""
     out: dict[str, Interval] = {}
     for name in need:
         value, ci = summary.get(name), summary.get(f"{name}_ci90")
         if name == "B" and summary.get("B_detected") is False:
             value = None  # the model's floor is an upper bound on B, not a measurement of it
+        if name == "K" and summary.get("K_detected") is False:
+            value = None  # an interval from 0: the walk is not separable from the other terms, its bound judges
         if value is not None and ci and all(v is not None for v in ci):
             out[name] = Interval(float(value), float(ci[0]), float(ci[1]))
         elif summary.get(f"{name}_upper90") is not None:

@@ -89,13 +89,16 @@ def b_upper(allan: AllanResult, alpha: float = 1.0 - BOUND_CONFIDENCE) -> UpperB
 def with_bounds(summary: dict, allan: AllanResult) -> dict:
     """An ``ieee952`` summary (:func:`~.coefficients.ieee952_summary`) with ``K_upper90`` and
     ``B_upper90`` (and the tau, s, that gives each), ``K_detected``: whether the model carries a
-    random walk with an interval, and ``B_detected``: whether it carries a bias instability or a
+    random walk with an interval that excludes 0, and ``B_detected``: whether it carries a bias instability or a
     Gauss-Markov term (otherwise its ``B`` is the floor where its white noise meets its walk, an
     upper bound). Keys documented in docs/analysis-json.md."""
     out = dict(summary)
     kb, bb = k_upper(allan), b_upper(allan)
     ci = out.get("K_ci90")
-    out["K_detected"] = bool(out.get("K") is not None and ci and all(v is not None and math.isfinite(v) for v in ci))
+    # an interval from 0 (a model without a walk fits nearly as well) is a bound, not a detection
+    out["K_detected"] = bool(
+        out.get("K") is not None and ci and all(v is not None and math.isfinite(v) for v in ci) and ci[0] > 0
+    )
     # a model without a bias instability or a Gauss-Markov term has no B of its own: its "model floor" is
     # where its white noise meets its random walk, an upper bound on B rather than a measurement
     out["B_detected"] = out.get("B_from") == "fitted" or bool(out.get("gauss_markov"))

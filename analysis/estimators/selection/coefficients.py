@@ -23,7 +23,11 @@ from imustation.analysis.estimators.selection.model_choice import flicker_cut, m
 def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, ...] = ()) -> dict:
     """N, B, K (with 90 % intervals) and the Gauss-Markov terms a fitted model implies.
 
-    ``N`` = sigma_w; ``K`` = sigma_k (``None`` without a rate random walk); ``B``:
+    ``N`` = sigma_w; ``K`` = sigma_k (``None`` without a rate random walk), its interval mixed
+    with the ``close`` models' when one of them fits without a walk (:func:`carries_walk`): a
+    flicker read as a walk (a KVH DSP-3000's 0.05 deg/h flicker gave K 64x the truth with an
+    interval that excluded it) then gets an interval from 0 when the walk-free models carry 5 %
+    of the BIC weight — K is not separable, its upper end is the statement; ``B``:
     the bias-instability parameter when the model has one (``B_from`` ``"fitted"``),
     otherwise the model's Allan-deviation minimum over ``1/fs .. duration_s/2``
     divided by 0.664 (``"model floor"``), its interval by the delta method from the
@@ -45,6 +49,14 @@ def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, .
             out["B_ci90"] = [lo, hi]
     if "sigma_k" in p:
         out |= {"K": p["sigma_k"], "K_ci90": list(ci["sigma_k"])}
+        without = tuple(o.bic for o in close if not carries_walk(o, duration_s))
+        if without:
+            walks = [(*res.ci90["sigma_k"], res.bic)] + [
+                (*o.ci90["sigma_k"], o.bic) for o in close if "sigma_k" in o.params
+            ]
+            lo, hi = mixed_interval(walks, without)
+            if math.isfinite(hi):
+                out["K_ci90"] = [lo, hi]
     else:
         out |= {"K": None, "K_ci90": None}
     gms = sorted(k for k in p if k.startswith("tau_b"))
@@ -58,6 +70,14 @@ def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, .
         for k in gms
     ]
     return out
+
+
+def carries_walk(res: MLiResult, duration_s: float) -> bool:
+    """Whether ``res`` has a rate random walk, or a Gauss-Markov term that acts as one over the
+    whole record (correlation time beyond half of ``duration_s``, s): a model without either fits
+    the record with K = 0."""
+    p = res.params
+    return "sigma_k" in p or any(k.startswith("tau_b") and p[k] > duration_s / 2.0 for k in p)
 
 
 def _floor_b(res: MLiResult, duration_s: float) -> tuple[float, float, float]:

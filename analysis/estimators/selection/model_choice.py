@@ -440,7 +440,9 @@ def choose_model(
     return ModelChoice(chosen, False, reason, paper_fit, tuple(cands), fine, time.perf_counter() - t0)
 
 
-def mixed_interval(intervals: list[tuple[float, float, float]]) -> tuple[float, float]:
+def mixed_interval(
+    intervals: list[tuple[float, float, float]], zero_bics: tuple[float, ...] = ()
+) -> tuple[float, float]:
     """90 % interval of a positive parameter over several models: ``(lo, hi, bic)`` per model.
 
     Each model's interval is read as a log-normal (symmetric in the log, as the fits state
@@ -448,18 +450,28 @@ def mixed_interval(intervals: list[tuple[float, float, float]]) -> tuple[float, 
     probability); the 5 % and 95 % points of the mixture are returned. A nested model
     that did not earn its place (BIC a few units higher) widens the interval a little, not
     to its own full width. Intervals that are not finite and positive are left out.
+    ``zero_bics``: the BICs of models without the term (the parameter 0 in them, a point mass
+    at 0 in the mixture); when that mass reaches 5 % the interval starts at 0 — the data
+    cannot tell the term from nothing, and its upper end is what they can exclude.
     """
     ok = [(lo, hi, b) for lo, hi, b in intervals if 0 < lo <= hi < math.inf and math.isfinite(b)]
+    zeros = np.array([b for b in zero_bics if math.isfinite(b)], dtype=float)
     if not ok:
         return (math.nan, math.nan)
     lo, hi, bic = (np.array(v, dtype=float) for v in zip(*ok, strict=True))
     mu = 0.5 * (np.log(lo) + np.log(hi))
     sd = np.maximum((np.log(hi) - np.log(lo)) / (2.0 * Z90), 1e-12)
-    w = np.exp(-0.5 * (bic - bic.min()))
-    w /= w.sum()
+    ref = min(float(bic.min()), float(zeros.min()) if len(zeros) else math.inf)
+    w = np.exp(-0.5 * (bic - ref))
+    w0 = float(np.exp(-0.5 * (zeros - ref)).sum())
+    total = w.sum() + w0
+    w, p0 = w / total, w0 / total
     grid = np.linspace(float(np.min(mu - 4 * sd)), float(np.max(mu + 4 * sd)), 4001)
     cdf = (w[:, None] * ndtr((grid[None, :] - mu[:, None]) / sd[:, None])).sum(axis=0)
-    q = np.interp([0.05, 0.95], cdf, grid)
+    if p0 >= 0.05:
+        # the upper end among the models that carry the term (conservative: the atom at 0 would lower it)
+        return (0.0, float(np.exp(np.interp(0.95, cdf / cdf[-1], grid))))
+    q = np.interp([0.05, 0.95], p0 + cdf, grid)
     return (float(np.exp(q[0])), float(np.exp(q[1])))
 
 
