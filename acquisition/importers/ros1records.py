@@ -301,8 +301,30 @@ def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tu
     if m < MIN_RUN:
         return 0, None
     block = arr[off : off + m * stride].reshape(m, stride)
-    good = np.ones(m, bool)
-    at, run = 0, None
+    k, lo, size = 0, 0, 4 * MIN_RUN  # windows growing 4x: a walk that is not periodic pays little
+    while lo < m:
+        hi = min(m, lo + size)
+        good = _repeats(block[lo:hi], cycle)
+        if not good.all():
+            k = lo + int(np.argmin(good))
+            break
+        lo, size, k = hi, size * 4, hi
+    if k < MIN_RUN:
+        return 0, None
+    run, at = None, 0
+    for s in cycle:
+        if s.kept:
+            hn = len(s.key)
+            data = block[:k, at + 8 + hn : at + 8 + hn + s.data_len]
+            run = Run(s, at + stride * np.arange(k, dtype=np.int64), data)
+        at += s.total
+    return k, run
+
+
+def _repeats(block: np.ndarray, cycle: list[Shape]) -> np.ndarray:
+    """Which rows of ``block`` (cycles of records at a constant stride) repeat ``cycle``."""
+    good = np.ones(len(block), bool)
+    at = 0
     for s in cycle:
         hn = len(s.key)
         good &= _column_u32(block, at) == hn
@@ -315,17 +337,8 @@ def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tu
                     free[vo : vo + vl] = True
             same |= free
         good &= same.all(axis=1)
-        if s.kept:
-            run = Run(s, np.zeros(0, np.int64), block[:, at + 8 + hn : at + 8 + hn + s.data_len])
-            run_at = at
         at += s.total
-    k = m if good.all() else int(np.argmin(good))
-    if k < MIN_RUN:
-        return 0, None
-    if run is not None:
-        run.at = run_at + stride * np.arange(k, dtype=np.int64)
-        run.data = run.data[:k]
-    return k, run
+    return good
 
 
 def _column_u32(block: np.ndarray, col: int) -> np.ndarray:

@@ -271,8 +271,9 @@ class Ros1Bag:
         pos = self.fh.tell()
         base, buf = pos, b""
         arr = np.empty(0, np.uint8)
-        recent: list[Shape] = []  # the last two records walked one by one
+        last = before = None  # (op, header bytes, fields, data length) of the last two records walked one by one
         calm = 0  # records to walk one by one before looking for a run again
+        wait = 16  # calm after a failed look, doubled while they keep failing (a walk that is not periodic)
 
         def fill(need: int) -> bytes:
             self.fh.seek(pos)
@@ -284,17 +285,19 @@ class Ros1Bag:
         while pos < end:
             self._walk_at = pos
             off = pos - base
-            if len(recent) == 2 and not calm:
+            if before is not None and not calm:
                 if off + WALK_BYTES // 4 > len(buf) and end - pos > WALK_BYTES // 4:
                     self.fh.seek(pos)  # room for a long run
                     base, buf, off = pos, self.fh.read(WALK_BYTES), 0
                     arr = np.frombuffer(buf, np.uint8)
                 found = 0
+                recent = [Shape(*r, r[0] in keep) for r in (before, last)]
                 for cycle in (recent[1:], recent):
                     if sum(s.kept for s in cycle) > 1 or any(s.kept and s.op not in RUN_OPS for s in cycle):
                         continue
                     found, run = periodic_run(arr, off, min(end - base, len(buf)), cycle)
                     if found:
+                        wait = 16
                         if run is not None:
                             run.at += pos
                             yield run
@@ -302,7 +305,7 @@ class Ros1Bag:
                         break
                 if found:
                     continue
-                calm = 16
+                calm, wait = wait, min(wait * 2, 4096)
             calm = max(calm - 1, 0)
             if off + 4 > len(buf):
                 base, buf, off = pos, fill(4), 0
@@ -336,7 +339,7 @@ class Ros1Bag:
                 data = buf[off + 8 + hn : off + total]
             elif pos + total > self.size:
                 raise BagCutError("truncated record")
-            recent = [*recent[-1:], Shape(op, bytes(key), hdr, dn, op in keep)]
+            before, last = last, (op, key, hdr, dn)
             yield pos, op, hdr, data
             pos += total
         self.fh.seek(pos)
