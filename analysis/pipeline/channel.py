@@ -169,7 +169,8 @@ def analyze_channel(
             raise
         # every estimate is pooled over the pieces between logged holes; when they are all too short
         # for it, no estimate exists, and the channel is skipped with why instead of failing the run
-        raise DegenerateChannel(f"skipped {ch.id}: {fragmented_reason(ch)}: {exc}", FRAGMENTED) from exc
+        why = str(exc).removeprefix(f"{ch.n} samples: ")  # the count is in the reason already
+        raise DegenerateChannel(f"skipped {ch.id}: {fragmented_reason(ch)}: {why}", FRAGMENTED) from exc
 
 
 def fragmented_reason(ch: Channel) -> str:
