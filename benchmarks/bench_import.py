@@ -7,7 +7,9 @@ it in a fresh process per reader and prints time, messages/s and peak RSS:
                                       [--reader old|new|both] [--keep BAG] [--chunk-bytes 1]
 
 ``--chunk-bytes 1`` writes one message per chunk (a recorder flushing each message): the streaming
-reader batches such chunks, so it imports them at the speed of large-chunk bags.
+reader walks such chunks in runs and batches them, so it imports them at the speed of large-chunk
+bags. ``--versus-large`` writes both (the same N messages) and prints the one-message-per-chunk rate
+as a ratio of the large-chunk rate measured in the same run (streaming reader only).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 
 
-def measure(bag: str, reader: str) -> None:
+def measure(bag: str, reader: str) -> float:
     from imustation.acquisition.importers import import_recording, loop
 
     if reader == "old":  # the import as it was: rosbags Reader, message-by-message decoding, 2^20-row write buffer
@@ -39,6 +41,7 @@ def measure(bag: str, reader: str) -> None:
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     rate = n / dt
     print(f"{reader:4s} {res.source_format}: {n} messages in {dt:.1f} s ({rate:,.0f} msg/s), peak RSS {peak_mb:.0f} MB")
+    return rate
     shutil.rmtree(os.path.dirname(out))
 
 
@@ -59,6 +62,8 @@ def main() -> None:
     ap.add_argument("--reader", default="both", choices=["old", "new", "both"])
     ap.add_argument("--keep", default=None, help="bag path: reuse it if it exists, else write and keep it")
     ap.add_argument("--chunk-bytes", type=int, default=None, help="ROS1 chunk threshold (1: a message per chunk)")
+    ap.add_argument("--versus-large", action="store_true", help="ROS1: one message per chunk vs large chunks")
+    ap.add_argument("--repeat", type=int, default=3, help="with --versus-large: imports of each (best taken)")
     ap.add_argument("--measure", nargs=2, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--baseline", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -70,6 +75,9 @@ def main() -> None:
         return
     from bagmaker import write_big_imu_bag
 
+    if args.versus_large:
+        versus_large(args.n, args.compression, args.repeat)
+        return
     tmp = None
     if args.keep:
         bag = args.keep
@@ -91,6 +99,29 @@ def main() -> None:
         subprocess.run([sys.executable, __file__, "--measure", src, reader], check=True)
     if tmp:
         shutil.rmtree(tmp)
+
+
+def versus_large(n: int, compression: str | None, repeat: int) -> None:
+    """Import rate of a one-message-per-chunk bag as a ratio of a large-chunk bag's, interleaved runs."""
+    from bagmaker import write_big_imu_bag
+
+    tmp = tempfile.mkdtemp()
+    bags = {}
+    for name, chunk in (("large", None), ("small", 1)):
+        bags[name] = os.path.join(tmp, f"{name}.bag")
+        write_big_imu_bag(bags[name], n, compression=compression, chunk_bytes=chunk)
+        print(f"{name} chunks: {n} messages, {os.path.getsize(bags[name]) / 1e6:.0f} MB")
+    best = dict.fromkeys(bags, 0.0)
+    for _ in range(repeat):  # interleaved, so a change in the machine's load touches both
+        for name, bag in bags.items():
+            out = subprocess.run([sys.executable, __file__, "--measure", bag, "new"], check=True,
+                                 capture_output=True, text=True).stdout  # fmt: skip
+            rate = float(out.split("(")[1].split(" msg/s")[0].replace(",", ""))
+            best[name] = max(best[name], rate)
+            print(f"  {name}: {rate:,.0f} msg/s")
+    print(f"one message per chunk / large chunks: {best['small'] / best['large']:.2f} "
+          f"({best['small']:,.0f} / {best['large']:,.0f} msg/s, best of {repeat})")  # fmt: skip
+    shutil.rmtree(tmp)
 
 
 if __name__ == "__main__":

@@ -34,6 +34,11 @@ class InputError(ImustationError):
     """Analysis input (array file, channel selection, option value) is unusable."""
 
 
+class RecordTooShort(InputError):
+    """The record, or each contiguous piece of it between logged holes, is too short for an estimator.
+    The analysis reports a channel split into such pieces as skipped, not failed (docs/analysis-json.md)."""
+
+
 # --- bus layer -------------------------------------------------------------
 
 

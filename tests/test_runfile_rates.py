@@ -187,3 +187,39 @@ def test_values_out_of_physical_range_are_refused(base, tmp_path, name, edit, ne
         with pytest.raises(RunFileError):
             with open_run(p) as r:
                 r.events()
+
+
+def _write_two(path, n: int) -> None:
+    """Device ``imu`` lost 40 % in holes every 16-32 samples, each logged; device ``ok`` beside it is whole."""
+    kept = _lossy(n, 0.40)
+    rng = np.random.default_rng(1)
+    t = np.rint(kept * 1e9 / RATE).astype(np.int64)
+    chans = (ChannelSpec("gyro", "<i2", "rad/s", 1e-4, axes=("x", "y", "z")),)
+    specs = [DeviceSpec(name, "adis16448", "ADIS16448", bus, "sim", RATE, {}, chans)
+             for name, bus in (("imu", "spi:0"), ("ok", "spi:1"))]  # fmt: skip
+    with RunWriter(path, station="t", config_text="", simulated=True, devices=specs, ballast_bytes=0) as w:
+        w.append("imu", t, {"gyro": rng.normal(0, 40, (len(kept), 3)).astype(np.int16)})
+        w.append("ok", np.rint(np.arange(n) * PERIOD_NS).astype(np.int64),
+                 {"gyro": rng.normal(0, 40, (n, 3)).astype(np.int16)})  # fmt: skip
+        for j in np.flatnonzero(np.diff(kept) > 1):
+            w.event(int(t[j] + PERIOD_NS), "imu", "gap", "not read", lost=int(kept[j + 1] - kept[j] - 1))
+
+
+def test_a_device_in_pieces_too_short_for_any_estimate_is_skipped_and_the_others_analysed(tmp_path):
+    """Before: the damaged device's channel failed ('too short for a fine scale beyond the device filter's
+    memory') and was named only on stderr, not as a skipped channel in the output or the JSON."""
+    p = tmp_path / "two.h5"
+    _write_two(p, 20_000)
+    res = run("analyze", p, "--channel", "ok/*", "-m", "20")  # another device of the same file
+    assert res.exit_code == 0 and "ok/gyro/z" in res.output, res.output
+    res = CliRunner().invoke(cli, ["analyze", str(p), "--channel", "*/gyro/x", "-m", "20"])
+    assert res.exit_code == 0, res.output + res.stderr
+    assert "ok/gyro/x" in res.stdout
+    line = next(x for x in res.stdout.splitlines() if x.startswith("skipped imu/gyro/x"))
+    assert "pieces between" in line and "logged holes, the longest 32 samples" in line
+    res = CliRunner().invoke(cli, ["analyze", str(p), "--channel", "*/gyro/x", "-m", "20", "--json"])
+    doc = json.loads(res.stdout)
+    assert [c["id"] for c in doc["channels"]] == ["ok/gyro/x"]
+    assert [(f["channel"], f["skipped"]) for f in doc["failures"]] == [("imu/gyro/x", "fragmented")]
+    # the damaged device alone: every channel skipped, one line, exit 2 (docs/fleet.md)
+    assert_one_line_error(run("analyze", p, "--channel", "imu/gyro/x", "-m", "20"), "skipped imu/gyro/x", "pieces")

@@ -255,3 +255,91 @@ def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarra
     except struct.error:
         raise BagFormatError("truncated record in chunk") from None
     return np.concatenate(out) if out else np.empty(0, np.int64)
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A top-level record as the walk met it: op, header bytes and parsed fields ({} if not parsed),
+    data length and whether its data is handed out (a run of such records repeats it)."""
+
+    op: int
+    key: bytes
+    fields: dict[str, bytes]
+    data_len: int
+    kept: bool
+
+    @property
+    def total(self) -> int:
+        return 8 + len(self.key) + self.data_len
+
+
+@dataclass
+class Run:
+    """``at`` (int64 offsets) of ``k`` records of one shape, found together; ``data[i]`` is record i's data."""
+
+    shape: Shape
+    at: np.ndarray
+    data: np.ndarray  # (k, data_len) uint8, a view of the walk's buffer
+
+
+#: a run is looked for only when this many cycles of records fit in the buffer
+MIN_RUN = 4
+
+
+def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tuple[int, Run | None]:
+    """Cycles of records from ``arr[off:]`` (before ``stop``) that repeat ``cycle`` exactly (the records
+    the walk just met: a chunk and its index-data record per message, or one chunk-info record); 0 if
+    fewer than MIN_RUN. Returns the count and the run of the cycle's one kept record (None if none).
+
+    A bag written a chunk per message is two small records per message; walking them one by one in
+    Python costs more than the messages. Repeated cycles sit at a constant stride, so a window of
+    them is one (k, stride) array: each record's lengths and header bytes are compared at once (all of
+    them for a kept record, whose parsed fields are reused; only the field layout and op for the
+    skipped index records and chunk infos, whose values change from record to record)."""
+    stride = sum(s.total for s in cycle)
+    m = (stop - off) // stride
+    if m < MIN_RUN:
+        return 0, None
+    block = arr[off : off + m * stride].reshape(m, stride)
+    k, lo, size = 0, 0, 4 * MIN_RUN  # windows growing 4x: a walk that is not periodic pays little
+    while lo < m:
+        hi = min(m, lo + size)
+        good = _repeats(block[lo:hi], cycle)
+        if not good.all():
+            k = lo + int(np.argmin(good))
+            break
+        lo, size, k = hi, size * 4, hi
+    if k < MIN_RUN:
+        return 0, None
+    run, at = None, 0
+    for s in cycle:
+        if s.kept:
+            hn = len(s.key)
+            data = block[:k, at + 8 + hn : at + 8 + hn + s.data_len]
+            run = Run(s, at + stride * np.arange(k, dtype=np.int64), data)
+        at += s.total
+    return k, run
+
+
+def _repeats(block: np.ndarray, cycle: list[Shape]) -> np.ndarray:
+    """Which rows of ``block`` (cycles of records at a constant stride) repeat ``cycle``."""
+    good = np.ones(len(block), bool)
+    at = 0
+    for s in cycle:
+        hn = len(s.key)
+        good &= _column_u32(block, at) == hn
+        good &= _column_u32(block, at + 4 + hn) == s.data_len
+        same = block[:, at + 4 : at + 4 + hn] == np.frombuffer(s.key, np.uint8)
+        if not s.fields:  # values vary: compare the field layout and the op
+            free = np.zeros(hn, bool)
+            for name, (vo, vl) in layout(s.key, 0, hn).items():
+                if name != "op":
+                    free[vo : vo + vl] = True
+            same |= free
+        good &= same.all(axis=1)
+        at += s.total
+    return good
+
+
+def _column_u32(block: np.ndarray, col: int) -> np.ndarray:
+    return np.ascontiguousarray(block[:, col : col + 4]).view("<u4")[:, 0]

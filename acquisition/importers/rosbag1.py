@@ -31,6 +31,8 @@ from imustation.acquisition.importers.ros1records import (
     BagFormatError,
     ChunkMessages,
     Connection,
+    Run,
+    Shape,
     connection,
     decompress,
     decompress_prefix,
@@ -38,6 +40,7 @@ from imustation.acquisition.importers.ros1records import (
     op_code,
     op_of,
     parse_fields,
+    periodic_run,
     split_chunk,
     stamp,
     u32,
@@ -49,6 +52,8 @@ __all__ = ["BagCutError", "BagFormatError", "ChunkMessages", "Connection", "Ros1
 BATCH_BYTES = 1 << 20
 #: file bytes read at a time while walking the records of the data section
 WALK_BYTES = 1 << 22
+#: records found in runs by the walk (:func:`.ros1records.periodic_run`); others are handed out one by one
+RUN_OPS = (OP_CHUNK, OP_CHUNK_INFO)
 
 
 class Ros1Bag:
@@ -154,7 +159,13 @@ class Ros1Bag:
         self.fh.seek(self.index_pos)
         conns: dict[int, Connection] = {}
         infos: list[bytes] = []
-        for _at, op, hdr, data in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
+        for item in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
+            if isinstance(item, Run):  # chunk infos of one connection and length
+                if item.shape.data_len % 8:
+                    raise BagFormatError("chunk info record of a length that is not pairs of u32")
+                infos.append(item.data.tobytes())
+                continue
+            _at, op, hdr, data = item
             if op == OP_CONNECTION:
                 c = connection(hdr, data)
                 conns[c.id] = c
@@ -184,7 +195,7 @@ class Ros1Bag:
         end = self.index_pos if 0 < self.index_pos <= self.size else self.size
         # small chunks (a recorder that flushes every message) are split and decoded together: per chunk
         # the cost is then a record read, not a numpy pass (one message per chunk: 0.6k -> tens of k msg/s)
-        batch: list[tuple[int, bytes]] = []
+        batch: list[tuple[int | np.ndarray, bytes, int | None]] = []  # (offset(s), raw, size of each or None)
         held = 0
         failed: list[tuple[int, BagFormatError]] = []
         walk = self._walk(end)
@@ -193,9 +204,14 @@ class Ros1Bag:
                 item = next(walk, None)
                 if item is None:
                     break
-                at, op, hdr, data = item
-                if op == OP_CHUNK:
-                    raw = decompress(hdr.get("compression", b"none").decode(), data, int_field(hdr, "size"))
+                if isinstance(item, Run):
+                    held += self._take_run(item, batch)
+                    if held < BATCH_BYTES:
+                        continue
+                else:
+                    at, op, hdr, data = item
+                    if op == OP_CHUNK:
+                        raw = decompress(hdr.get("compression", b"none").decode(), data, int_field(hdr, "size"))
             except BagFormatError as err:
                 problem = err
                 at = self._walk_at
@@ -208,8 +224,10 @@ class Ros1Bag:
                     self.cut = True  # the index says more than the file holds
                 yield from self._stop(at, conns)
                 return
-            if op == OP_CHUNK:
-                batch.append((at, raw))
+            if isinstance(item, Run):
+                pass  # the batch is full: handed out below
+            elif op == OP_CHUNK:
+                batch.append((at, raw, None))
                 held += len(raw)
                 if held < BATCH_BYTES:
                     continue
@@ -223,6 +241,8 @@ class Ros1Bag:
                     raise exc
                 yield from self._stop(at, conns)
                 return
+            if isinstance(item, Run):
+                continue
             if op == OP_CONNECTION:
                 c = connection(hdr, data)
                 conns[c.id] = c
@@ -240,14 +260,20 @@ class Ros1Bag:
 
     def _walk(
         self, end: int, keep: tuple[int, ...] = (OP_CHUNK, OP_CONNECTION, OP_MSGDATA)
-    ) -> Iterator[tuple[int, int, dict[str, bytes], bytes]]:
+    ) -> Iterator[tuple[int, int, dict[str, bytes], bytes] | Run]:
         """``(offset, op, header fields, data)`` of the top-level records from the file position up to
         ``end``, read WALK_BYTES at a time (data ``b""`` and header fields ``{}`` for records whose op is
         not in ``keep``, skipped): a chunk per message costs two small records, which read one by one
         from the file cost more than the messages. The fields of a header seen before are not parsed
-        again. :attr:`_walk_at` is the offset of the record being read (where a BagFormatError stops)."""
+        again. Records that repeat the last one or two at a constant stride (a chunk per message) come as
+        a :class:`.ros1records.Run` instead. :attr:`_walk_at` is the offset of the record being read
+        (where a BagFormatError stops)."""
         pos = self.fh.tell()
         base, buf = pos, b""
+        arr = np.empty(0, np.uint8)
+        last = before = None  # (op, header bytes, fields, data length) of the last two records walked one by one
+        calm = 0  # records to walk one by one before looking for a run again
+        wait = 16  # calm after a failed look, doubled while they keep failing (a walk that is not periodic)
 
         def fill(need: int) -> bytes:
             self.fh.seek(pos)
@@ -259,13 +285,37 @@ class Ros1Bag:
         while pos < end:
             self._walk_at = pos
             off = pos - base
+            if before is not None and not calm:
+                if off + WALK_BYTES // 4 > len(buf) and end - pos > WALK_BYTES // 4:
+                    self.fh.seek(pos)  # room for a long run
+                    base, buf, off = pos, self.fh.read(WALK_BYTES), 0
+                    arr = np.frombuffer(buf, np.uint8)
+                found = 0
+                recent = [Shape(*r, r[0] in keep) for r in (before, last)]
+                for cycle in (recent[1:], recent):
+                    if sum(s.kept for s in cycle) > 1 or any(s.kept and s.op not in RUN_OPS for s in cycle):
+                        continue
+                    found, run = periodic_run(arr, off, min(end - base, len(buf)), cycle)
+                    if found:
+                        wait = 16
+                        if run is not None:
+                            run.at += pos
+                            yield run
+                        pos += found * sum(s.total for s in cycle)
+                        break
+                if found:
+                    continue
+                calm, wait = wait, min(wait * 2, 4096)
+            calm = max(calm - 1, 0)
             if off + 4 > len(buf):
                 base, buf, off = pos, fill(4), 0
+                arr = np.frombuffer(buf, np.uint8)
             (hn,) = u32(buf, off)
             if hn > 1 << 20:
                 raise BagFormatError(f"record header of {hn} bytes")
             if off + 8 + hn > len(buf):
                 base, buf, off = pos, fill(8 + hn), 0
+                arr = np.frombuffer(buf, np.uint8)
             key = buf[off + 4 : off + 4 + hn]
             hdr = self._parsed.get(key)
             if hdr is not None:
@@ -285,9 +335,11 @@ class Ros1Bag:
             if op in keep:
                 if off + total > len(buf):
                     base, buf, off = pos, fill(total), 0
+                    arr = np.frombuffer(buf, np.uint8)
                 data = buf[off + 8 + hn : off + total]
             elif pos + total > self.size:
                 raise BagCutError("truncated record")
+            before, last = last, (op, key, hdr, dn)
             yield pos, op, hdr, data
             pos += total
         self.fh.seek(pos)
@@ -299,17 +351,18 @@ class Ros1Bag:
         (``failed`` gets its offset and error, the chunks before it are handed out)."""
         if not batch:
             return
+        count = sum(1 if size is None else len(at) for at, _, size in batch)
         try:
-            msgs = split_chunk(b"".join(raw for _, raw in batch), conns) if len(batch) > 1 else None
+            msgs = split_chunk(b"".join(raw for _, raw, _ in batch), conns) if count > 1 else None
         except BagFormatError:
             msgs = None
         if msgs is not None:
-            self.chunks_read += len(batch)
+            self.chunks_read += count
             self.messages_read += len(msgs.conn)
             batch.clear()
             yield msgs
             return
-        for at, raw in batch:
+        for at, raw in _each_chunk(batch):
             try:
                 one = split_chunk(raw, conns)
             except BagFormatError as exc:
@@ -319,6 +372,23 @@ class Ros1Bag:
             self.messages_read += len(one.conn)
             yield one
         batch.clear()
+
+    def _take_run(self, run: Run, batch: list) -> int:
+        """Adds a run of chunks to ``batch`` (uncompressed: as one group); the bytes added. A chunk that
+        does not decompress raises with :attr:`_walk_at` at it, the chunks before it already added."""
+        fields = run.shape.fields
+        kind, size = fields.get("compression", b"none").decode(), int_field(fields, "size")
+        if kind == "none" and size == run.shape.data_len:
+            raw = run.data.tobytes()
+            batch.append((run.at, raw, size))
+            return len(raw)
+        held = 0
+        for at, row in zip(run.at.tolist(), run.data, strict=True):
+            self._walk_at = at
+            raw = decompress(kind, row.tobytes(), size)
+            batch.append((at, raw, None))
+            held += len(raw)
+        return held
 
     def _stop(self, at: int, conns: dict[int, Connection]) -> Iterator[ChunkMessages]:
         """Reading ends at the record at ``at``: the complete messages of a chunk cut there."""
@@ -366,3 +436,13 @@ class Ros1Bag:
                     raise BagFormatError(f"message of unknown connection {cid}")
                 if topics is None or c.topic in topics:
                     yield c.topic, c.msgtype, t, ch.buf[s : s + n]
+
+
+def _each_chunk(batch: list[tuple[int | np.ndarray, bytes, int | None]]) -> Iterator[tuple[int, bytes]]:
+    """``(offset, raw)`` of every chunk of a batch, the groups of a run split into their chunks."""
+    for at, raw, size in batch:
+        if size is None:
+            yield at, raw
+        else:
+            for i, a in enumerate(at.tolist()):
+                yield a, raw[i * size : (i + 1) * size]

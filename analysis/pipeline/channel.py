@@ -34,7 +34,7 @@ from imustation.analysis.pipeline.choices import (
 from imustation.analysis.pipeline.devicefilter import filter_hint
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.pipeline.verdict import Verdict, channel_verdict
-from imustation.errors import InputError
+from imustation.errors import InputError, RecordTooShort
 from imustation.units import sensor_kind
 
 DOC_FORMAT = "imustation-analysis"
@@ -85,6 +85,10 @@ class ChannelAnalysis:
         if self.choice is not None and self.choice.paper is not None:
             out["paper_model"] = self.choice.paper
         return out
+
+
+#: ``skipped`` kind of a channel whose pieces between logged holes are each too short for any estimate
+FRAGMENTED = "fragmented"
 
 
 class DegenerateChannel(InputError):
@@ -158,6 +162,29 @@ def analyze_channel(
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator {estimator!r}: use one of {', '.join(ESTIMATORS)}")
     check_channel(ch)
+    try:
+        return _analyze_checked(ch, pattern, m, model, compare, method, estimator, need)
+    except RecordTooShort as exc:
+        if len(ch.segments) < 2:
+            raise
+        # every estimate is pooled over the pieces between logged holes; when they are all too short
+        # for it, no estimate exists, and the channel is skipped with why instead of failing the run
+        why = str(exc).removeprefix(f"{ch.n} samples: ")  # the count is in the reason already
+        raise DegenerateChannel(f"skipped {ch.id}: {fragmented_reason(ch)}: {why}", FRAGMENTED) from exc
+
+
+def fragmented_reason(ch: Channel) -> str:
+    """How a channel is split by its logged holes: pieces, the longest (samples and seconds), samples lost."""
+    lengths = np.array([b - a for a, b in ch.segments])
+    longest = int(lengths.max())
+    return (
+        f"{ch.n} samples in {len(lengths)} pieces between {ch.gaps} logged holes, the longest "
+        f"{longest} samples ({longest / ch.fs_hz:.3g} s)"
+    )
+
+
+def _analyze_checked(ch, pattern, m, model, compare, method, estimator, need) -> ChannelAnalysis:
+    """:func:`analyze_channel` of a channel :func:`check_channel` passed."""
     original = ch
     # sinusoids are not noise: measured, removed and named before anything is fitted (issue 32)
     periodic, ch = without_sinusoids(ch)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imustation.analysis.estimators.engine.kalman import Layout
-from imustation.errors import InputError
+from imustation.errors import InputError, RecordTooShort
 
 
 def sampling_pattern(n: int, m: int = 1000, kind: str = "log") -> np.ndarray:
@@ -26,7 +26,7 @@ def sampling_pattern(n: int, m: int = 1000, kind: str = "log") -> np.ndarray:
     ``uniform``: equal steps.
     """
     if n < 2:
-        raise InputError(f"{n} samples: ML_i needs a longer record")
+        raise RecordTooShort(f"{n} samples: ML_i needs a longer record")
     m = int(min(m, n))
     if kind == "log":
         k = np.floor(np.geomspace(1.0, float(n), m)).astype(np.int64)
@@ -190,7 +190,7 @@ def pattern_avar(inc: Increments, per_decade: int = 4) -> tuple[np.ndarray, np.n
     tau = np.concatenate(taus)
     val = np.concatenate(vals)
     if len(tau) == 0:
-        raise InputError("record too short for an Allan-variance start point")
+        raise RecordTooShort("record too short for an Allan-variance start point")
     edges = np.floor(np.log10(tau) * per_decade).astype(int)
     bins, inv, count = np.unique(edges, return_inverse=True, return_counts=True)
     avar = np.bincount(inv, weights=val) / count

@@ -67,7 +67,7 @@ from imustation.analysis.estimators.ml.finescale import (  # noqa: F401 - re-exp
 from imustation.analysis.estimators.ml.mli import allan_start, grid_start
 from imustation.analysis.estimators.models.noise_models import gm_unit_avar as _gm_unit_avar
 from imustation.analysis.estimators.models.noise_models import parse_model
-from imustation.errors import InputError
+from imustation.errors import InputError, RecordTooShort
 
 ESTIMATOR = "ML_i-F"
 #: default uniform pattern: 1000 intervals = 43 s on a 12 h record (2000 gave the same errors
@@ -208,7 +208,7 @@ def fit_composite_data(
                 f"finds the sample-scale noise white: nothing to fit an lp term to): use the model without lp, or auto"
             )
         if float(inc.dt.min()) < 10.0 * memory:
-            raise InputError(f"pattern intervals of {inc.dt.min():.3g} s: too short against the filter's memory")
+            raise RecordTooShort(f"pattern intervals of {inc.dt.min():.3g} s: too short against the filter's memory")
     if multi and fine.term and ("lp" in spec.codes or "wa" in spec.codes):
         spec = replace(spec, angle_scale=angle_scale(fine))
     problem = CompositeProblem(inc, spec, fine)

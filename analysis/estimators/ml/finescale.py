@@ -45,7 +45,7 @@ from functools import cache
 import numpy as np
 
 from imustation.analysis.estimators.classical.allan import block_oavar, oadev
-from imustation.errors import InputError
+from imustation.errors import InputError, RecordTooShort
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def fine_scale(
     n = len(rate)
     sizes = [k for k in AUTO_SAMPLES if 8 * k < n] if samples == "auto" else [int(samples)]
     if not sizes:
-        raise InputError(f"{n} samples: too short for a fine-scale Allan variance")
+        raise RecordTooShort(f"{n} samples: too short for a fine-scale Allan variance")
     if octaves is None or any(k not in octaves.avar for k in sizes):
         wanted = tuple(sorted({j for k in sizes for j in ((k, 4 * k) if samples == "auto" else (k,))}))
         octaves = octave_avars(rate, fs_hz, wanted, scale=scale, segments=segments)
@@ -147,7 +147,7 @@ def fine_scale(
             chosen, white = k, True
             break
     if chosen not in stats:
-        raise InputError(f"fine scale of {chosen} sample(s): record too short")
+        raise RecordTooShort(f"fine scale of {chosen} sample(s): record too short")
     avar, edf = stats[chosen]
     if not np.isfinite(avar) or avar <= 0:
         raise InputError("fine-scale Allan variance is zero or undefined: the channel is constant")
@@ -282,7 +282,7 @@ def fine_statistics(
     n = len(rate)
     sizes = [k for k in FILTER_SCALES if 16 * k < n]
     if len(sizes) < TEST_OCTAVES:
-        raise InputError(f"{n} samples: too short for the fine-scale statistics")
+        raise RecordTooShort(f"{n} samples: too short for the fine-scale statistics")
     octaves = octave_avars(rate, fs_hz, tuple(sizes), scale=scale, segments=segments)
     got = octaves.avar
     sizes = [k for k in sizes if k in got]
@@ -307,7 +307,7 @@ def fine_statistics(
     if chosen is None:
         cand = [k for k in sizes if _gls(got, k, n, fs_hz) is not None]
         if not cand:
-            raise InputError(f"{n} samples: too short for a fine scale beyond the device filter's memory")
+            raise RecordTooShort(f"{n} samples: too short for a fine scale beyond the device filter's memory")
         chosen = cand[-1]
     tau_lp, z = _angle(got, chosen, n, fs_hz)
     # a filter the settings announce needs less evidence than one nobody announced
