@@ -28,6 +28,9 @@ def test_repeats_of_one_device_get_one_verdict():
         # repeat chose); a K the record does not show is stated by its upper bound
         assert v.need == ("N", "B", "K") and set(v.spread) == set(v.need)
         assert any(r.startswith("K not detected: K <") for r in v.reasons)
+        # the reasons' numbers carry their SI unit (the table beside them is in display units)
+        assert any(r.startswith("N = ") and "rad/s/√Hz within a factor" in r for r in v.reasons), v.reasons
+        assert any(r.startswith("K not detected: K <") and "rad/s²/√Hz (90 %)" in r for r in v.reasons)
         # the Allan deviation still falling at the longest tau is the Gauss-Markov bias, not a lack of data
         assert not any("still falls" in r and "no bias instability" in r for r in v.reasons)
     assert verdicts == ["enough"] * 6

@@ -44,7 +44,7 @@ import functools
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -136,6 +136,12 @@ class Interval:
     upper: float = math.nan
     #: the name the reasons print ("" : the needed name); a random walk's sigma_k stands for sigma_b
     label: str = ""
+    #: the SI unit the reasons print after the value ("" : none known)
+    unit: str = ""
+
+    def show(self, x: float) -> str:
+        """``x`` as the reasons print it: three digits and the SI unit (the table is in display units)."""
+        return f"{x:.3g} {self.unit}" if self.unit else f"{x:.3g}"
 
     @property
     def spread(self) -> float:
@@ -231,7 +237,7 @@ def data_verdict(
         sp = spread[key] = iv.spread
         name = iv.label or key
         if not iv.why and not math.isfinite(sp) and math.isfinite(iv.upper):
-            reasons.append(f"{name} not detected: {name} < {iv.upper:.3g} (90 %)")
+            reasons.append(f"{name} not detected: {name} < {iv.show(iv.upper)} (90 %)")
             continue
         if iv.why:
             worse(2, iv.why)
@@ -239,11 +245,11 @@ def data_verdict(
             worse(2, f"{name}: no interval")
         elif sp > MARGINAL_SPREAD:
             # the factor itself can be 1e63 (an interval reaching its search range): not worth printing
-            worse(2, f"{name} = {iv.value:.3g}: its 90 % interval spans more than a factor {MARGINAL_SPREAD:g}")
+            worse(2, f"{name} = {iv.show(iv.value)}: its 90 % interval spans more than a factor {MARGINAL_SPREAD:g}")
         elif sp > ENOUGH_SPREAD:
-            worse(1, f"{name} = {iv.value:.3g}: its 90 % interval spans a factor {sp:.1f} (> {ENOUGH_SPREAD:g})")
+            worse(1, f"{name} = {iv.show(iv.value)}: its 90 % interval spans a factor {sp:.1f} (> {ENOUGH_SPREAD:g})")
         else:
-            reasons.append(f"{name} = {iv.value:.3g} within a factor {sp:.2f} (90 %)")
+            reasons.append(f"{name} = {iv.show(iv.value)} within a factor {sp:.2f} (90 %)")
     if not judge_tau_b:
         if math.isfinite(tau_b_s) and tau_b_s > 0:
             reasons.append(f"record is {duration_s / tau_b_s:.1f} x tau_b ({tau_b_s:.3g} s) of the chosen model")
@@ -348,6 +354,7 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None, summary: 
         intervals = fit_intervals(fit, [n for n in need if not (summary is not None and n in ("N", "K"))])
         if summary is not None:
             intervals |= ieee_intervals(summary, [n for n in need if n in ("N", "K")])
+    intervals = {k: replace(iv, unit=_si_unit(ch, k)) for k, iv in intervals.items()}
     return data_verdict(
         duration,
         longest_correlation_time(fit),
@@ -361,6 +368,23 @@ def channel_verdict(ch, allan, fit, need: Sequence[str] | None = None, summary: 
         need=tuple(need),
         judge_tau_b=not ieee_mode,
     )
+
+
+#: the dimension of each judged quantity (imustation.units.DIMENSIONS)
+_DIMENSION = {"N": "density", "sigma_w": "density", "B": "rate", "K": "drift", "sigma_b": "drift", "tau_b": "time"}
+
+
+def _si_unit(ch, name: str) -> str:
+    """The SI unit of quantity ``name`` on channel ``ch`` ("" when its kind or dimension is not known)."""
+    from imustation.units import display_units, sensor_kind
+
+    dim = _DIMENSION.get(name)
+    if dim is None:
+        return ""
+    try:
+        return display_units(sensor_kind(ch.units, ch.id), dim)[0]
+    except ValueError:
+        return ""
 
 
 @functools.lru_cache(maxsize=16)
