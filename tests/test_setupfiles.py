@@ -56,6 +56,10 @@ def test_udev_parser_refuses_malformed_rules(bad):
 def test_udev_rules_pass_udevadm_verify(tmp_path):
     if shutil.which("udevadm") is None:
         pytest.skip("udevadm not installed (the parser above checks the rules)")
+    version = subprocess.run(["udevadm", "--version"], capture_output=True, text=True, check=False).stdout.strip()
+    if not version.isdigit() or int(version) < 253:
+        # Debian 12's udev (252, which the CI's chromium install brings) has no 'verify' verb yet
+        pytest.skip(f"udevadm {version} has no 'verify' verb (systemd 253 added it); the parser above checks the rules")
     p = tmp_path / "70-imustation.rules"
     p.write_text(run("setup", "udev"))
     res = subprocess.run(["udevadm", "verify", str(p)], capture_output=True, text=True, check=False)
