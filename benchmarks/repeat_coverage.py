@@ -8,6 +8,19 @@ run-to-run scatter of N against its stated standard error, and the same for the 
 ``wn+gm`` fit. Not a speed benchmark: the figures are coverage counts.
 
     python benchmarks/repeat_coverage.py [--hours 12] [--repeats 8] [--devices bmx055,mpu9150,adis16448]
+
+``--adis16405``: one device, six answers (issue 32). Six repeats of one ADIS16405-style gyro axis
+(the Bartlett chain of the ADIS16448 at 409.6 Hz, 2.8 h as the issue's recordings; white noise
+0.05 deg/s/sqrt(Hz) and in-run bias stability 0.007 deg/s of the ADIS16400/16405 datasheet,
+Table 1, as flicker, with a walk that rises above the floor only near the record's end, so that
+a Gauss-Markov bias and flicker + walk fit nearly as well), each through ``analyze_channel`` as
+``imustation analyze`` runs it. Printed per repeat: the chosen model, the "enough data?"
+verdict, N, B, K with their intervals; then how many verdicts agree, the share of the tau >= 0.1 s
+where the model's Allan deviation lies inside the measured one's 90 % chi-square interval (median,
+min over the repeats), and for N, B, K how many pairs of repeats have intervals that overlap and
+how many intervals hold the truth.
+
+    python benchmarks/repeat_coverage.py --adis16405 [--hours 2.8] [--repeats 6]
 """
 
 from __future__ import annotations
@@ -57,13 +70,100 @@ def one_device(device: str, hours: float, repeats: int, seed0: int) -> dict:
     }
 
 
+ADIS_SIGMA_W = 0.05 * math.pi / 180.0  # ADIS16400/16405 datasheet, Table 1: rate noise density 0.05 deg/s/sqrt(Hz)
+ADIS_B = 0.007 * math.pi / 180.0 / 0.6643  # in-run bias stability 0.007 deg/s: the Allan floor 0.664 B
+ADIS_K = 3e-6  # rad/s^2/sqrt(Hz): K^2 tau / 3 reaches the floor at ~5000 s, near the 2.8 h record's end
+
+
+def _adis_repeat(job: tuple[float, int]) -> dict:
+    """One repeat of the ADIS16405-style study: the analysis as ``analyze`` runs it, and what it says."""
+    from imustation.analysis.estimators.classical.allan import chi2_bounds
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import Channel
+
+    hours, seed = job
+    x, fs = record("adis16448", hours, ADIS_SIGMA_W, B=ADIS_B, K=ADIS_K, seed=seed)
+    meta = {"device": "adis16448", "driver": "adis16448", "settings": {"decimation": 2, "filter_taps": 4}}
+    res = analyze_channel(Channel("adis16405/gyro/x", fs, "rad/s", x, 1.0, source="repeat_coverage", meta=meta))
+    s = res.ieee952(res.noise_model)
+    a = res.allan
+    lo, hi = chi2_bounds(a.adev, a.edf, 0.90)
+    keep = (a.tau >= 0.1) & np.isfinite(lo) & np.isfinite(hi)
+    model = res.noise_model.noise_model.adev(a.tau[keep], fs)
+    inside = float(np.mean((lo[keep] <= model) & (model <= hi[keep])))
+    return {
+        "model": res.noise_model.model,
+        "fits": bool(res.choice.fits),
+        "verdict": res.verdict.verdict,
+        "problems": list(res.verdict.problems),
+        "inside": inside,
+        "indistinct": res.choice.indistinct() is not None,
+        **{q: (s.get(q), s.get(f"{q}_ci90"), s.get(f"{q}_upper90"), s.get(f"{q}_detected", True)) for q in "NBK"},
+    }
+
+
+def _interval(v: tuple) -> tuple[float, float] | None:
+    """The stated 90 % range of N, B or K: its interval, or [0, bound] where it is not detected."""
+    value, ci, upper, detected = v
+    if detected is False and upper is not None:
+        return (0.0, float(upper)) if not ci or ci[0] is None else (0.0, max(float(upper), float(ci[1])))
+    if ci and ci[0] is not None and ci[1] is not None:
+        return (float(ci[0]), float(ci[1]))
+    return None
+
+
+def adis16405_study(hours: float, repeats: int, seed0: int, workers: int) -> None:
+    """One device, six answers (module docstring): print per repeat and the agreement across repeats."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers) as pool:
+        rows = list(pool.map(_adis_repeat, [(hours, seed0 + i) for i in range(repeats)]))
+    truth = {"N": ADIS_SIGMA_W * math.sqrt(low_frequency_gain("adis16448")), "B": ADIS_B, "K": ADIS_K}
+    print(f"{repeats} repeats of {hours:g} h, ADIS16405-style (N {truth['N']:.3g}, B {ADIS_B:.3g}, K {ADIS_K:.3g})")
+    for i, r in enumerate(rows):
+        nbk = "; ".join(
+            f"{q} {r[q][0] / truth[q] if r[q][0] else math.nan:.3f} "
+            + (f"[{iv[0] / truth[q]:.3f}, {iv[1] / truth[q]:.3f}]" if (iv := _interval(r[q])) else "none")
+            for q in "NBK"
+        )
+        print(
+            f"  seed {seed0 + i}: {r['model']:14s} fits {'y' if r['fits'] else 'n'} {r['verdict']:10s} "
+            f"model ADEV inside 90 % {100 * r['inside']:3.0f} %  (/truth) {nbk}"
+            + ("  indistinct" if r["indistinct"] else "")
+        )
+        for p in r["problems"]:
+            print(f"      {p}")
+    verdicts = Counter(r["verdict"] for r in rows)
+    inside = sorted(r["inside"] for r in rows)
+    print(f"verdicts: {', '.join(f'{v} x{c}' for v, c in verdicts.most_common())}")
+    print(f"models: {', '.join(f'{m} x{c}' for m, c in Counter(r['model'] for r in rows).most_common())}")
+    print(f"model ADEV inside the measured 90 % interval, tau >= 0.1 s: median {100 * inside[len(inside) // 2]:.0f} %, "
+          f"min {100 * inside[0]:.0f} %")  # fmt: skip
+    for q in "NBK":
+        ivs = [_interval(r[q]) for r in rows]
+        pairs = [(a, b) for i, a in enumerate(ivs) for b in ivs[i + 1 :] if a and b]
+        overlap = sum(a[0] <= b[1] and b[0] <= a[1] for a, b in pairs)
+        held = sum(iv is not None and iv[0] <= truth[q] <= iv[1] for iv in ivs)
+        print(
+            f"{q}: intervals of two repeats overlap in {overlap} of {len(pairs)} pairs; "
+            f"hold the truth {held} of {len(ivs)}"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=12.0)
     ap.add_argument("--repeats", type=int, default=8)
     ap.add_argument("--seed", type=int, default=300)
     ap.add_argument("--devices", default="bmx055,mpu9150,adis16448")
+    ap.add_argument("--adis16405", action="store_true", help="the one-device-six-answers study (issue 32)")
+    ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
+    if args.adis16405:
+        hours = args.hours if "--hours" in sys.argv else 2.8
+        repeats = args.repeats if "--repeats" in sys.argv else 6
+        adis16405_study(hours, repeats, args.seed, args.workers)
+        return
     print(f"{args.repeats} recordings of {args.hours:g} h per device; B {B_TRUE:g} rad/s, K {K_TRUE:g} rad/s^2/rtHz")
     for device in args.devices.split(","):
         row = one_device(device, args.hours, args.repeats, args.seed)

@@ -76,7 +76,7 @@ class ChannelAnalysis:
         on K and B the Allan deviation sets (:func:`.allan_bounds.with_bounds`)."""
         chosen = self.choice is not None and fit.noise_model is self.choice.chosen.noise_model
         summary = ieee952_summary(fit, self.channel.n / self.channel.fs_hz, self.choice.close if chosen else ())
-        return with_bounds(summary, self.allan)
+        return with_bounds(summary, self.allan, self.choice.fits if chosen else True)
 
     def blocks(self) -> dict[str, MLiResult]:
         """Every fitted model block by its key (the JSON's block names; compared models as ``models/<name>``)."""
@@ -223,7 +223,7 @@ def _analyze_checked(ch, pattern, m, model, compare, method, estimator, need) ->
     ieee = ieee_usability(ieee, allan, best.ci90.get("sigma_w") if best is not None else None)
     summary = None
     if choice is not None and best is not None and estimator == "mli-f":  # N, B, K judge the record
-        summary = with_bounds(ieee952_summary(best, ch.n / ch.fs_hz, choice.close), allan)
+        summary = with_bounds(ieee952_summary(best, ch.n / ch.fs_hz, choice.close), allan, choice.fits)
     verdict = channel_verdict(ch, allan, best, need, summary)
     res = ChannelAnalysis(original, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator,
                           choice=choice, periodic=periodic)  # fmt: skip

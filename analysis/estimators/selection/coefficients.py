@@ -32,8 +32,9 @@ def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, .
     otherwise the model's Allan-deviation minimum over ``1/fs .. duration_s/2``
     divided by 0.664 (``"model floor"``), its interval by the delta method from the
     fit's covariance (``cov_log``). ``close``: models that fit nearly as well (the
-    choice's ``close``), whose B intervals the B interval is mixed with (:func:`mixed_interval`). Units:
-    rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz).
+    choice's ``close``), whose B intervals the B interval is mixed with (:func:`mixed_interval`).
+    ``K_from_tau_s``: where the walk takes over the model's Allan variance (:func:`walk_from`). Units:
+    rad/s/sqrt(Hz), rad/s, rad/s^2/sqrt(Hz), s.
     """
     p, ci = res.params, res.ci90
     out: dict = {"N": res.sigma_w, "N_ci90": list(ci.get("sigma_w", (math.nan, math.nan)))}
@@ -57,8 +58,9 @@ def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, .
             lo, hi = mixed_interval(walks, without)
             if math.isfinite(hi):
                 out["K_ci90"] = [lo, hi]
+        out["K_from_tau_s"] = walk_from(res, duration_s)
     else:
-        out |= {"K": None, "K_ci90": None}
+        out |= {"K": None, "K_ci90": None, "K_from_tau_s": None}
     gms = sorted(k for k in p if k.startswith("tau_b"))
     out["gauss_markov"] = [
         {
@@ -70,6 +72,18 @@ def ieee952_summary(res: MLiResult, duration_s: float, close: tuple[MLiResult, .
         for k in gms
     ]
     return out
+
+
+def walk_from(res: MLiResult, duration_s: float) -> float:
+    """The cluster time (s) from which the model's rate random walk carries more Allan variance than its
+    other terms together, over ``1/fs .. duration_s/2``; inf when it never does inside the record. A walk
+    that shows only at the last octaves, where the Allan curve has a few degrees of freedom, is a marginal
+    detection (:func:`~.allan_bounds.with_bounds`)."""
+    tau = np.logspace(math.log10(1.0 / res.fs_hz), math.log10(max(duration_s / 2.0, 2.0 / res.fs_hz)), 200)
+    walk = sum((t.avar(tau, res.fs_hz) for t in res.noise_model.terms if t.code == "rw"), np.zeros_like(tau))
+    rest = res.noise_model.avar(tau, res.fs_hz) - walk
+    above = np.flatnonzero(walk >= rest)
+    return float(tau[above[0]]) if len(above) else math.inf
 
 
 def carries_walk(res: MLiResult, duration_s: float) -> bool:
