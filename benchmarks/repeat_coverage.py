@@ -75,14 +75,34 @@ ADIS_B = 0.007 * math.pi / 180.0 / 0.6643  # in-run bias stability 0.007 deg/s: 
 ADIS_K = 3e-6  # rad/s^2/sqrt(Hz): K^2 tau / 3 reaches the floor at ~5000 s, near the 2.8 h record's end
 
 
-def _adis_repeat(job: tuple[float, int]) -> dict:
+#: the second bias: a Gauss-Markov term (stationary sigma rad/s, time constant s) that acts as a walk over most
+#: of the record, beside a weaker flicker -- Gauss-Markov and flicker + walk then fit nearly as well
+ADIS_GM = (2.0e-4, 1500.0)
+#: bias variants of the study: (name, B rad/s, K rad/s^2/sqrt(Hz), Gauss-Markov (sigma, T) or None)
+ADIS_BIASES = {"flicker+walk": (ADIS_B, ADIS_K, None), "flicker+gm": (0.5 * ADIS_B, 0.0, ADIS_GM)}
+
+
+def _gauss_markov(n: int, fs: float, sigma: float, T: float, seed: int) -> np.ndarray:
+    """``n`` samples of a stationary first-order Gauss-Markov rate (exact AR(1))."""
+    from scipy.signal import lfilter
+
+    rng = np.random.default_rng([seed, 16405])
+    phi = math.exp(-1.0 / (fs * T))
+    e = rng.normal(0.0, sigma * math.sqrt(1.0 - phi * phi), n)
+    return lfilter([1.0], [1.0, -phi], e, zi=[phi * rng.normal(0.0, sigma)])[0]
+
+
+def _adis_repeat(job: tuple[float, int, str]) -> dict:
     """One repeat of the ADIS16405-style study: the analysis as ``analyze`` runs it, and what it says."""
     from imustation.analysis.estimators.classical.allan import chi2_bounds
     from imustation.analysis.pipeline.channel import analyze_channel
     from imustation.analysis.pipeline.loaders import Channel
 
-    hours, seed = job
-    x, fs = record("adis16448", hours, ADIS_SIGMA_W, B=ADIS_B, K=ADIS_K, seed=seed)
+    hours, seed, bias = job
+    b, k, gm = ADIS_BIASES[bias]
+    x, fs = record("adis16448", hours, ADIS_SIGMA_W, B=b, K=k, seed=seed)
+    if gm is not None:
+        x = x + _gauss_markov(len(x), fs, *gm, seed)
     meta = {"device": "adis16448", "driver": "adis16448", "settings": {"decimation": 2, "filter_taps": 4}}
     res = analyze_channel(Channel("adis16405/gyro/x", fs, "rad/s", x, 1.0, source="repeat_coverage", meta=meta))
     s = res.ieee952(res.noise_model)
@@ -112,14 +132,18 @@ def _interval(v: tuple) -> tuple[float, float] | None:
     return None
 
 
-def adis16405_study(hours: float, repeats: int, seed0: int, workers: int) -> None:
-    """One device, six answers (module docstring): print per repeat and the agreement across repeats."""
+def adis16405_study(hours: float, repeats: int, seed0: int, workers: int, bias: str) -> None:
+    """One device, six answers (module docstring): print per repeat and the agreement across repeats. For
+    the ``flicker+gm`` bias K's truth is the Gauss-Markov term's walk over times short against its T
+    (``sigma sqrt(2 / T)``), B's the flicker's."""
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(workers) as pool:
-        rows = list(pool.map(_adis_repeat, [(hours, seed0 + i) for i in range(repeats)]))
-    truth = {"N": ADIS_SIGMA_W * math.sqrt(low_frequency_gain("adis16448")), "B": ADIS_B, "K": ADIS_K}
-    print(f"{repeats} repeats of {hours:g} h, ADIS16405-style (N {truth['N']:.3g}, B {ADIS_B:.3g}, K {ADIS_K:.3g})")
+        rows = list(pool.map(_adis_repeat, [(hours, seed0 + i, bias) for i in range(repeats)]))
+    b, k, gm = ADIS_BIASES[bias]
+    k = k or (gm[0] * math.sqrt(2.0 / gm[1]) if gm else 0.0)
+    truth = {"N": ADIS_SIGMA_W * math.sqrt(low_frequency_gain("adis16448")), "B": b, "K": k}
+    print(f"{repeats} repeats of {hours:g} h, ADIS16405-style, {bias} (N {truth['N']:.3g}, B {b:.3g}, K {k:.3g})")
     for i, r in enumerate(rows):
         nbk = "; ".join(
             f"{q} {r[q][0] / truth[q] if r[q][0] else math.nan:.3f} "
@@ -158,11 +182,13 @@ def main() -> None:
     ap.add_argument("--devices", default="bmx055,mpu9150,adis16448")
     ap.add_argument("--adis16405", action="store_true", help="the one-device-six-answers study (issue 32)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--bias", default="flicker+walk,flicker+gm", help="--adis16405: the bias variants to run")
     args = ap.parse_args()
     if args.adis16405:
         hours = args.hours if "--hours" in sys.argv else 2.8
         repeats = args.repeats if "--repeats" in sys.argv else 6
-        adis16405_study(hours, repeats, args.seed, args.workers)
+        for bias in args.bias.split(","):
+            adis16405_study(hours, repeats, args.seed, args.workers, bias)
         return
     print(f"{args.repeats} recordings of {args.hours:g} h per device; B {B_TRUE:g} rad/s, K {K_TRUE:g} rad/s^2/rtHz")
     for device in args.devices.split(","):

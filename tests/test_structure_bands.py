@@ -68,3 +68,40 @@ def test_a_walk_seen_only_at_the_last_octaves_gets_the_curve_s_interval():
     assert late["K_ci90"][0] <= k <= late["K_ci90"][1] and "degrees of freedom" in late["K_widened"]
     early = with_bounds(_walk_summary(1.77 * k, 2.0), allan)  # a walk leading from 2 s: the likelihood's interval
     assert early["K_ci90"] == [0.63 * 1.77 * k, 1.58 * 1.77 * k] and early["K_widened"] is None
+
+
+def test_a_barely_seen_walk_is_judged_by_its_bound_as_an_undetected_one():
+    """Repeats of one device: a walk detected at the record's last clusters (a wide interval: 'not enough')
+    and one not detected (its bound) gave two verdicts to one sensor."""
+    from imustation.analysis.pipeline.verdict import IEEE_NEED, data_verdict, ieee_intervals
+
+    base = {"N": 1e-3, "N_ci90": [0.99e-3, 1.01e-3], "B": 2e-5, "B_ci90": [1.8e-5, 2.2e-5], "B_detected": True,
+            "K_upper90": 4e-7}  # fmt: skip
+    seen = base | {"K": 2e-7, "K_ci90": [2e-8, 6e-7], "K_detected": True, "K_widened": "the walk leads ..."}
+    unseen = base | {"K": None, "K_ci90": None, "K_detected": False}
+    verdicts = []
+    for summary in (seen, unseen):
+        iv = ieee_intervals(summary, IEEE_NEED)
+        v = data_verdict(7200.0, math.inf, 300.0, intervals=iv, need=IEEE_NEED, judge_tau_b=False)
+        verdicts.append(v.verdict)
+    assert verdicts == ["enough", "enough"]
+    iv = ieee_intervals(seen, IEEE_NEED)["K"]
+    assert iv.upper == 6e-7 and iv.note == "barely detected"
+    # a walk the likelihood pins down is still judged by its interval
+    pinned = ieee_intervals(base | {"K": 2e-7, "K_ci90": [1.5e-7, 2.6e-7], "K_detected": True}, IEEE_NEED)["K"]
+    assert pinned.lo == 1.5e-7 and math.isnan(pinned.upper)
+
+
+def test_a_close_model_that_only_adds_a_walk_is_not_another_structure():
+    from dataclasses import replace as dc_replace
+
+    from imustation.analysis.estimators.selection.model_choice import choose_model
+
+    rng = np.random.default_rng(21)
+    n = int(0.25 * 3600 * FS)
+    choice = choose_model(rng.normal(0.0, 1e-3 * math.sqrt(FS), n) + flicker(n, FS, 2e-5, rng), FS)
+    chosen = dc_replace(choice.chosen, model="wn+fl")
+    same = dc_replace(choice, chosen=chosen, close=(dc_replace(chosen, model="wn+fl+rw"),))
+    assert same.indistinct() is None
+    other = dc_replace(same, close=(dc_replace(chosen, model="wn+gm+rw"),))
+    assert "cannot tell wn+fl from wn+gm+rw" in other.indistinct()

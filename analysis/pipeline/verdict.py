@@ -3,7 +3,8 @@
 The question is whether the record pins down the noise parameters the user
 needs (``need``). By default, with the automatic model choice, those are the IEEE-952
 quantities of :data:`IEEE_NEED` -- ``N``, ``B``, ``K`` with the intervals of the ``ieee952``
-block (mixed over the models that fit nearly as well; K not detected: its upper bound) --
+block (mixed over the models that fit nearly as well; K not detected, or seen only at the record's
+last clusters so that its interval is the Allan curve's wide reading: its upper bound) --
 which do not depend on which of two indistinguishable structures (Gauss-Markov or flicker
 plus random walk) a repeat happens to choose (issue 32: six repeats of one ADIS16405 got
 enough, marginal and not enough from tau_b of whichever model each chose); the record length
@@ -138,6 +139,8 @@ class Interval:
     label: str = ""
     #: the SI unit the reasons print after the value ("" : none known)
     unit: str = ""
+    #: why a term judged by its bound is not a measurement ("" : "not detected")
+    note: str = ""
 
     def show(self, x: float) -> str:
         """``x`` as the reasons print it: three digits and the SI unit (the table is in display units)."""
@@ -186,6 +189,12 @@ def ieee_intervals(summary: Mapping, need: Sequence[str]) -> dict[str, Interval]
             value = None  # the model's floor is an upper bound on B, not a measurement of it
         if name == "K" and summary.get("K_detected") is False:
             value = None  # an interval from 0: the walk is not separable from the other terms, its bound judges
+        if name == "K" and value is not None and summary.get("K_widened") and ci and ci[1] is not None:
+            # a walk seen only at the record's last clusters (or by a model that does not fit): its interval is
+            # the Allan curve's reading and spans a large factor; a repeat of the same device that does not
+            # choose the walk states the bound, so this one is judged by its upper end too (one verdict)
+            out[name] = Interval(math.nan, math.nan, math.nan, upper=float(ci[1]), note="barely detected")
+            continue
         if value is not None and ci and all(v is not None for v in ci):
             out[name] = Interval(float(value), float(ci[0]), float(ci[1]))
         elif summary.get(f"{name}_upper90") is not None:
@@ -237,7 +246,7 @@ def data_verdict(
         sp = spread[key] = iv.spread
         name = iv.label or key
         if not iv.why and not math.isfinite(sp) and math.isfinite(iv.upper):
-            reasons.append(f"{name} not detected: {name} < {iv.show(iv.upper)} (90 %)")
+            reasons.append(f"{name} {iv.note or 'not detected'}: {name} < {iv.show(iv.upper)} (90 %)")
             continue
         if iv.why:
             worse(2, iv.why)

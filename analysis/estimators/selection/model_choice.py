@@ -159,9 +159,10 @@ class ModelChoice:
     def indistinct(self) -> str | None:
         """A sentence when the models that fit nearly as well have another bias structure (a Gauss-Markov
         term against flicker and random walk): the data cannot tell them apart, and N, B, K's intervals
-        are mixed over them; None otherwise."""
-        mine = set(_bias_of(self.chosen.model).split("+"))
-        other = [r.model for r in self.close if set(_bias_of(r.model).split("+")) != mine]
+        are mixed over them; None otherwise. A close model that only adds or drops a random walk
+        (``wn+fl`` beside ``wn+fl+rw``) is the same structure: K's interval and bound say that."""
+        mine = _structure(self.chosen.model)
+        other = [r.model for r in self.close if _structure(r.model) != mine]
         if not other:
             return None
         return (
@@ -498,6 +499,13 @@ def _bias_of(model: str) -> str:
     for c in codes:
         out += ["gm", "gm"] if c == "2gm" else [c]
     return "+".join(out)
+
+
+def _structure(model: str) -> tuple[bool, bool]:
+    """What tells bias structures apart for :meth:`ModelChoice.indistinct`: a Gauss-Markov term, a bias
+    instability (a random walk beside them is the same structure with or without)."""
+    codes = set(_bias_of(model).split("+"))
+    return ("gm" in codes, "fl" in codes)
 
 
 def as_choice_result(choice: ModelChoice) -> CompositeResult:
