@@ -151,7 +151,7 @@ def k_band(allan: AllanResult, n_hi: float, b_hi: float, alpha: float = 1.0 - BO
 
 #: a walk whose share of the model's Allan variance leads only where the measured curve has fewer degrees of
 #: freedom than this is a marginal detection: its likelihood interval rests on a handful of the record's
-#: longest clusters (the 2 h BMX055 datasheet gyro y: K +77 % with [+11, +180] %, walk leading from 320 s on)
+#: longest clusters (the 2 h BMX055 datasheet gyro y: K +77 % with [+11, +180] %, the walk leading from 343 s on)
 WALK_MIN_EDF = 20.0
 
 
