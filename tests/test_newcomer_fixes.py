@@ -1,0 +1,29 @@
+"""The second newcomer run's findings on issue 34 (each failed on the old code)."""
+
+from __future__ import annotations
+
+import numpy as np
+from click.testing import CliRunner
+
+from imustation.cli import cli
+
+
+def _log(path, n: int = 24_000, fs: float = 200.0) -> None:
+    """A timed text log whose columns state no unit (gx.., ax..)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(n) / fs
+    data = np.column_stack([t, rng.normal(0, 0.1, (n, 3)), rng.normal(0, 1e-3, (n, 3)) + [0, 0, 1]])
+    np.savetxt(path, data, delimiter=",", header="t,gx,gy,gz,ax,ay,az", comments="", fmt="%.6f")
+
+
+def test_analyze_asks_only_the_units_of_the_selected_channels(tmp_path):
+    """``analyze log.csv --gyro-unit deg/s --channel '*/gyro/x'`` demanded --accel-unit although no accel
+    channel was selected; an accel channel selected still needs its unit."""
+    log = tmp_path / "log.csv"
+    _log(log)
+    r = CliRunner().invoke(cli, ["analyze", str(log), "--gyro-unit", "deg/s", "--channel", "*/gyro/x"])
+    assert r.exit_code == 0, r.output
+    assert "imu/gyro/x" in r.stdout and "accel-unit" not in r.output
+    assert "'ax', 'ay', 'az' not read (no accel channel selected)" in r.stderr
+    r = CliRunner().invoke(cli, ["analyze", str(log), "--gyro-unit", "deg/s", "--channel", "*/accel/x"])
+    assert r.exit_code == 2 and "--accel-unit" in r.output
