@@ -27,3 +27,23 @@ def test_analyze_asks_only_the_units_of_the_selected_channels(tmp_path):
     assert "'ax', 'ay', 'az' not read (no accel channel selected)" in r.stderr
     r = CliRunner().invoke(cli, ["analyze", str(log), "--gyro-unit", "deg/s", "--channel", "*/accel/x"])
     assert r.exit_code == 2 and "--accel-unit" in r.output
+
+
+def test_verbose_text_names_command_line_options_not_api_arguments():
+    """``analyze --verbose`` printed 'sigma_w is biased - give fine_samples' (an argument of the Python API
+    that no command has): user text gives what a command-line user can do."""
+    from dataclasses import replace
+
+    from imustation.analysis.pipeline.channel import analyze_channel
+    from imustation.analysis.pipeline.loaders import Channel
+    from imustation.analysis.reports.analyzetable import results_table
+    from imustation.analysis.reports.wording import user_text
+
+    rng = np.random.default_rng(1)
+    ch = Channel("imu/gyro/x", 100.0, "rad/s", rng.normal(0, 1e-3, 60_000))
+    res = analyze_channel(ch, model="wn+rw")
+    msg = "noise not white at any fine scale up to 8 samples (device filter?): sigma_w is biased - give fine_samples"
+    fit = replace(res.noise_model, converged=False, message=msg)
+    text = results_table([replace(res, noise_model=fit)], verbose=True)
+    assert "fine_samples" not in text and "--model auto, or a model with +lp" in text
+    assert "fine_samples" not in user_text("z = +5.1: noise not white at 0.01 s - raise fine_samples")
