@@ -47,3 +47,18 @@ def test_verbose_text_names_command_line_options_not_api_arguments():
     text = results_table([replace(res, noise_model=fit)], verbose=True)
     assert "fine_samples" not in text and "--model auto, or a model with +lp" in text
     assert "fine_samples" not in user_text("z = +5.1: noise not white at 0.01 s - raise fine_samples")
+
+
+def test_a_part_longer_than_the_run_is_refused(tmp_path):
+    """``setup service --duration "2 h" --rotate 3h`` was accepted (and capture with it): one line, exit 2;
+    the service's default part (1h) with a shorter run becomes the run's length instead of a unit that fails."""
+    cfg = "configs/demo.toml"
+    out = str(tmp_path / "x.h5")
+    r = CliRunner().invoke(cli, ["setup", "service", cfg, "-o", out, "--duration", "2 h", "--rotate", "3h"])
+    assert r.exit_code == 2 and "--rotate 3h is longer than --duration 2 h" in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    r = CliRunner().invoke(cli, ["setup", "service", cfg, "-o", out, "--duration", "30m"])
+    assert r.exit_code == 0 and "--duration 30m --rotate 30m" in r.output
+    r = CliRunner().invoke(cli, ["capture", cfg, "-o", out, "--simulate", "--duration", "20s", "--rotate", "1m"])
+    assert r.exit_code == 2 and "--rotate 1m is longer than --duration 20s" in r.output
+    assert not (tmp_path / "x.h5").exists() and not list(tmp_path.glob("x.*.h5"))
