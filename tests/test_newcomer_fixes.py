@@ -62,3 +62,34 @@ def test_a_part_longer_than_the_run_is_refused(tmp_path):
     r = CliRunner().invoke(cli, ["capture", cfg, "-o", out, "--simulate", "--duration", "20s", "--rotate", "1m"])
     assert r.exit_code == 2 and "--rotate 1m is longer than --duration 20s" in r.output
     assert not (tmp_path / "x.h5").exists() and not list(tmp_path.glob("x.*.h5"))
+
+
+def test_live_rate_is_shown_over_a_window_long_enough_to_mean_something():
+    """The status showed 429.6/400 Hz: the samples counted over one 1 s status interval, in which a FIFO
+    read of a few dozen samples falls or not. The view shows the rate over the last 10 s of station time
+    (within 0.5 % here), and '…' while it has less than 5 s to measure over."""
+    import io
+
+    from imustation.cli.statusview import StatusView
+
+    def status(elapsed: float, samples: int, recent: float) -> dict:
+        dev = {"state": "ok", "samples": samples, "rate_hz": samples / elapsed, "rate_recent_hz": recent,
+               "rate_cfg_hz": 400.0, "gaps": 0, "lost": 0, "faults": 0, "temp_c": None}  # fmt: skip
+        return {"state": "recording", "reason": "", "elapsed_s": elapsed, "duration_s": 3600.0,
+                "remaining_s": 3600.0 - elapsed, "devices": {"imu": dev}}  # fmt: skip
+
+    out = io.StringIO()
+    view = StatusView(out)
+    burst = 43  # samples per FIFO read: 400 Hz arrive as ~9.3 reads a second
+    delivered = []
+    for k in range(1, 31):
+        got = (k * 400 // burst) * burst  # what has been read by k s
+        delivered.append(got)
+        recent = got - (delivered[-2] if k > 1 else 0)
+        view.show(status(float(k), got, float(recent)))
+    lines = out.getvalue().splitlines()
+    shown = [ln.split("| imu ")[1].split("/")[0] for ln in lines]
+    assert shown[:4] == ["…"] * 4  # fewer than 5 s to tell
+    assert all(abs(float(x) - 400.0) < 2.0 for x in shown[9:])  # 10 s windows: within 0.5 %
+    # the status interval's own count swings by a burst (the 429.6 Hz of the newcomer run)
+    assert max(abs(delivered[k] - delivered[k - 1] - 400) for k in range(1, 30)) >= 20
