@@ -93,3 +93,18 @@ def test_live_rate_is_shown_over_a_window_long_enough_to_mean_something():
     assert all(abs(float(x) - 400.0) < 2.0 for x in shown[9:])  # 10 s windows: within 0.5 %
     # the status interval's own count swings by a burst (the 429.6 Hz of the newcomer run)
     assert max(abs(delivered[k] - delivered[k - 1] - 400) for k in range(1, 30)) >= 20
+
+
+def test_an_imported_rate_is_printed_with_the_digits_it_has(tmp_path):
+    """``inspect`` printed an imported device's ``rate_hz=200.00000000000074`` (the least-squares fit of its
+    stamps, kept whole in the file for the analysis): settings print to 10 significant digits."""
+    from imustation.cli.inspect import setting_text
+
+    assert setting_text(np.float64(200.00000000000074)) == "200" and setting_text(409.6) == "409.6"
+    assert setting_text("stream") == "stream" and setting_text(3) == "3"
+    log, out = tmp_path / "log.csv", tmp_path / "log.h5"
+    _log(log)
+    r = CliRunner().invoke(cli, ["import", str(log), "-o", str(out), "--gyro-unit", "rad/s", "--accel-unit", "g"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["inspect", str(out)])
+    assert "rate_hz=200," in r.output and "200.0000000" not in r.output
