@@ -108,3 +108,29 @@ def test_an_imported_rate_is_printed_with_the_digits_it_has(tmp_path):
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(cli, ["inspect", str(out)])
     assert "rate_hz=200," in r.output and "200.0000000" not in r.output
+
+
+def test_fleet_shows_a_short_identity(tmp_path):
+    """fleet.md's identity column held an imported device's whole column mapping (300 characters); it shows
+    the part-naming fields or the import's source, the CSV and JSON keep the identity whole."""
+    import csv
+    import json
+
+    from imustation.analysis.reports.fleettable import short_identity
+
+    assert short_identity("adis16448", "prod_id=0x4040 lot=0x12345678 serial=0x0042") == "serial=0x0042 lot=0x12345678"
+    assert short_identity("bmx055", "chip_id=0x0F") == "chip_id=0x0F"
+    assert short_identity("kvh", "x" * 80).endswith("…") and len(short_identity("kvh", "x" * 80)) == 32
+    log, run = tmp_path / "log.csv", tmp_path / "log.h5"
+    _log(log)
+    assert CliRunner().invoke(cli, ["import", str(log), "-o", str(run), "--gyro-unit", "rad/s",
+                                    "--accel-unit", "g"]).exit_code == 0  # fmt: skip
+    out = tmp_path / "fleet"
+    r = CliRunner().invoke(cli, ["fleet", str(run), "-o", str(out), "--channel", "*/gyro/x"])
+    assert r.exit_code == 0, r.output
+    row = next(ln for ln in (out / "fleet.md").read_text().splitlines() if "| x-gyro |" in ln)
+    assert "| text: log.csv |" in row and "<-" not in row
+    (line,) = list(csv.DictReader((out / "fleet.csv").open(encoding="utf-8")))
+    assert "gx" in line["identity"]  # the whole mapping stays in the machine-readable outputs
+    doc = json.loads((out / "fleet.json").read_text())
+    assert doc["rows"][0]["identity_short"] == "text: log.csv" and "gx" in doc["rows"][0]["identity"]

@@ -55,9 +55,11 @@ def short_identity(driver: str, identity: str, settings: dict | None = None) -> 
     topic mapping); else the identity cut to :data:`IDENTITY_CHARS` characters with "…"."""
     identity = (identity or "").strip()
     fields = dict(re.findall(r"(\w+)=(\S+)", identity))
-    named = [f"{k}={fields[k]}" for k in (*UNIQUE_FIELDS, "chip_id", "who_am_i", "prod_id") if k in fields]
-    if named:
-        return " ".join(named)
+    # the fields that name the part, else those that name the chip
+    for keys in (UNIQUE_FIELDS, ("chip_id", "who_am_i", "prod_id")):
+        named = [f"{k}={fields[k]}" for k in keys if k in fields]
+        if named:
+            return " ".join(named)
     if driver == "import" and settings and settings.get("source"):
         return f"{settings.get('source_format', 'import')}: {os.path.basename(str(settings['source']))}"
     return identity if len(identity) <= IDENTITY_CHARS else identity[: IDENTITY_CHARS - 1].rstrip() + "…"
