@@ -42,7 +42,7 @@ KEY = (
 )
 #: what the flags in the table mean, printed under it when one occurs
 LEGEND = (
-    "—: no such term in the model (or not needed by the Allan fit); at bound: the fit stopped at its search "
+    "—: no such term in the model; at bound: the fit stopped at its search "
     "bound (no estimate); not identified: the 90 % interval is missing or spans more than two decades"
 )
 

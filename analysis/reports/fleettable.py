@@ -33,7 +33,7 @@ from imustation.analysis.pipeline.fleet import (
     device_key,
 )
 from imustation.analysis.pipeline.parallel import TaskFailure
-from imustation.analysis.pipeline.scatter import ALPHA, EXCEEDS, Scatter
+from imustation.analysis.pipeline.scatter import ALPHA, Scatter
 from imustation.analysis.reports.analyzetable import cell
 from imustation.analysis.reports.numbers import p_value
 from imustation.analysis.reports.tables import NBK, TITLES, Estimate, noise_rows, units_of
@@ -268,10 +268,9 @@ def scatter_markdown(sensor: str, scatter: Sequence[Scatter]) -> str:
         unit, k = _sensor_units(sensor, s.quantity)
         chi = f"{s.chi2:.3g}/{s.dof} ({p_value(s.p_value)})" if s.dof else "–"
         runs = f"{s.runs}" + (f" (+{s.not_counted} not estimated)" if s.not_counted else "")
-        verdict = f"**{s.verdict}**" if s.verdict == EXCEEDS else s.verdict
         cells = [s.key, f"{s.axis}-{sensor}", TITLES[s.quantity][0], s.model or "any", runs,
                  f"{_fmt(s.mean * k)} {unit}", f"{_fmt(s.std * k, 2)} {unit}", relative(s.scatter),
-                 relative(s.halfwidth), chi, relative(s.excess) if s.dof else "–", verdict]  # fmt: skip
+                 relative(s.halfwidth), chi, relative(s.excess) if s.dof else "–", s.verdict]  # fmt: skip
         lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
     return "\n".join(lines)
 

@@ -396,8 +396,8 @@ def table_markdown(rows: list[NoiseRow]) -> str:
 def _allan_markdown(sensor: str, rs: list[NoiseRow]) -> str:
     """The classical IEEE-952 fit of the Allan curve, display units: a comparison, not the table's N, B, K."""
     head = ["device", "axis"] + [f"{q} [{units_of(sensor, q)[1]}]" for q in NBK] + ["note"]
-    lines = [f"*{sensor}: classical IEEE-952 fit of the Allan curve (comparison only; the N, B, K above are the "
-             "noise model's)*", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
+    lines = [f"**{sensor}: classical IEEE-952 fit of the Allan curve (comparison only; the N, B, K above are the "
+             "noise model's)**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
     for r in rs:
         cells = [r.device, f"{r.axis}-{sensor}"] + [_allan_cell(r, q, units_of(sensor, q)[2]) for q in NBK]
         note = "; ".join(f"{q}: {why}" for q, why in r.allan_unusable.items()) or "–"
