@@ -468,6 +468,9 @@ def test_b_and_k_outliers_use_each_runs_own_interval_and_an_undetected_term_is_n
     # a B the run does not show is its upper bound: never a z-score candidate, however far from the median
     bound = flag_outliers([*base, _nbk_row("bound", 3e-4, 0.0, flag=UPPER_BOUND)])[-1]
     assert math.isnan(bound.z["B"]) and not bound.outliers
+    # five runs of which two show B: fewer than five estimates, no median to judge by
+    few = [*base[:2], *(_nbk_row(f"b{i}", 3e-4, 0.0, flag=UPPER_BOUND) for i in range(3))]
+    assert all(math.isnan(r.z["B"]) for r in flag_outliers(few))
 
 
 def test_run_to_run_scatter_against_the_per_run_intervals():

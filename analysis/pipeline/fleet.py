@@ -32,7 +32,7 @@
   uncertainty (e.g. sigma_w equal to three digits, MAD ~ 0) are not called outliers. A value
   that is not an estimate is no candidate (z NaN): a B or K the run does not show (its upper
   bound), a parameter at its search bound, not identified or doubtful. Groups
-  of fewer than :data:`MIN_GROUP` values are not judged (``z`` NaN): the MAD of three or
+  of fewer than :data:`MIN_GROUP` such estimates are not judged (``z`` NaN): the MAD of three or
   four values flags trivial differences.
 * Too-short runs are listed and left out of both (:attr:`FleetRow.excluded`): shorter than
   :data:`MIN_RUN_S`, or than :data:`MIN_RUN_FRACTION` of the median length of their group.
@@ -274,6 +274,8 @@ def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group:
             # at a bound / not identified / not detected (an upper bound): no estimate; doubtful: an interval
             # far wider than the group spread
             logv[[bool(rows[i].flags.get(q)) for i in idx]] = np.nan
+            if np.isfinite(logv).sum() < min_group:  # e.g. K detected on two runs of five: no median to judge by
+                continue
             se = np.array([log10_se(rows[i], q) for i in idx])
             for i, z in zip(idx, robust_z(logv, se, own_se=se), strict=True):
                 zs[i][q] = float(z)
