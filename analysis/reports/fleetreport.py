@@ -89,7 +89,7 @@ def fleet_page(md: str, png: bytes, summary: str) -> str:
         "upper bound of a term the run does not show. "
         f"Outliers: robust z = (x − median)/√(s² + se²) of log10 σ_w (= N), B, K, σ_b, τ_b, s = MAD/0.6745 of every "
         f"run of the same driver, sensor and axis (and model, for σ_b and τ_b), se the run's own, from its 90 % "
-        f"interval; |z| > {Z_LIMIT:g} is flagged (groups of at least {MIN_GROUP} runs); a B or K a run does not "
+        f"interval; |z| > {Z_LIMIT:g} is flagged (groups of at least {MIN_GROUP} estimates); a B or K a run does not "
         f"show (an upper bound) is no candidate. Runs shorter than {MIN_RUN_S:g} s or a tenth of their group's "
         "median length are listed and left out. Scatter: per device, the spread of its runs beside their own "
         f"intervals; it exceeds them when Cochran's χ² gives p < {ALPHA:g}."
