@@ -272,7 +272,11 @@ class Recorder:
         link_next_part(point.previous, self.writer.path)
         for line in point.done:
             self.writer.event(self.offset_ns, "station", "note", line)
-        outage = f"capture resumed after an outage of {point.outage_s:.3f} s (crash, power cut or stop)"
+        outage = (
+            f"capture resumed after an outage of {point.outage_s:.3f} s (crash, power cut or stop)"
+            if point.outage_s > 0
+            else "capture resumed"
+        )
         self.writer.event(self.offset_ns, "station", "note", f"{outage}; continues {os.path.basename(point.previous)}")
         if point.note:
             self.writer.event(self.offset_ns, "station", "note", point.note)
@@ -368,6 +372,8 @@ class Recorder:
         """The outage's gap, at the first sample it misses, counted as the file's hole finder counts it."""
         edge = self._outage.pop(name)
         lost = edge.hole(t_first, counter, late_polls=late_polls)
+        if lost <= 0:  # a simulated run continued on its virtual clock: no hole, nothing to log
+            return
         span = (t_first - edge.t_ns) * 1e-9
         t_missing = edge.t_ns + int(round(edge.period_ns))
         detail = f"outage: no samples for {span:.3f} s before the capture resumed"

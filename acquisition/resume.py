@@ -12,8 +12,12 @@ capture is one more part of that series:
 2. the new part continues the run's time: sample times are ns since the run's
    ``started_utc``; the monotonic clock did not survive the reboot, so the new
    part's origin is the last sample plus the outage, measured on the wall clock
-   (now minus the last sample's UTC time; in a simulation, whose time is
-   virtual, now minus the killed part's last write);
+   (now minus the last sample's UTC time). A simulation's time is virtual: the wall time
+   between two runs is not on its clock. A simulated run that ended cleanly (every part
+   complete: stopped, or its duration extended) goes on right after its last sample, with
+   no outage and no hole; one that was killed lost its unwritten tail, which the virtual
+   clock cannot date, and stands for a station that lost power while its sensors ran: its
+   outage is the wall time since the killed part's last write (docs/capture.md, "Resume");
 3. each device's and thermometer's first sample in the new part carries a ``gap``
    event for the outage, dated at the first missing sample with the count the
    file's hole finder gives (:mod:`imustation.runfile.holes`), so ``inspect``,
@@ -140,6 +144,7 @@ def prepare_resume(
     last_write = _dt.datetime.fromtimestamp(os.path.getmtime(last), _dt.UTC)
     for path in parts:
         done += _recover(path)
+    killed = bool(done)  # a part cut off by a kill or a power cut needed recovering
     with open_run(last) as run:
         attrs = run.attrs
         if str(attrs.get("station", "")) != config.name:
@@ -158,12 +163,17 @@ def prepare_resume(
     devices, thermometers = _edges(parts)
     last_t = max([e.t_ns for e in (*devices.values(), *thermometers.values())], default=0)
     started = _dt.datetime.fromisoformat(started_utc)
-    if simulated:  # virtual time: the outage is what passed on the wall since the killed part's last write
+    note = ""
+    if simulated and not killed:
+        # virtual time ended cleanly: the run goes on at its last sample, the wall time between the runs is
+        # not on its clock (each device's first new sample follows its last one; nothing is lost)
+        outage_ns = 0
+        note = "simulated run continued on its virtual clock: the wall time between the runs is not an outage"
+    elif simulated:  # killed: the outage stands for the wall time since the killed part's last write
         outage_ns = int((now() - last_write).total_seconds() * 1e9)
     else:
         outage_ns = int((now() - started).total_seconds() * 1e9) - last_t
-    note = ""
-    if outage_ns <= 0:
+    if outage_ns <= 0 and not (simulated and not killed):
         note = (
             f"the host clock reads {-outage_ns * 1e-9:.3f} s before the last sample (set back, or not yet "
             "synchronised after the reboot): the outage's length is unknown, the run goes on 1 s after its last sample"

@@ -25,7 +25,7 @@ import pytest
 from click.testing import CliRunner
 
 from imustation.cli import cli
-from imustation.cli.statusview import StatusView, status_block, status_line
+from imustation.cli.statusview import StatusView, status_block, status_line, with_rates
 from imustation.runfile import open_series
 
 LAB = [("bmx055", 400), ("bmx055_accel", 400), ("mpu9150", 500), ("mpu6500", 1000), ("adis16448", 409.6),
@@ -140,10 +140,12 @@ def test_the_block_fits_the_terminal_and_is_redrawn_in_place(term, cols, lines):
     t.stream.write("$ imustation capture lab.toml\n")
     view = StatusView(t.stream)
     assert view.tty and view.size() == (cols, lines)
+    history: dict = {}  # the view's rate window, kept alike (statusview.with_rates)
     for step in range(6):
         view.show(lab_status(step, failed="adis16448" if step >= 3 else ""))
         rows = t.rows()
-        block = status_block(lab_status(step, failed="adis16448" if step >= 3 else ""), cols, lines)
+        block = status_block(with_rates(lab_status(step, failed="adis16448" if step >= 3 else ""), history), cols,
+                             lines)  # fmt: skip
         assert len(block) <= lines - 1 and all(len(line) < cols for line in block)
         at = _block_on_screen(rows, block)
         # nothing stale: the command line above, the block, then blank rows
@@ -161,7 +163,7 @@ def test_a_wide_table_keeps_its_most_needed_columns():
     assert title == [3] and narrow[3].split() == ["device", "state", "rate/cfg", "Hz", "gaps"]
     assert narrow[:3] == ["recording 1h02m09s of 12h00m00s", "10h57m51s left  231.4 MiB written", "48.0 GiB free"]
     assert [line.split()[0] for line in wide[2:9]] == [name for name, _ in LAB]
-    assert wide[3].split() == ["bmx055_accel", "ok", "399.9/400", str(int(400 * 3729)), "2", "208", "30.9°C"]
+    assert wide[3].split() == ["bmx055_accel", "ok", "399.6/400", str(int(400 * 3729)), "2", "208", "30.9°C"]
 
 
 def test_fewer_lines_than_devices_show_the_troubled_ones_and_count_the_rest():
@@ -217,7 +219,7 @@ def test_plain_lines_when_not_a_terminal():
     assert lines == [status_line(lab_status(k)) for k in range(3)]
     assert "\x1b" not in out.getvalue() and "\r" not in out.getvalue()
     assert lines[2].startswith("recording 1h02m07s of 12h00m00s, 10h57m53s left, 231.4 MiB written, 48.0 GiB free")
-    assert "| bmx055 399.8/400 Hz 1490800 samples gaps 1 lost 104 30.7°C |" in lines[2]
+    assert "| bmx055 399.6/400 Hz 1490800 samples gaps 1 lost 104 30.7°C |" in lines[2]
 
 
 def test_capture_under_a_pseudo_terminal_draws_the_final_block(tmp_path, demo_config):

@@ -14,12 +14,12 @@ import pytest
 from imustation.analysis.pipeline.channel import analyze_channel
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.reports.analyzetable import results_table
-from imustation.analysis.reports.summary import summary_csv, summary_markdown, summary_rows
+from imustation.analysis.reports.summary import channel_estimates, summary_csv, summary_markdown, summary_rows
 from imustation.analysis.reports.tables import (
     AT_BOUND,
     DOUBTFUL,
-    NOT_FITTED,
     NOT_IDENTIFIED,
+    UPPER_BOUND,
     noise_rows,
     table_csv,
     table_latex,
@@ -93,13 +93,21 @@ def test_summary_and_flags(analysed):
     assert rows[2].flag("tau_b") == AT_BOUND
     md = table_markdown(rows)
     assert f"at bound ({fog.tau_b:.3g})" in md and f"| {fog.tau_b:.3g} |" not in md
-    # the IEEE fit of pure white noise leaves B or K out (the record's last taus may suggest the
-    # other): a term not fitted is shown as a dash, empty in the CSV
+    # the classical IEEE fit of pure white noise leaves B or K out (the record's last taus may suggest the
+    # other): in its comparison table a term not fitted is a dash, empty in the CSV's <q>_allan
     q = next(q for q in ("B", "K") if getattr(analysed[1].ieee, q) == 0.0)
-    assert rows[1].flag(q) == NOT_FITTED
+    assert rows[1].allan[q] == 0.0
     table = list(csv.DictReader(io.StringIO(table_csv(rows))))
-    assert table[1][q] == "" and table[1][f"{q}_flag"] == NOT_FITTED and table[2]["tau_b_flag"] == AT_BOUND
+    assert table[1][f"{q}_allan"] == "" and table[2]["tau_b_flag"] == AT_BOUND
+    assert "classical IEEE-952 fit of the Allan curve (comparison only" in md
     assert "--" in table_latex(rows) and r"\textsuperscript{b}" in table_latex(rows)
+    # the noise table's N, B, K are the summary's (the model's ieee952 block), not the classical fit's
+    for row, res in zip(rows, analysed, strict=True):
+        est = channel_estimates(res)
+        for k in ("N", "B", "K"):
+            assert row.values[k] == est[k].value or (math.isnan(row.values[k]) and math.isnan(est[k].value))
+            assert (row.flag(k) or "") in (est[k].flag, DOUBTFUL)
+    assert table[1][f"{q}_flag"] in ("", UPPER_BOUND) and table[1][q] != ""
 
     summary = summary_rows(analysed)
     s_md = summary_markdown(summary)

@@ -264,8 +264,10 @@ def test_a_doubtful_noise_density_is_not_judged():
     judged = flag_outliers(rows)
     assert math.isnan(judged[-1].z["sigma_w"]) and not judged[-1].outliers
     assert all(math.isfinite(r.z["sigma_w"]) and not r.outliers for r in judged[:-1])
-    plain = flag_outliers([*rows[:-1], replace(rows[-1], flags={})])[-1]
-    assert "sigma_w" in plain.outliers
+    # each run is judged with its own 90 % interval: unflagged, this one's (-25..+1 %) holds the others too
+    assert not flag_outliers([*rows[:-1], replace(rows[-1], flags={})])[-1].outliers
+    tight = row(0.92e-4, 0.997 * 0.92e-4, 1.003 * 0.92e-4, {})  # the same value with the others' precision
+    assert "sigma_w" in flag_outliers([*rows[:-1], tight])[-1].outliers
 
 
 def test_help():
@@ -417,3 +419,84 @@ def test_a_too_short_run_is_listed_and_left_out_in_every_output(fleet_runs, tmp_
     md = (out / "fleet.md").read_text()
     assert "**Left out of the repeatability and the outlier test**" in md and "4 axes left out" in r.stdout
     assert "| wn+gm | 2 |" in md  # repeatability per device and model, the short run not counted
+
+
+def test_fleet_gives_the_model_n_b_k_of_analyze_and_report(fleet_runs, fleet_out):
+    """One answer (issue 34): fleet's N, B, K of a channel are the noise model's ieee952 terms, as analyze's
+    table, the report's summary and export give them, with the same 90 % interval or upper bound; before,
+    fleet printed the classical Allan fit's B and K (e.g. '—' where the summary gave K = 2.1e-6)."""
+    from imustation.analysis.reports.summary import channel_estimates
+    from imustation.analysis.reports.tables import UPPER_BOUND
+
+    _, out = fleet_out
+    rows = {(x["run"], x["device"]): x for x in _rows(out) if x["status"] != "failed"}
+    res, _ = run_tasks(plan_tasks(fleet_runs[0][:1], [GLOB])[0], AnalysisOptions(model="wn+gm"))
+    assert res
+    for r in res:
+        x = rows[(r.channel.source, r.channel.meta["device"])]
+        est = channel_estimates(r)
+        for q in ("N", "B", "K"):
+            assert float(x[q]) == pytest.approx(est[q].value, rel=1e-12)
+            if est[q].flag == UPPER_BOUND:
+                assert f"{q} {UPPER_BOUND}" in x["value_flags"] and x[f"{q}_lo90"] == "nan"
+            else:
+                assert float(x[f"{q}_lo90"]) == pytest.approx(est[q].lo, rel=1e-12)
+                assert float(x[f"{q}_hi90"]) == pytest.approx(est[q].hi, rel=1e-12)
+    doc = json.loads((out / "fleet.json").read_text())
+    assert doc["format"] == "imustation-fleet" and len(doc["rows"]) == len(rows)
+    assert {"N", "B", "K"} <= set(doc["rows"][0]["values"]) and "B" in doc["rows"][0]["z"]
+    md = (out / "fleet.md").read_text()
+    assert "value [90 % interval]" in md and "run-to-run scatter per device" in md
+
+
+def _nbk_row(run: str, b: float, half: float, *, flag: str = "") -> FleetRow:
+    """A run whose B is ``b`` with a 90 % interval of +-``half`` (relative, in the logarithm)."""
+    r = _row(run, 25.6, 0.01)
+    lo, hi = (math.nan, math.nan) if flag else (b * math.exp(-half), b * math.exp(half))
+    return replace(r, values={**r.values, "B": b, "K": math.nan, "N": 25.6}, lo={**r.lo, "B": lo},
+                   hi={**r.hi, "B": hi}, flags={"B": flag} if flag else {})  # fmt: skip
+
+
+def test_b_and_k_outliers_use_each_runs_own_interval_and_an_undetected_term_is_no_candidate():
+    from imustation.analysis.reports.tables import UPPER_BOUND
+
+    base = [_nbk_row(f"r{i}", 1e-5 * (1 + 0.01 * (i - 2)), 0.02) for i in range(5)]
+    # 3x the others with a +-2 % interval: an outlier; the same value with a factor-5 interval: none
+    assert "B" in flag_outliers([*base, _nbk_row("hi", 3e-5, 0.02)])[-1].outliers
+    wide = flag_outliers([*base, _nbk_row("wide", 3e-5, math.log(5.0))])[-1]
+    assert math.isfinite(wide.z["B"]) and abs(wide.z["B"]) < 3.5 and not wide.outliers
+    # a B the run does not show is its upper bound: never a z-score candidate, however far from the median
+    bound = flag_outliers([*base, _nbk_row("bound", 3e-4, 0.0, flag=UPPER_BOUND)])[-1]
+    assert math.isnan(bound.z["B"]) and not bound.outliers
+    # five runs of which two show B: fewer than five estimates, no median to judge by
+    few = [*base[:2], *(_nbk_row(f"b{i}", 3e-4, 0.0, flag=UPPER_BOUND) for i in range(3))]
+    assert all(math.isnan(r.z["B"]) for r in flag_outliers(few))
+
+
+def test_run_to_run_scatter_against_the_per_run_intervals():
+    """Six runs of one device with +-1 % intervals (90 %): a 0.3 % scatter is within them; a 5 % scatter
+    exceeds them (Cochran's Q), and the excess is close to the scatter the intervals do not explain."""
+    from imustation.analysis.pipeline.scatter import EXCEEDS, WITHIN, run_scatter
+
+    rng = np.random.default_rng(7)
+    half = 0.01  # 90 % half-width in ln
+
+    def runs(spread: float) -> list[FleetRow]:
+        out = []
+        for i, e in enumerate(rng.normal(0.0, spread, 6)):
+            sw = 25.6 * math.exp(e)
+            r = _row(f"r{i}", sw, 0.0)
+            lo, hi = sw * math.exp(-half), sw * math.exp(half)
+            out.append(replace(r, values={**r.values, "N": sw}, lo={**r.lo, "N": lo}, hi={**r.hi, "N": hi}))
+        return out
+
+    (small,) = [s for s in run_scatter(runs(0.003)) if s.quantity == "N"]
+    assert small.runs == 6 and small.verdict == WITHIN and small.halfwidth == pytest.approx(half)
+    spread = runs(0.05)
+    (big,) = [s for s in run_scatter(spread) if s.quantity == "N"]
+    assert big.verdict == EXCEEDS and big.p_value < 0.01 and 0.02 < big.excess < 0.1
+    assert big.std == pytest.approx(np.std([r.values["N"] for r in spread], ddof=1), rel=1e-12)
+    # a run left out (too short) is not counted
+    short = replace(runs(0.003)[0], n=2400)
+    (s,) = [s for s in run_scatter(flag_outliers([*runs(0.003), short])) if s.quantity == "N"]
+    assert s.runs == 6

@@ -73,6 +73,15 @@ def test_analyze_report_export_and_fleet_cut_the_same_warm_up(warm_run, tmp_path
     (frow,) = list(csv.DictReader((tmp_path / "f" / "fleet.csv").open()))
     assert float(frow["sigma_w"]) == pytest.approx(sigma_w, rel=1e-9) and "(auto: warm-up" in frow["warmup"]
 
+    # N, B, K: the noise model's ieee952 block in analyze, the report's summary and noise table, and fleet
+    # (the noise table and fleet took B and K from the classical Allan fit before: issue 34)
+    block = ch["noise_model"]["ieee952"]
+    (noise,) = list(csv.DictReader((tmp_path / "r" / "warm" / "noise.csv").open()))
+    for q in ("N", "B", "K"):
+        shown = block[q] if block.get(f"{q}_detected", True) else block[f"{q}_upper90"]
+        for where in (row, noise, frow):
+            assert float(where[q]) == pytest.approx(shown, rel=1e-9), (q, where)
+
     # --warmup 0 keeps everything, and the verdict then says what to discard
     keep = CliRunner().invoke(cli, ["analyze", warm_run, *args, "--json", "--warmup", "0"])
     (ch0,) = json.loads(keep.stdout)["channels"]

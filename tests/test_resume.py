@@ -135,9 +135,15 @@ def test_a_single_file_run_becomes_part_one(cfg_path, tmp_path):
     assert not out.exists() and (tmp_path / "run.001.h5").exists() and (tmp_path / "run.002.h5").exists()
     with open_series(str(out)) as series:
         assert series.numbers == [1, 2]
-        one_hole_each(series)
+        # a simulated run that ended cleanly goes on at its last sample on its virtual clock: the 15 s of
+        # wall time between the runs are no outage (they were a 15 s hole: newcomer run, issue 34)
+        assert not [e for e in series.events() if e.kind == "gap"]
+        assert any("virtual clock" in e.detail for e in series.events() if e.kind == "note")
+        assert len(check_run(series)["gyro"].holes.lost) == 0
+        assert len(check_thermometers(series)["room"].holes.lost) == 0
         t = series.read("gyro", "t")
-        assert 119e9 < t[-1] <= 120e9
+        assert np.all(np.diff(t) > 0) and np.max(np.diff(t)) < 1.5e9 / RATE
+        assert 119e9 < t[-1] <= 120e9 and len(t) == pytest.approx(120 * RATE, abs=2)
 
 
 def test_resume_without_a_run_starts_one_and_after_the_end_records_nothing(cfg_path, tmp_path):

@@ -66,6 +66,8 @@ class TextMapping:
     accel_unit: str | None = None
     accel_unit_from: str = ""
     accel_scale: float = 1.0
+    #: accel columns found but not read: no accel channel selected (``text_mapping(accel=False)``)
+    accel_unread: tuple[int, ...] = ()
 
     def summary(self) -> str:
         """Which columns were taken: ``time 't' [s], gyro z <- 'gz', accel none, temperature none``."""
@@ -80,6 +82,8 @@ class TextMapping:
             return f" [{u}, from {frm}]" if frm else f" [{u}]"
 
         acc = axes(self.accel_cols, self.accel_axes) if self.accel_cols else "none"
+        if self.accel_unread:
+            acc = f"{', '.join(name(i) for i in self.accel_unread)} not read (no accel channel selected)"
         if self.accel_cols:
             acc += unit(self.accel_unit, self.accel_unit_from)
         temp = f"temperature {name(self.temp_col)} [°C]" if self.temp_col is not None else "temperature none"
@@ -148,8 +152,12 @@ def text_mapping(
     time_unit: str | None = None,
     gyro_unit: str | None = None,
     accel_unit: str | None = None,
+    accel: bool = True,
 ) -> TextMapping:
     """Column mapping of a text log from the options, the rest auto-detected from its first lines.
+
+    ``accel`` False (``analyze --channel`` selecting no accel channel): accel columns the options do not
+    name are not read, and their unit is not asked for (they are listed as not read in the mapping).
 
     Gyro and accel columns: the options (1 to 3 names or indices), else the headers named
     like an axis (``gx``, ``wx``, ``gyro_x``, ``omega_x``...; ``ax``, ``acc_x``, ``accel_x``...; units
@@ -232,14 +240,17 @@ def text_mapping(
             "or give --gyro-columns (plain rate columns without time: analyze --rate HZ)"
         )
     gc, g_axes = gyro
-    accel = columns(accel_cols, _ACCEL_NAME, _ACCEL_HINTS, "accel", set(gc))
-    ac, a_axes = accel if accel is not None else (None, AXES)
+    found = columns(accel_cols, _ACCEL_NAME, _ACCEL_HINTS, "accel", set(gc))
+    ac, a_axes = found if found is not None else (None, AXES)
+    unread = ac if ac is not None and not accel and accel_cols is None else ()
+    if unread:  # not selected: neither read nor asked a unit for
+        ac = None
     used = {tc, *gc, *(ac or ())}
     temp = next((i for i, h in enumerate(low) if h in _TEMP_NAMES and i not in used), None) if header else None
     if temp is not None:
         auto.append("temperature column")
         used.add(temp)
-    ignored = tuple(i for i in range(ncols) if i not in used)
+    ignored = tuple(i for i in range(ncols) if i not in used and i not in unread)
     try:
         rows = [_split(ln, delim) for ln in body[:100]]
         tt = np.array([float(r[tc]) for r in rows])
@@ -256,6 +267,7 @@ def text_mapping(
     g_unit, g_from = _unit(path, "gyro", gyro_unit, GYRO_UNITS, gc, header, stated)
     mp = TextMapping(delim, header, tc, gc, ac, time_unit, GYRO_UNITS[g_unit], auto, g_axes, a_axes, temp, ignored)
     mp.gyro_unit, mp.gyro_unit_from = g_unit, g_from
+    mp.accel_unread = tuple(unread)
     if ac is not None:
         a_unit, a_from = _unit(path, "accel", accel_unit, ACCEL_UNITS, ac, header, stated)
         mp.accel_unit, mp.accel_unit_from, mp.accel_scale = a_unit, a_from, ACCEL_UNITS[a_unit]

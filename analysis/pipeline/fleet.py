@@ -1,8 +1,10 @@
 """Fleet characterisation: one table over many runs and devices, repeatability, outliers.
 
-* :class:`FleetRow` — one analysed axis of one run: device identity, ML_i ``sigma_w``,
-  ``sigma_b``, ``tau_b`` and IEEE-952 ``N``, ``B``, ``K`` (SI), each with its standard error
-  and a 90 % interval (built from the noise table's rows by
+* :class:`FleetRow` — one analysed axis of one run: device identity, the noise model's ``sigma_w``,
+  ``sigma_b``, ``tau_b`` and the IEEE-952 ``N``, ``B``, ``K`` the model implies (its ``ieee952``
+  block: the numbers ``analyze``, ``report``, the verdict and ``export`` give for the channel;
+  a term the run does not show is its 90 % upper bound, flagged), SI, each with a 90 % interval
+  and a standard error (built from the noise table's rows by
   :func:`imustation.analysis.reports.fleettable.fleet_rows`).
 * :func:`common_models` — with ``--model auto``, one model for every run of the same
   driver, sensor and axis (each run chooses on its own; a table of sigma_b over runs
@@ -14,23 +16,28 @@
 * :func:`repeatability` — per device, axis and model, mean and standard deviation
   (``ddof=1``) of ``sigma_w``, ``sigma_b``, ``tau_b`` over its runs (the paper's Table III);
   runs of different models are not averaged together (``sigma_b`` of a random-walk model is
-  its rate random walk, not a Gauss-Markov density).
-* :func:`flag_outliers` — robust z-score of ``log10`` of each of ``sigma_w``,
-  ``sigma_b``, ``tau_b`` against the fleet of the same driver, sensor and axis (and, for
-  ``sigma_b`` and ``tau_b``, the same model: only comparable parameters are compared):
+  its rate random walk, not a Gauss-Markov density). The run-to-run scatter against the
+  per-run intervals is :mod:`.scatter`'s.
+* :func:`flag_outliers` — robust z-score of ``log10`` of each of :data:`JUDGED` (``sigma_w``
+  (= N), ``B``, ``K``, ``sigma_b``, ``tau_b``) against the fleet of the same driver, sensor and
+  axis (and, for ``sigma_b`` and ``tau_b``, the same model: only comparable parameters are
+  compared; N, B, K are model-independent quantities):
   ``z = (x - median) / sqrt(s^2 + se_i^2)`` with ``s = MAD / 0.6745`` (Iglewicz & Hoaglin)
-  and ``se_i`` the run's own standard error (in log10: ``se / (x ln 10)``, from its 90 %
-  interval when it has no standard error); ``|z| > 3.5`` is an outlier. A run whose own
+  and ``se_i`` the run's own standard error of log10 x, from its own 90 % interval
+  (``log10(hi / lo) / (2 x 1.645)``: the intervals are symmetric in the logarithm), from its
+  standard error where it has no interval; ``|z| > 3.5`` is an outlier. A run whose own
   interval reaches the group's median is no outlier, however tight the others are (a 12 s
   run's sigma_w 25.4 +- 0.32 was 'z -5.2' against 25.6). ``s`` has a floor, the median
   stated standard error of the group's values, so values that agree to within their
-  uncertainty (e.g. sigma_w equal to three digits, MAD ~ 0) are not called outliers. Groups
-  of fewer than :data:`MIN_GROUP` values are not judged (``z`` NaN): the MAD of three or
+  uncertainty (e.g. sigma_w equal to three digits, MAD ~ 0) are not called outliers. A value
+  that is not an estimate is no candidate (z NaN): a B or K the run does not show (its upper
+  bound), a parameter at its search bound, not identified or doubtful. Groups
+  of fewer than :data:`MIN_GROUP` such estimates are not judged (``z`` NaN): the MAD of three or
   four values flags trivial differences.
 * Too-short runs are listed and left out of both (:attr:`FleetRow.excluded`): shorter than
   :data:`MIN_RUN_S`, or than :data:`MIN_RUN_FRACTION` of the median length of their group.
 
-The rows' text (CSV, Markdown) is :mod:`imustation.analysis.reports.fleettable`'s.
+The rows' text (CSV, Markdown, JSON) is :mod:`imustation.analysis.reports.fleettable`'s.
 """
 
 from __future__ import annotations
@@ -45,10 +52,14 @@ import numpy as np
 from imustation.analysis.pipeline.channel import ChannelAnalysis, split_channel_id
 from imustation.analysis.pipeline.verdict import MIN_RECORD_S
 
-#: quantities of the fleet table (SI): ML_i standard model, then IEEE-952
+#: quantities of the fleet table (SI): the noise model's parameters, then the IEEE-952 terms it implies
 FLEET_QUANTITIES = ("sigma_w", "sigma_b", "tau_b", "N", "B", "K")
-#: quantities judged for outliers and summarised for repeatability
+#: quantities summarised for repeatability (Table III)
 MODEL_QUANTITIES = ("sigma_w", "sigma_b", "tau_b")
+#: quantities judged for outliers (N is sigma_w: judged once)
+JUDGED = ("sigma_w", "B", "K", "sigma_b", "tau_b")
+#: ... of those, the ones with one meaning in every model (judged over all models of a group)
+ANY_MODEL = ("sigma_w", "B", "K")
 #: robust |z| above which a run is flagged
 Z_LIMIT = 3.5
 #: fewest runs of a driver/sensor/axis group for outlier flags (the MAD of 3-4 values is itself noise)
@@ -63,7 +74,7 @@ _MAD_K = 0.6745
 #: two-sided 90 % normal quantile for intervals built from a standard error
 Z90 = 1.6448536269514722
 #: identity fields that name one physical part
-_UNIQUE_FIELDS = ("serial", "device_id", "lot", "uid")
+UNIQUE_FIELDS = ("serial", "device_id", "lot", "uid")
 
 
 def device_key(driver: str, identity: str, station: str, device: str, settings: dict | None = None) -> str:
@@ -71,7 +82,7 @@ def device_key(driver: str, identity: str, station: str, device: str, settings: 
     if settings and str(settings.get("serial", "")).strip():
         return f"{driver}:serial={str(settings['serial']).strip()}"
     fields = dict(re.findall(r"(\w+)=(\S+)", identity or ""))
-    unique = [f"{k}={fields[k]}" for k in _UNIQUE_FIELDS if k in fields]
+    unique = [f"{k}={fields[k]}" for k in UNIQUE_FIELDS if k in fields]
     if unique:
         return f"{driver}:" + ",".join(unique)
     return f"{station}/{device}" if station else device
@@ -81,7 +92,7 @@ def device_key(driver: str, identity: str, station: str, device: str, settings: 
 class FleetRow:
     """One axis of one run; ``values``, ``stderr``, ``lo``, ``hi`` in SI keyed by :data:`FLEET_QUANTITIES`.
 
-    ``z``: robust z-scores of :data:`MODEL_QUANTITIES` (NaN when not judged);
+    ``z``: robust z-scores of :data:`JUDGED` (NaN when not judged);
     ``outliers``: the quantities with ``|z| > Z_LIMIT``; ``excluded``: why the run is left out
     of the outlier test and the repeatability ("" when it is not).
     """
@@ -109,6 +120,8 @@ class FleetRow:
     excluded: str = ""
     #: what ``--warmup`` cut from the run's device (:meth:`.warmup.WarmupCut.describe`; "" when not known)
     warmup: str = ""
+    #: the identity as a table shows it (the part-naming fields, an import's source file; "" = ``identity``)
+    short_identity: str = ""
 
     @property
     def group(self) -> tuple[str, str, str]:
@@ -209,15 +222,15 @@ def robust_z(x: np.ndarray, se: np.ndarray | None = None, own_se: np.ndarray | N
     return z
 
 
-def _log10_se(row: FleetRow, q: str) -> float:
-    """Standard error of log10 of quantity ``q`` of ``row``: from its standard error (delta method),
-    else from its 90 % interval; NaN when neither is usable."""
-    v, se = row.values[q], row.stderr.get(q, math.nan)
-    if v > 0 and math.isfinite(se) and se > 0:
-        return se / (v * math.log(10.0))
+def log10_se(row: FleetRow, q: str) -> float:
+    """Standard error of log10 of quantity ``q`` of ``row``: from its own 90 % interval (symmetric in
+    the logarithm), else from its standard error (delta method); NaN when neither is usable."""
     lo, hi = row.lo.get(q, math.nan), row.hi.get(q, math.nan)
     if lo > 0 and hi > lo and math.isfinite(hi):
         return (math.log10(hi) - math.log10(lo)) / (2.0 * Z90)
+    v, se = row.values.get(q, math.nan), row.stderr.get(q, math.nan)
+    if v > 0 and math.isfinite(se) and se > 0:
+        return se / (v * math.log(10.0))
     return math.nan
 
 
@@ -247,26 +260,29 @@ def flag_outliers(rows: Sequence[FleetRow], z_limit: float = Z_LIMIT, min_group:
     groups: dict[tuple, list[int]] = {}
     for i, r in enumerate(rows):
         if not r.excluded:
-            groups.setdefault((*r.group, "*"), []).append(i)  # sigma_w: one meaning in every model
+            groups.setdefault((*r.group, "*"), []).append(i)  # sigma_w, B, K: one meaning in every model
             groups.setdefault((*r.group, r.model), []).append(i)
-    zs: list[dict[str, float]] = [{q: math.nan for q in MODEL_QUANTITIES} for _ in rows]
+    zs: list[dict[str, float]] = [{q: math.nan for q in JUDGED} for _ in rows]
     for key, idx in groups.items():
         if len(idx) < min_group:
             continue
-        for q in ("sigma_w",) if key[-1] == "*" else ("sigma_b", "tau_b"):
-            v = np.array([rows[i].values[q] for i in idx])
+        for q in ANY_MODEL if key[-1] == "*" else ("sigma_b", "tau_b"):
+            v = np.array([rows[i].values.get(q, math.nan) for i in idx])
             with np.errstate(divide="ignore", invalid="ignore"):
                 logv = np.where(v > 0, np.log10(np.where(v > 0, v, 1.0)), np.nan)
             logv[~np.isfinite(v)] = np.nan
-            # at a bound / not identified: no estimate; doubtful: an interval far wider than the group spread
+            # at a bound / not identified / not detected (an upper bound): no estimate; doubtful: an interval
+            # far wider than the group spread
             logv[[bool(rows[i].flags.get(q)) for i in idx]] = np.nan
-            se = np.array([_log10_se(rows[i], q) for i in idx])
+            if np.isfinite(logv).sum() < min_group:  # e.g. K detected on two runs of five: no median to judge by
+                continue
+            se = np.array([log10_se(rows[i], q) for i in idx])
             for i, z in zip(idx, robust_z(logv, se, own_se=se), strict=True):
                 zs[i][q] = float(z)
     out = []
     for r, z in zip(rows, zs, strict=True):
-        flags = tuple(q for q in MODEL_QUANTITIES if math.isfinite(z[q]) and abs(z[q]) > z_limit)
-        flags += tuple(q for q in MODEL_QUANTITIES if math.isinf(z[q]))
+        flags = tuple(q for q in JUDGED if math.isfinite(z[q]) and abs(z[q]) > z_limit)
+        flags += tuple(q for q in JUDGED if math.isinf(z[q]))
         out.append(replace(r, z=z, outliers=flags))
     return out
 

@@ -27,6 +27,7 @@ from imustation.analysis.estimators.selection.adequacy import NO_FIT
 from imustation.analysis.reports.numbers import EXTREME_FACTOR, interval
 from imustation.analysis.reports.summary import SUMMARY_QUANTITIES, Estimate, channel_estimates
 from imustation.analysis.reports.tables import AT_BOUND, NOT_IDENTIFIED, fmt_flagged, fmt_number, param_flag
+from imustation.analysis.reports.wording import user_text
 from imustation.units import display_units, sensor_kind
 
 #: sensor kind -> the heading of its block in the text table
@@ -41,7 +42,7 @@ KEY = (
 )
 #: what the flags in the table mean, printed under it when one occurs
 LEGEND = (
-    "—: no such term in the model (or not needed by the Allan fit); at bound: the fit stopped at its search "
+    "—: no such term in the model; at bound: the fit stopped at its search "
     "bound (no estimate); not identified: the 90 % interval is missing or spans more than two decades"
 )
 
@@ -99,7 +100,7 @@ def _details(r, label: str) -> list[str]:
     """--verbose: every fitted block, the automatic choice, each adequacy and every verdict reason."""
     lines = [f"{label}:"]
     for key, fit in r.blocks().items():
-        flag = "converged" if fit.converged else fit.message
+        flag = "converged" if fit.converged else user_text(fit.message)
         adq = r.adequacy_of(fit)
         s = r.ieee952(fit)
         nbk = "  ".join(

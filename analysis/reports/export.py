@@ -83,6 +83,7 @@ from imustation.analysis.pipeline.choices import RW_CONVERSIONS
 from imustation.analysis.pipeline.loaders import Channel
 from imustation.analysis.reports.numbers import interval
 from imustation.analysis.reports.tables import UNIDENTIFIED_RATIO, density_flag
+from imustation.analysis.reports.wording import user_text
 from imustation.errors import InputError
 from imustation.units import G0
 
@@ -291,7 +292,7 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
         noise_warning = _noise_doubts(res, fit)
         taus = [v for k, v in fit.params.items() if k.startswith("tau_b") and math.isfinite(v)]
         if fit.at_bound or not fit.converged:
-            warning = f"fit not converged or at a bound ({', '.join(fit.at_bound) or fit.message})"
+            warning = f"fit not converged or at a bound ({', '.join(fit.at_bound) or user_text(fit.message)})"
         elif taus and min(taus) < WHITE_LIKE_TAU_B_S:
             warning = f"tau_b = {min(taus):.3g} s < {WHITE_LIKE_TAU_B_S:g} s: that bias acts as white noise"
         else:

@@ -1,9 +1,12 @@
-"""The fleet table: one row per analysed axis of every run, as CSV and Markdown.
+"""The fleet table: one row per analysed axis of every run, as CSV, Markdown and JSON.
 
 :func:`fleet_rows` builds :class:`~imustation.analysis.pipeline.fleet.FleetRow` from the noise
-table's rows (so the fleet flags values as the per-run table does); :func:`fleet_csv` and
-:func:`fleet_markdown` render them with the repeatability, outliers and failures. The statistics
-(outliers, repeatability, one model per group) are :mod:`imustation.analysis.pipeline.fleet`'s.
+table's rows (so the fleet gives the numbers and flags of the per-run table, the summary, ``analyze``
+and ``export``: N, B, K from the noise model's ``ieee952`` block, with its 90 % intervals, a term
+the run does not show as its upper bound); :func:`fleet_csv`, :func:`fleet_markdown` and
+:func:`fleet_json` render them with the repeatability, the run-to-run scatter, outliers and
+failures. The statistics (outliers, repeatability, scatter, one model per group) are
+:mod:`imustation.analysis.pipeline.fleet`'s and :mod:`~imustation.analysis.pipeline.scatter`'s.
 Builders return text; writing files is :mod:`.fleetreport`'s business.
 """
 
@@ -11,13 +14,18 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
+import os
+import re
 from collections.abc import Sequence
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.pipeline.fleet import (
     FLEET_QUANTITIES,
+    JUDGED,
     MODEL_QUANTITIES,
+    UNIQUE_FIELDS,
     Z90,
     Z_LIMIT,
     FleetRow,
@@ -25,11 +33,43 @@ from imustation.analysis.pipeline.fleet import (
     device_key,
 )
 from imustation.analysis.pipeline.parallel import TaskFailure
-from imustation.analysis.reports.tables import TITLES, fmt_flagged, noise_rows, units_of
+from imustation.analysis.pipeline.scatter import ALPHA, Scatter
+from imustation.analysis.reports.analyzetable import cell
+from imustation.analysis.reports.numbers import p_value
+from imustation.analysis.reports.tables import NBK, TITLES, Estimate, noise_rows, units_of
+
+#: the fleet JSON document (docs/fleet.md)
+FLEET_FORMAT = "imustation-fleet"
+FLEET_VERSION = 1
+#: longest identity shown in fleet.md (the CSV and JSON keep it whole)
+IDENTITY_CHARS = 32
 
 
 def _f(x) -> float:
     return float("nan") if x is None else float(x)
+
+
+def short_identity(driver: str, identity: str, settings: dict | None = None) -> str:
+    """The identity a person reads in a table cell: the fields that name a part (``serial=``, ``lot=``...)
+    or a chip id; an imported device's source file and format (its identity is the whole column or
+    topic mapping); else the identity cut to :data:`IDENTITY_CHARS` characters with "…"."""
+    identity = (identity or "").strip()
+    fields = dict(re.findall(r"(\w+)=(\S+)", identity))
+    # the fields that name the part, else those that name the chip
+    for keys in (UNIQUE_FIELDS, ("chip_id", "who_am_i", "prod_id")):
+        named = [f"{k}={fields[k]}" for k in keys if k in fields]
+        if named:
+            return " ".join(named)
+    if driver == "import" and settings and settings.get("source"):
+        return f"{settings.get('source_format', 'import')}: {os.path.basename(str(settings['source']))}"
+    return identity if len(identity) <= IDENTITY_CHARS else identity[: IDENTITY_CHARS - 1].rstrip() + "…"
+
+
+def _stderr_from(value: float, lo: float, hi: float) -> float:
+    """A standard error (SI) from a 90 % interval symmetric in the logarithm (delta method), NaN without one."""
+    if value > 0 and lo > 0 and hi > lo and math.isfinite(hi):
+        return value * math.log(hi / lo) / (2.0 * Z90)
+    return math.nan
 
 
 def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
@@ -37,16 +77,15 @@ def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
     rows = []
     for res, nr in zip(results, noise_rows(list(results)), strict=True):
         meta = res.channel.meta
-        mli, ieee = res.noise_model, res.ieee  # the default estimator, as in the noise table
-        stderr = {q: _f(mli.stderr.get(q)) for q in MODEL_QUANTITIES}
-        stderr |= {q: _f(getattr(ieee, f"{q}_stderr", None)) for q in ("N", "B", "K")}
-        lo, hi = {}, {}
-        for q in FLEET_QUANTITIES:
-            ci = mli.ci90.get(q) if q in MODEL_QUANTITIES else None
-            if ci is not None:
-                lo[q], hi[q] = _f(ci[0]), _f(ci[1])
-            else:
-                lo[q], hi[q] = nr.values[q] - Z90 * stderr[q], nr.values[q] + Z90 * stderr[q]
+        fit = res.noise_model  # the default estimator, as in the noise table
+        stderr, lo, hi = {}, {}, {}
+        for q in MODEL_QUANTITIES:
+            ci = fit.ci90.get(q)
+            stderr[q] = _f(fit.stderr.get(q))
+            lo[q], hi[q] = (_f(ci[0]), _f(ci[1])) if ci is not None else (math.nan, math.nan)
+        for q in NBK:  # the model's ieee952 block: its interval, nothing for an upper bound
+            lo[q], hi[q] = _f(nr.lo.get(q)), _f(nr.hi.get(q))
+            stderr[q] = _stderr_from(_f(nr.values[q]), lo[q], hi[q])
         driver = str(meta.get("driver", ""))
         identity = str(meta.get("identity", ""))
         station = str(meta.get("station", ""))
@@ -64,13 +103,14 @@ def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
                 n=nr.n,
                 fs_hz=nr.fs_hz,
                 model=nr.model,
-                converged=bool(mli.converged),
+                converged=bool(fit.converged),
                 values={q: _f(nr.values[q]) for q in FLEET_QUANTITIES},
                 stderr=stderr,
                 lo=lo,
                 hi=hi,
                 flags=dict(nr.flags),
                 warmup=meta["warmup"].describe() if "warmup" in meta else "",
+                short_identity=short_identity(driver, identity, meta.get("settings")),
             )
         )
     return rows
@@ -94,6 +134,7 @@ def fleet_csv(rows: Sequence[FleetRow], failures: Sequence[TaskFailure] = ()) ->
     for q in FLEET_QUANTITIES:
         head += [q, f"{q}_stderr", f"{q}_lo90", f"{q}_hi90", f"{q}_unit"]
     head += [f"z_{q}" for q in MODEL_QUANTITIES] + ["outliers", "value_flags", "error", "left_out", "warmup"]
+    head += [f"z_{q}" for q in JUDGED if q not in MODEL_QUANTITIES]  # added with B, K judged (issue 34)
     w.writerow(head)
     for r in rows:
         status = "left out" if r.excluded else "outlier" if r.outliers else "ok"
@@ -103,7 +144,7 @@ def fleet_csv(rows: Sequence[FleetRow], failures: Sequence[TaskFailure] = ()) ->
             line += [repr(r.values[q]), repr(r.stderr[q]), repr(r.lo[q]), repr(r.hi[q]), units_of(r.sensor, q)[0]]
         line += [repr(r.z.get(q, math.nan)) for q in MODEL_QUANTITIES] + [" ".join(r.outliers)]
         line += ["; ".join(f"{q} {f}" for q, f in r.flags.items()), "", r.excluded, r.warmup]
-        w.writerow(line)
+        w.writerow(line + [repr(r.z.get(q, math.nan)) for q in JUDGED if q not in MODEL_QUANTITIES])
     for f in failures:
         cells = dict.fromkeys(head, "")
         parts = (f.channel or "").split("/")
@@ -119,8 +160,19 @@ def _sensor_units(sensor: str, q: str) -> tuple[str, float]:
     return disp, factor
 
 
-def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failures: Sequence[TaskFailure] = ()) -> str:
-    """Markdown: the fleet table and the repeatability table per sensor kind (display units), outliers, failures."""
+def _value_cell(r: FleetRow, q: str, factor: float) -> str:
+    """``value [90 % interval]`` in display units; "< x" for a term the run does not show, flags as the noise table."""
+    return cell(Estimate(r.values[q], r.lo.get(q, math.nan), r.hi.get(q, math.nan), r.flags.get(q, "")), factor)
+
+
+def fleet_markdown(
+    rows: Sequence[FleetRow],
+    repeat: Sequence[RepeatRow],
+    failures: Sequence[TaskFailure] = (),
+    scatter: Sequence[Scatter] = (),
+) -> str:
+    """Markdown: the fleet table, the repeatability and the run-to-run scatter per sensor kind (display units),
+    outliers, failures."""
     parts = [f"# Fleet noise table\n\n{len({r.run for r in rows})} runs, {len(rows)} axes, "
              f"{len({r.key for r in rows})} devices, {len(failures)} failures."]  # fmt: skip
     sensors = list(dict.fromkeys(r.sensor for r in rows))
@@ -129,16 +181,17 @@ def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failur
         for q in FLEET_QUANTITIES:
             head.append(f"{TITLES[q][0]} [{_sensor_units(sensor, q)[0]}]")
         head.append("flags")
-        lines = [f"**{sensor}: every run (value ± standard error)**", "", "| " + " | ".join(head) + " |"]
+        lines = [
+            f"**{sensor}: every run (value [90 % interval]; N, B, K: the IEEE-952 terms of the run's noise "
+            "model, < x: 90 % upper bound of a term the run does not show)**",
+            "",
+            "| " + " | ".join(head) + " |",
+        ]
         lines.append("|" + "---|" * len(head))
         for r in (r for r in rows if r.sensor == sensor):
-            cells = [r.run, r.key, r.identity or "–", f"{r.axis}-{sensor}", r.model]
-            for q in FLEET_QUANTITIES:
-                _, k = _sensor_units(sensor, q)
-                f = r.flags.get(q, "")
-                se = f" ± {_fmt(r.stderr[q] * k, 2)}" if not f and math.isfinite(r.stderr[q]) else ""
-                cells.append(fmt_flagged(r.values[q] * k, f) + se)
-            flags = [f"outlier {q} (z {r.z[q]:+.1f})" for q in r.outliers]
+            cells = [r.run, r.key, r.short_identity or r.identity or "–", f"{r.axis}-{sensor}", r.model]
+            cells += [_value_cell(r, q, _sensor_units(sensor, q)[1]) for q in FLEET_QUANTITIES]
+            flags = [f"outlier {TITLES[q][0]} (z {r.z[q]:+.1f})" for q in r.outliers]
             flags += [f"left out: {r.excluded}"] if r.excluded else []
             cells.append("; ".join(flags + ([] if r.converged else ["not converged"])) or "ok")
             lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
@@ -158,9 +211,12 @@ def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failur
                 cells += [_fmt(rr.mean[q] * k), _fmt(rr.std[q] * k, 2)]
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
+    for sensor in sensors:
+        parts.append(scatter_markdown(sensor, [s for s in scatter if s.sensor == sensor]))
     out = [r for r in rows if r.outliers]
-    lines = [f"**Outliers (robust z of log10 value vs. the same driver/sensor/axis and model, each run with its own "
-             f"standard error, |z| > {Z_LIMIT:g})**", ""]  # fmt: skip
+    lines = [f"**Outliers (robust z of log10 value vs. the same driver/sensor/axis (and model, for σ_b, τ_b), each "
+             f"run with its own 90 % interval, |z| > {Z_LIMIT:g}; a B or K a run does not show is no candidate)**",
+             ""]  # fmt: skip
     if out:
         lines += ["| run | device | axis | quantity | z |", "|---|---|---|---|---|"]
         for r in out:
@@ -185,3 +241,94 @@ def fleet_markdown(rows: Sequence[FleetRow], repeat: Sequence[RepeatRow], failur
         lines.append("none")
     parts.append("\n".join(lines))
     return "\n\n".join(parts) + "\n"
+
+
+def relative(x: float) -> str:
+    """A relative spread (std of ln value): "3.1 %" while small, "x 4.2" (a factor) beyond 30 %."""
+    if not math.isfinite(x):
+        return "–"
+    return f"{100 * x:.2g} %" if x <= 0.3 else f"× {math.exp(x):.2g}"
+
+
+def scatter_markdown(sensor: str, scatter: Sequence[Scatter]) -> str:
+    """The run-to-run scatter of each device's N, B, K (and σ_b, τ_b per model) beside the runs' own 90 %
+    intervals, display units (:mod:`imustation.analysis.pipeline.scatter`)."""
+    lines = [
+        f"**{sensor}: run-to-run scatter per device beside the per-run 90 % intervals (scatter: std of ln value "
+        "over the runs; interval: the median run's 90 % half-width; χ²: Cochran's Q of the runs about their "
+        f"weighted mean; excess: the scatter the intervals do not explain; exceeds when p < {ALPHA:g})**",
+        "",
+    ]
+    if not scatter:
+        return "\n".join([*lines, "none (no device with an estimate in a run kept)"])
+    head = ["device", "axis", "quantity", "model", "runs", "mean", "std", "scatter", "interval ±", "χ²/dof (p)",
+            "excess", "verdict"]  # fmt: skip
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for s in scatter:
+        unit, k = _sensor_units(sensor, s.quantity)
+        chi = f"{s.chi2:.3g}/{s.dof} ({p_value(s.p_value)})" if s.dof else "–"
+        runs = f"{s.runs}" + (f" (+{s.not_counted} not estimated)" if s.not_counted else "")
+        cells = [s.key, f"{s.axis}-{sensor}", TITLES[s.quantity][0], s.model or "any", runs,
+                 f"{_fmt(s.mean * k)} {unit}", f"{_fmt(s.std * k, 2)} {unit}", relative(s.scatter),
+                 relative(s.halfwidth), chi, relative(s.excess) if s.dof else "–", s.verdict]  # fmt: skip
+        lines.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
+    return "\n".join(lines)
+
+
+def _row_dict(r: FleetRow) -> dict:
+    status = "left out" if r.excluded else "outlier" if r.outliers else "ok"
+    values = {
+        q: {"value": r.values[q], "lo90": r.lo.get(q), "hi90": r.hi.get(q), "stderr": r.stderr.get(q),
+            "unit": units_of(r.sensor, q)[0], "flag": r.flags.get(q, "")}
+        for q in FLEET_QUANTITIES
+    }  # fmt: skip
+    return {
+        "status": status, "run": r.run, "station": r.station, "device": r.device, "driver": r.driver,
+        "identity": r.identity, "identity_short": r.short_identity, "device_key": r.key, "sensor": r.sensor,
+        "axis": r.axis, "n": r.n, "fs_hz": r.fs_hz, "duration_s": r.duration_s, "model": r.model,
+        "converged": r.converged, "values": values, "z": {q: r.z.get(q, math.nan) for q in JUDGED},
+        "outliers": list(r.outliers), "left_out": r.excluded, "warmup": r.warmup,
+    }  # fmt: skip
+
+
+def _num(x):
+    if isinstance(x, dict):
+        return {k: _num(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_num(v) for v in x]
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def fleet_json(
+    rows: Sequence[FleetRow],
+    repeat: Sequence[RepeatRow],
+    scatter: Sequence[Scatter],
+    failures: Sequence[TaskFailure] = (),
+) -> str:
+    """The fleet as one JSON document (docs/fleet.md, "fleet.json"): SI values, NaN/inf as null."""
+    doc = {
+        "format": FLEET_FORMAT,
+        "version": FLEET_VERSION,
+        "outlier_rule": {"z_limit": Z_LIMIT, "judged": list(JUDGED)},
+        "scatter_alpha": ALPHA,
+        "rows": [_row_dict(r) for r in rows],
+        "repeatability": [
+            {
+                "device_key": rr.key,
+                "driver": rr.driver,
+                "sensor": rr.sensor,
+                "axis": rr.axis,
+                "model": rr.model,
+                "runs": rr.runs,
+                "mean": rr.mean,
+                "std": rr.std,
+                "counted": rr.counted,
+            }
+            for rr in repeat
+        ],  # fmt: skip
+        "scatter": [s.as_dict() for s in scatter],
+        "failures": [{"run": f.path, "channel": f.channel, "error": f.error} for f in failures],
+    }
+    return json.dumps(_num(doc), indent=1, ensure_ascii=False) + "\n"

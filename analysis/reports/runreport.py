@@ -178,8 +178,11 @@ def report_run(
         "<h2>Details</h2><h3>Noise table (Table IV layout)</h3>" + html_table(table_markdown(rows)),
         '<p>Files: <a href="noise.csv">noise.csv</a>, <a href="noise.md">noise.md</a>, '
         f'<a href="noise.tex">noise.tex</a>. σ_w, σ_b, τ_b: {html.escape(estimator)} fit of the '
-        f"{html.escape(model)} model; N, B, K: IEEE-952 fit of the Allan deviation; σ(1 s): measured. "
-        "—: not fitted (the Allan fit did not need the term); at bound: the fit stopped at its search bound; "
+        f"{html.escape(model)} model; N, B, K: the IEEE-952 terms that model implies (as in the summary), "
+        "with their 90 % interval, “< x” the 90 % upper bound of a term the record does not show; σ(1 s): "
+        "measured. Under each table, for comparison only, the classical IEEE-952 fit of the Allan curve. "
+        "—: not fitted (no such term in the model; in the comparison, the Allan fit did not need it); "
+        "at bound: the fit stopped at its search bound; "
         "not identified: the 90 % interval is missing or spans more than two decades; doubtful: σ_w's 90 % "
         "interval spans more than a factor 1.1, because slow terms reach the fine scales (σ_w and N of that axis "
         "rest on a shape nothing measures; the summary gives the interval, docs/noise-model.md “Intervals”). "

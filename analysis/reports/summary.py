@@ -13,23 +13,23 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from dataclasses import dataclass
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis
 from imustation.analysis.reports.tables import (
     DASH,
     NOT_FITTED,
-    NOT_IDENTIFIED,
-    UPPER_BOUND,
+    Estimate,
     by_sensor,
-    fmt_flagged,
-    fmt_number,
-    param_flag,
-    param_key,
+    fmt_estimate,
+    model_estimate,
+    model_nbk,
     split_channel_id,
 )
 from imustation.units import display_units
+
+__all__ = ["Estimate", "SummaryRow", "channel_estimates", "fit_verdict", "fmt_estimate", "summary_csv",
+           "summary_markdown", "summary_rows", "SUMMARY_QUANTITIES"]  # fmt: skip
 
 #: summary quantities: (key, title, dimension)
 SUMMARY_QUANTITIES = (
@@ -39,16 +39,6 @@ SUMMARY_QUANTITIES = (
     ("sigma_b", "σ_b", "drift"),
     ("tau_b", "τ_b", "time"),
 )
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """A value with its 90 % interval (SI; NaN where there is none) and its flag."""
-
-    value: float
-    lo: float = math.nan
-    hi: float = math.nan
-    flag: str = ""
 
 
 @dataclass(frozen=True)
@@ -86,36 +76,12 @@ def fit_verdict(res: ChannelAnalysis) -> str:
     return text
 
 
-def _nbk_estimate(block: dict, q: str) -> Estimate:
-    """B or K of a fit's ``ieee952`` block: the value and its interval where the model carries the term,
-    its 90 % upper bound from the Allan deviation where it does not ("not identified" without one)."""
-    if block.get(f"{q}_detected"):
-        ci = block.get(f"{q}_ci90") or (math.nan, math.nan)
-        return Estimate(float(block[q]), *(math.nan if v is None else float(v) for v in ci))
-    upper = block.get(f"{q}_upper90")
-    if upper is not None and math.isfinite(upper):
-        return Estimate(float(upper), flag=UPPER_BOUND)
-    return Estimate(math.nan, flag=NOT_IDENTIFIED)
-
-
-def _model_estimate(fit, name: str) -> Estimate:
-    value = float(getattr(fit, name))
-    ci = fit.ci90.get(name) or fit.ci90.get(param_key(fit, name)) or (math.nan, math.nan)
-    return Estimate(value, float(ci[0]), float(ci[1]), param_flag(fit, name))
-
-
 def channel_estimates(r: ChannelAnalysis) -> dict[str, Estimate]:
     """The summary's quantities of one analysed channel (SI, keys of :data:`SUMMARY_QUANTITIES`):
     the same numbers wherever a channel is summarised (the report's summary, ``analyze``'s table)."""
     fit = r.noise_model
-    block = r.ieee952(fit)  # the verdict's and the export's N, B, K: one answer (issue 34)
-    return {
-        "N": _model_estimate(fit, "sigma_w"),
-        "B": _nbk_estimate(block, "B"),
-        "K": _nbk_estimate(block, "K"),
-        "sigma_b": _model_estimate(fit, "sigma_b"),
-        "tau_b": _model_estimate(fit, "tau_b"),
-    }
+    # the verdict's, the export's, the noise table's and fleet's N, B, K: one answer (issue 34)
+    return {**model_nbk(r), "sigma_b": model_estimate(fit, "sigma_b"), "tau_b": model_estimate(fit, "tau_b")}
 
 
 def summary_rows(results: list[ChannelAnalysis]) -> list[SummaryRow]:
@@ -133,19 +99,6 @@ def summary_rows(results: list[ChannelAnalysis]) -> list[SummaryRow]:
             )
         )  # fmt: skip
     return rows
-
-
-def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
-    """``35.0 [34.8, 35.2]`` (times ``factor``); flags as :func:`fmt_flagged`."""
-    if e.flag or not math.isfinite(e.value):
-        return fmt_flagged(e.value * factor, e.flag, digits)
-    v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return fmt_number(v, digits)
-    # enough digits that a narrow interval does not print as [x, x]
-    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
-        digits += 1
-    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
 
 
 def summary_markdown(rows: list[SummaryRow]) -> str:

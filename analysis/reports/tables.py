@@ -4,9 +4,14 @@
 
 * :func:`noise_rows` / :func:`table_csv` / :func:`table_markdown` /
   :func:`table_latex` — the noise-model parameters ``sigma_w``, ``sigma_b``,
-  ``tau_b``, the IEEE-952 Allan-fit coefficients ``N``, ``B``, ``K`` and the
+  ``tau_b``, the IEEE-952 coefficients ``N``, ``B``, ``K`` the noise model implies (its
+  ``ieee952`` block, :func:`model_nbk`: the numbers ``analyze``, the report's summary, the
+  "enough data?" verdict, ``export`` and ``fleet`` give, with their 90 % intervals; a term the
+  record does not show is its 90 % upper bound, "< x") and the
   measured Allan deviation at tau = 1 s, each in SI and in the display unit side
-  by side, and whether the model fits the measured Allan variance (and where not):
+  by side, and whether the model fits the measured Allan variance (and where not).
+  The classical IEEE-952 fit of the Allan curve (``ChannelAnalysis.ieee``) is kept beside
+  them as a comparison, labelled so (Markdown: its own table; CSV: ``N_allan``...):
 
 =========  ======================  ==============  ===================
 quantity   SI (gyro / accel)       gyro display    accel display
@@ -20,7 +25,8 @@ tau_b      s                       s               s
 (:func:`imustation.units.display_units` defines them; °/h/√h: rad/s/√s x
 3600·180/π x √3600; 1 g = 9.80665 m/s².)
 
-A number is never printed plainly when it is not an estimate: a coefficient the
+A number is never printed plainly when it is not an estimate: a B or K the record does
+not show is its upper bound ("< x"); a coefficient the classical
 IEEE-952 fit set to zero (its term not needed by the curve) is "not fitted" and
 shows as "—", as are ``sigma_b`` and ``tau_b`` of a model without a Gauss-Markov
 bias (a random walk's K is not a sigma_b: every column keeps one meaning); a
@@ -47,7 +53,10 @@ __all__ = [
     "MPS2_TO_UG",
     "RADPS_TO_DPH",
     "SQRT_S_PER_SQRT_H",
+    "Estimate",
     "NoiseRow",
+    "model_nbk",
+    "nbk_estimate",
     "noise_rows",
     "param_flag",
     "param_key",
@@ -175,6 +184,13 @@ class NoiseRow:
     fit_p: float = math.nan
     #: tau ranges where the model misses, e.g. "5.2-98 s model low"
     fit_where: str = ""
+    #: 90 % intervals (SI) of N, B, K where they have one (NaN otherwise)
+    lo: dict[str, float] = field(default_factory=dict)
+    hi: dict[str, float] = field(default_factory=dict)
+    #: the classical IEEE-952 fit of the Allan curve (comparison only): N, B, K (SI; 0 = not fitted)
+    #: and why a term is unusable (:func:`.allan_bounds.ieee_usability`), keyed "N", "B"
+    allan: dict[str, float] = field(default_factory=dict)
+    allan_unusable: dict[str, str] = field(default_factory=dict)
 
     def display(self, q: str) -> float:
         return self.values[q] * units_of(self.sensor, q)[2]
@@ -183,30 +199,75 @@ class NoiseRow:
         return self.flags.get(q, "")
 
 
+@dataclass(frozen=True)
+class Estimate:
+    """A value with its 90 % interval (SI; NaN where there is none) and its flag."""
+
+    value: float
+    lo: float = math.nan
+    hi: float = math.nan
+    flag: str = ""
+
+
+def nbk_estimate(block: dict, q: str) -> Estimate:
+    """B or K of a fit's ``ieee952`` block: the value and its interval where the model carries the term
+    (``<q>_detected``), its 90 % upper bound from the Allan deviation where it does not (flag
+    :data:`UPPER_BOUND`; "not identified" without one)."""
+    if block.get(f"{q}_detected"):
+        ci = block.get(f"{q}_ci90") or (math.nan, math.nan)
+        return Estimate(float(block[q]), *(math.nan if v is None else float(v) for v in ci))
+    upper = block.get(f"{q}_upper90")
+    if upper is not None and math.isfinite(upper):
+        return Estimate(float(upper), flag=UPPER_BOUND)
+    return Estimate(math.nan, flag=NOT_IDENTIFIED)
+
+
+def model_estimate(fit, name: str) -> Estimate:
+    """A noise-model parameter (sigma_w, sigma_b, tau_b) with its 90 % interval and :func:`param_flag`."""
+    value = float(getattr(fit, name))
+    ci = fit.ci90.get(name) or fit.ci90.get(param_key(fit, name)) or (math.nan, math.nan)
+    return Estimate(value, float(ci[0]), float(ci[1]), param_flag(fit, name))
+
+
+def model_nbk(r: ChannelAnalysis) -> dict[str, Estimate]:
+    """N, B, K of one analysed channel as its noise model gives them (the fit's ``ieee952`` block; N is
+    sigma_w): the one answer every output prints for the channel (issue 34)."""
+    fit = r.noise_model
+    block = r.ieee952(fit)
+    return {"N": model_estimate(fit, "sigma_w"), "B": nbk_estimate(block, "B"), "K": nbk_estimate(block, "K")}
+
+
 def noise_rows(results: list[ChannelAnalysis]) -> list[NoiseRow]:
     """Rows for every analysed channel: run-file ``device/gyro|accel/axis`` ids or channels with units."""
     rows = []
     for r in results:
         device, sensor, axis = split_channel_id(r.channel)
         fit = r.noise_model
+        nbk = model_nbk(r)
         vals = {
             "sigma_w": fit.sigma_w,
             "sigma_b": fit.sigma_b,
             "tau_b": fit.tau_b,
-            "N": r.ieee.N,
-            "B": r.ieee.B,
-            "K": r.ieee.K,
+            **{q: e.value for q, e in nbk.items()},
             "adev_1s": r.ieee.adev_1s,
         }
         flags = {q: param_flag(fit, q) for q in ("sigma_b", "tau_b")}
-        flags |= {q: ieee_flag(vals[q]) for q in ("N", "B", "K")}
+        flags |= {q: e.flag for q, e in nbk.items()}
         # sigma_w and N read the same fine scales: a doubt about one is a doubt about the other
         flags["sigma_w"] = density_flag(fit)
         flags["N"] = flags["N"] or flags["sigma_w"]
         flags = {q: f for q, f in flags.items() if f}
         adq = r.adequacy_of(r.noise_model)
         verdict = (adq.verdict, adq.p_value, "; ".join(m.describe() for m in adq.misfit)) if adq else ("", math.nan, "")
-        rows.append(NoiseRow(device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, vals, flags, *verdict))
+        ie = r.ieee
+        rows.append(
+            NoiseRow(
+                device, sensor, axis, r.channel.n, r.channel.fs_hz, fit.model, vals, flags, *verdict,
+                lo={q: e.lo for q, e in nbk.items()}, hi={q: e.hi for q, e in nbk.items()},
+                allan={"N": ie.N, "B": ie.B, "K": ie.K},
+                allan_unusable={q: w for q, w in (("N", ie.N_unusable), ("B", ie.B_unusable)) if w},
+            )
+        )  # fmt: skip
     return rows
 
 
@@ -234,14 +295,50 @@ def fmt_flagged(x: float | None, flag: str, digits: int = 3) -> str:
     return fmt_number(x, digits)
 
 
+def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
+    """``35.0 [34.8, 35.2]`` (times ``factor``); flags as :func:`fmt_flagged` ("< x" for an upper bound)."""
+    if e.flag or not math.isfinite(e.value):
+        return fmt_flagged(e.value * factor, e.flag, digits)
+    v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return fmt_number(v, digits)
+    # enough digits that a narrow interval does not print as [x, x]
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+        digits += 1
+    return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
+
+
+#: the IEEE-952 terms with a 90 % interval in the table
+NBK = ("N", "B", "K")
+
+
+def _cell(r: NoiseRow, q: str, factor: float) -> str:
+    """A Markdown cell: N, B, K with their 90 % interval, the other quantities as :func:`fmt_flagged`."""
+    if q in NBK:
+        e = Estimate(r.values[q], r.lo.get(q, math.nan), r.hi.get(q, math.nan), r.flag(q))
+        return fmt_estimate(e, factor)
+    return fmt_flagged(r.values[q] * factor, r.flag(q))
+
+
+def _allan_cell(r: NoiseRow, q: str, factor: float) -> str:
+    """The classical Allan fit's ``q``: "—" when the fit set it to 0, "unusable" with the reason's key."""
+    v = r.allan.get(q, math.nan)
+    if q in r.allan_unusable:
+        return f"unusable ({fmt_number(v * factor)})"
+    return fmt_flagged(v * factor, ieee_flag(v))
+
+
 def table_csv(rows: list[NoiseRow]) -> str:
-    """CSV: identification columns, then per quantity its SI value, SI unit, display value, display unit, flag."""
+    """CSV: identification columns, then per quantity its SI value, SI unit, display value, display unit, flag;
+    then the model fit; then (added) the 90 % interval of N, B, K (SI) and the classical Allan-curve fit's
+    N, B, K (SI, ``N_allan``...; empty when that fit set the term to 0) with ``allan_note`` (why unusable)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     head = ["device", "sensor", "axis", "n", "fs_hz", "model"]
     for q in QUANTITIES:
         head += [q, f"{q}_unit", f"{q}_display", f"{q}_display_unit", f"{q}_flag"]
-    w.writerow(head + ["model_fit", "model_fit_p", "model_fit_where"])
+    tail = [f"{q}_{end}90" for q in NBK for end in ("lo", "hi")] + [f"{q}_allan" for q in NBK] + ["allan_note"]
+    w.writerow(head + ["model_fit", "model_fit_p", "model_fit_where"] + tail)
     for r in rows:
         line = [r.device, r.sensor, r.axis, r.n, f"{r.fs_hz:g}", r.model]
         for q in QUANTITIES:
@@ -250,7 +347,10 @@ def table_csv(rows: list[NoiseRow]) -> str:
                 line += ["", si, "", disp, r.flag(q)]
             else:
                 line += [repr(float(r.values[q])), si, repr(float(r.display(q))), disp, r.flag(q)]
-        w.writerow(line + [r.fit, repr(float(r.fit_p)), r.fit_where])
+        line += [r.fit, repr(float(r.fit_p)), r.fit_where]
+        line += [repr(float(d.get(q, math.nan))) for q in NBK for d in (r.lo, r.hi)]
+        line += ["" if not r.allan.get(q) else repr(float(r.allan[q])) for q in NBK]
+        w.writerow(line + ["; ".join(f"{q}: {why}" for q, why in r.allan_unusable.items())])
     return buf.getvalue()
 
 
@@ -282,15 +382,27 @@ def table_markdown(rows: list[NoiseRow]) -> str:
         for r in rs:
             cells = [r.device, f"{r.axis}-{sensor}"]
             for q in QUANTITIES:
-                si, disp, _ = units_of(sensor, q)
-                f = r.flag(q)
-                cells.append(fmt_flagged(r.values[q], f))
+                si, disp, k = units_of(sensor, q)
+                cells.append(_cell(r, q, 1.0))
                 if si != disp:
-                    cells.append(fmt_flagged(r.display(q), f))
+                    cells.append(_cell(r, q, k))
             cells.append(_fit_text(r))
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
+        parts.append(_allan_markdown(sensor, rs))
     return "\n\n".join(parts) + "\n"
+
+
+def _allan_markdown(sensor: str, rs: list[NoiseRow]) -> str:
+    """The classical IEEE-952 fit of the Allan curve, display units: a comparison, not the table's N, B, K."""
+    head = ["device", "axis"] + [f"{q} [{units_of(sensor, q)[1]}]" for q in NBK] + ["note"]
+    lines = [f"**{sensor}: classical IEEE-952 fit of the Allan curve (comparison only; the N, B, K above are the "
+             "noise model's)**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
+    for r in rs:
+        cells = [r.device, f"{r.axis}-{sensor}"] + [_allan_cell(r, q, units_of(sensor, q)[2]) for q in NBK]
+        note = "; ".join(f"{q}: {why}" for q, why in r.allan_unusable.items()) or "–"
+        lines.append("| " + " | ".join(c.replace("|", "/") for c in [*cells, note]) + " |")
+    return "\n".join(lines)
 
 
 def _latex_unit(u: str) -> str:
@@ -305,6 +417,8 @@ def _latex_num(x: float, flag: str = "") -> str:
         return "--"
     if flag == NOT_IDENTIFIED:
         return r"\textit{n.i.}"
+    if flag == UPPER_BOUND:
+        return "$<$" + _latex_num(x)
     if math.isinf(x):
         return r"$\infty$"
     m, e = f"{x:.2e}".split("e")
@@ -332,9 +446,10 @@ def table_latex(rows: list[NoiseRow]) -> str:
         units.append("")
         cols.append("l")
         lines = [
-            rf"% {sensor}: noise model sigma_w, sigma_b, tau_b; IEEE-952 N, B, K; Allan deviation at 1 s;"
-            " model adequacy (fits / does not fit the measured Allan variance)",
-            r"% --: not fitted (IEEE-952 term not needed); b: at the search bound; n.i.: not identified",
+            rf"% {sensor}: noise model sigma_w, sigma_b, tau_b; the IEEE-952 N, B, K the noise model implies;"
+            " Allan deviation at 1 s; model adequacy (fits / does not fit the measured Allan variance)",
+            r"% --: not fitted (no such term); $<$x: 90 % upper bound (term not detected); b: at the search bound;"
+            " n.i.: not identified",
             r"\begin{tabular}{ll" + "".join(cols) + "}",
             r"\toprule",
             " & ".join(head) + r" \\",

@@ -10,6 +10,7 @@ imported run file would give.
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import os
 import sys
 from collections.abc import Sequence
@@ -22,6 +23,9 @@ from imustation.units import TIME_UNITS
 if TYPE_CHECKING:
     from imustation.analysis.pipeline.loaders import Channel
     from imustation.analysis.pipeline.parallel import ChannelTask, TaskFailure
+
+#: the device an imported text log becomes (docs/import.md: "one device imu for logs")
+LOG_DEVICE = "imu"
 
 
 @contextlib.contextmanager
@@ -161,6 +165,12 @@ def streamed_channels(path: str, globs: Sequence[str], *, quiet: bool, topic, ti
     from imustation.acquisition.importers import stream_recording
     from imustation.analysis.pipeline.loaders import recording_channels
 
+    if (
+        globs
+        and not text.get("accel_cols")
+        and not any(fnmatch.fnmatchcase(f"{LOG_DEVICE}/accel/{a}", g) for g in globs for a in "xyz")
+    ):  # a log's accel is read (and its unit required) only when an accel channel is selected
+        text = {**text, "accel": False}
     with progress_bar(f"importing {os.path.basename(path.rstrip('/'))}", quiet) as progress:
         rec = stream_recording(path, topic=topic, text=text, time_unit=time_unit, progress=progress)
     if not quiet:

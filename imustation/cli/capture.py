@@ -273,6 +273,7 @@ def capture(
         check_file(status_file, overwrite=True, option="--status-file")  # replaced every interval by design
     seconds = parse_duration(duration, "--duration")
     rotate_s = parse_duration(rotate, "--rotate") if rotate else None
+    check_rotate(rotate, rotate_s, duration, seconds)
     if not status_interval > 0:
         raise InputError(f"--status-interval {status_interval}: must be > 0 s")
     if sim_speed is not None and not sim_speed > 0:
@@ -345,3 +346,20 @@ def capture(
         + f", {format_duration(summary.duration_s)} in {summary.wall_s:.1f} s wall ({speed:.0f}x real time){note}"
     )
     click.echo(msg, err=json_status)
+
+
+def check_rotate(rotate: str | None, rotate_s: float | None, duration: str, seconds: float) -> None:
+    """Refuse a ``--rotate`` part length longer than the run's ``--duration`` (texts as given, values in s):
+    the run would be one part, which is not what a user asking for parts expects (docs/capture.md)."""
+    if rotate_s is not None and rotate_s > seconds:
+        raise InputError(
+            f"--rotate {rotate} is longer than --duration {duration}: the run would be a single part; give a part "
+            f"length up to the duration (e.g. --rotate {_part_hint(seconds)}), or leave --rotate out"
+        )
+
+
+def _part_hint(seconds: float) -> str:
+    """A round part length for a run of ``seconds``: an hour, or a tenth of a shorter run (whole minutes)."""
+    if seconds >= 2 * 3600:
+        return "1h"
+    return f"{max(1, round(seconds / 600))}m" if seconds >= 600 else f"{max(1, round(seconds / 10))}s"

@@ -33,12 +33,14 @@ def fleet(
     """One noise table over every run and device of RUNS (run files), with repeatability and outliers.
 
     \b
-    Writes OUTPUT/fleet.csv, fleet.md, fleet.html (self-contained) and
-    fleet_allan.png: per run and axis the device identity, ML_i sigma_w,
-    sigma_b, tau_b and IEEE-952 N, B, K with standard errors and 90 %
-    intervals; per device and axis the mean and std over its runs (Table III);
+    Writes OUTPUT/fleet.csv, fleet.md, fleet.json, fleet.html (self-contained)
+    and fleet_allan.png: per run and axis the device identity, the noise
+    model's sigma_w, sigma_b, tau_b and the IEEE-952 N, B, K it implies (the
+    numbers analyze and report give) with 90 % intervals, "< x" for a term
+    a run does not show; per device and axis the mean and std over its runs
+    (Table III) and the run-to-run scatter beside the runs' own intervals;
     runs flagged against the fleet (robust z > 3.5, each run with its own
-    uncertainty, comparable models only; too-short runs listed and left
+    interval, comparable models only; too-short runs listed and left
     out). Channels are analysed
     in parallel with --workers N or --scheduler ADDR (docs/fleet.md). A run
     that fails is reported and listed; the exit status is 2 only when every
@@ -63,6 +65,6 @@ def fleet(
         memory_limit=memory_limit,
     )
     rep = write_fleet_report(runs, results, failures + failed, out_dir)
-    for line in rep.outlier_lines() + rep.left_out_lines():
+    for line in rep.outlier_lines() + rep.scatter_lines() + rep.left_out_lines():
         click.echo(line, err=True)
     click.echo(rep.summary_line())

@@ -112,7 +112,7 @@ def _inspect(run: str) -> None:
         for dev in rf.devices.values():
             d = device_status_from_run(rf, dev, tally)
             click.echo(f"  device {dev.name}: {dev.model} ({dev.driver}) on {dev.bus}, {dev.identity}")
-            settings = ", ".join(f"{k}={v}" for k, v in sorted(dev.settings.items()))
+            settings = ", ".join(f"{k}={setting_text(v)}" for k, v in sorted(dev.settings.items()))
             click.echo(f"    settings: {settings}")
             if dev.torn:
                 rows = ", ".join(f"{k} {v}" for k, v in sorted(dev.rows.items()))
@@ -181,3 +181,15 @@ def _holes_line(check: HoleCheck, unit: str = "samples", thermometer: bool = Fal
         late = " (late polls)" if thermometer else ""
         text += f"; {holes.short} steps of half a period or less{late}"
     return text
+
+
+#: significant digits of a number setting as inspect prints it: an imported device's rate is the least-squares
+#: fit of its stamps (200.00000000000196 Hz from millisecond stamps); the file keeps it whole for the analysis
+SETTING_DIGITS = 10
+
+
+def setting_text(value) -> str:
+    """A device setting as printed: a float to :data:`SETTING_DIGITS` significant digits, anything else as is."""
+    if isinstance(value, float) or (hasattr(value, "dtype") and getattr(value.dtype, "kind", "") == "f"):
+        return format(float(value), f".{SETTING_DIGITS}g")
+    return str(value)

@@ -54,8 +54,15 @@ def service(config: str, output: str, duration: str, rotate: str, user: str | No
     from imustation.units import parse_duration
 
     cfg = load_config(config)
-    parse_duration(duration, "--duration")  # refused now, not by the service at 3 a.m.
-    parse_duration(rotate, "--rotate")
+    from imustation.cli.capture import check_rotate
+
+    # refused now, not by the service at 3 a.m.; the default part length (1h) may exceed a short run
+    seconds = parse_duration(duration, "--duration")
+    rotate_s = parse_duration(rotate, "--rotate")
+    if click.get_current_context().get_parameter_source("rotate") != click.core.ParameterSource.DEFAULT:
+        check_rotate(rotate, rotate_s, duration, seconds)
+    elif rotate_s > seconds:
+        rotate = duration  # a run shorter than the default part: one part (capture refuses a longer one)
     spec = ServiceSpec(
         config=os.path.abspath(config),
         output=os.path.abspath(output),

@@ -31,6 +31,14 @@ _UP = "\x1b[{n}A"
 _ERASE_BELOW = "\x1b[J"
 #: the size assumed when the stream cannot tell its own
 DEFAULT_SIZE = (80, 24)
+#: the rate column's window (s of station time). A status interval's window (1 s) holds a few FIFO
+#: bursts, and where one falls moves the count by a burst: 429.6/400 Hz was shown for a device
+#: delivering 400 Hz; over 10 s a burst moves the figure by well under 1 %, about the 0.1 Hz shown
+RATE_VIEW_S = 10.0
+#: with less station time than this to measure over, the rate column says it is still measuring ("…")
+RATE_VIEW_MIN_S = 5.0
+#: the key the view puts the rate it shows under, in its copy of each device's status
+SHOWN_RATE = "rate_shown_hz"
 
 
 def format_bytes(n: float) -> str:
@@ -84,7 +92,7 @@ def header(status: dict[str, Any]) -> list[str]:
 #: the device table's columns, most needed first: (title, right-aligned, cell of a device's status)
 COLUMNS: tuple[tuple[str, bool, Callable[[str, dict[str, Any]], str]], ...] = (
     ("device", False, lambda name, d: name),
-    ("rate/cfg Hz", True, lambda name, d: f"{_rate(d):.1f}/{d['rate_cfg_hz']:g}"),
+    ("rate/cfg Hz", True, lambda name, d: f"{_rate(d)}/{d['rate_cfg_hz']:g}"),
     ("gaps", True, lambda name, d: str(d["gaps"])),
     ("state", False, lambda name, d: d["state"] if d["state"] == "ok" else d["state"].upper()),
     ("lost", True, lambda name, d: str(d["lost"])),
@@ -95,11 +103,35 @@ COLUMNS: tuple[tuple[str, bool, Callable[[str, dict[str, Any]], str]], ...] = (
 SHOWN = ("device", "state", "rate/cfg Hz", "samples", "gaps", "lost", "temp")
 
 
-def _rate(d: dict[str, Any]) -> float:
-    """Rate achieved: over the last interval when measured (real time), else over the run."""
-    r = d.get("rate_recent_hz")
-    r = d.get("rate_hz") if r is None else r
-    return float(r) if r is not None else 0.0
+def _rate(d: dict[str, Any]) -> str:
+    """The rate shown (:func:`with_rates`): one decimal, "…" while there is too little time to tell."""
+    r = d.get(SHOWN_RATE)
+    return "…" if r is None else f"{r:.1f}"
+
+
+def with_rates(status: dict[str, Any], history: dict[str, list[tuple[float, int]]] | None = None) -> dict[str, Any]:
+    """``status`` with each device's rate to show (:data:`SHOWN_RATE`, Hz, None = still measuring): the samples
+    over the last :data:`RATE_VIEW_S` of station time when ``history`` (per device, ``(elapsed s, samples)``
+    of earlier statuses, oldest first; updated here) spans at least :data:`RATE_VIEW_MIN_S`; else the run's
+    own rate (``rate_hz``: samples over its station time) once the run is that long, or has ended; never the
+    status interval's ``rate_recent_hz`` alone (a window of a few FIFO bursts)."""
+    elapsed = float(status.get("elapsed_s") or 0.0)
+    ended = status.get("state") in ("done", "stopped")
+    devices = {}
+    for name, d in status.get("devices", {}).items():
+        shown = d.get("rate_hz") if ended or elapsed >= RATE_VIEW_MIN_S else None
+        if history is not None and not ended:
+            h = history.setdefault(name, [])
+            if h and (elapsed < h[-1][0] or d["samples"] < h[-1][1]):
+                h.clear()  # a new run (resume) or a restarted count: measure afresh
+            h.append((elapsed, int(d["samples"])))
+            while len(h) > 2 and elapsed - h[1][0] >= RATE_VIEW_S:
+                h.pop(0)
+            span = elapsed - h[0][0]
+            if span >= RATE_VIEW_MIN_S:
+                shown = (h[-1][1] - h[0][1]) / span
+        devices[name] = {**d, SHOWN_RATE: shown}
+    return {**status, "devices": devices}
 
 
 def _table(devices: Sequence[tuple[str, dict[str, Any]]], width: int) -> list[str]:
@@ -160,6 +192,7 @@ def status_block(status: dict[str, Any], width: int, height: int) -> list[str]:
     no room for a table, one line sums the devices up.
     """
     width, free = max(1, width - 1), max(1, height - 1)
+    status = status if _has_rates(status) else with_rates(status)
     devices = list(status.get("devices", {}).items())
     therm = _thermometers(status)
     head = _wrap(header(status), width)
@@ -184,13 +217,18 @@ def status_block(status: dict[str, Any], width: int, height: int) -> list[str]:
     return [_fit(line, width) for line in head + body + tail][:free]
 
 
+def _has_rates(status: dict[str, Any]) -> bool:
+    return all(SHOWN_RATE in d for d in status.get("devices", {}).values())
+
+
 def status_line(status: dict[str, Any]) -> str:
     """The whole status as one plain line (a log, a pipe)."""
+    status = status if _has_rates(status) else with_rates(status)
     parts = [", ".join(header(status))]
     for name, d in status.get("devices", {}).items():
         state = "" if d["state"] == "ok" else f" {d['state'].upper()}"
         parts.append(
-            f"{name}{state} {_rate(d):.1f}/{d['rate_cfg_hz']:g} Hz {d['samples']} samples "
+            f"{name}{state} {_rate(d)}/{d['rate_cfg_hz']:g} Hz {d['samples']} samples "
             f"gaps {d['gaps']} lost {d['lost']} {_celsius(d.get('temp_c'))}"
         )
     therm = _thermometers(status)
@@ -218,6 +256,7 @@ class StatusView:
         self._drawn = 0  # lines of the block on the screen (the cursor is at the end of its last one)
         self._size: tuple[int, int] | None = None
         self._last: dict[str, Any] | None = None
+        self._history: dict[str, list[tuple[float, int]]] = {}  # per device: (elapsed s, samples), for the rate
 
     def size(self) -> tuple[int, int]:
         """The terminal's (columns, lines), from the stream itself."""
@@ -228,6 +267,7 @@ class StatusView:
         return (cols or DEFAULT_SIZE[0], lines or DEFAULT_SIZE[1])
 
     def show(self, status: dict[str, Any]) -> None:
+        status = with_rates(status, self._history)
         self._last = status
         if not self.tty:
             self.stream.write(self._text(status_line(status)) + "\n")
