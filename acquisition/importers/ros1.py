@@ -22,13 +22,14 @@ from imustation.acquisition.importers.messages import (
     decode_imu_ros1,
     decode_temperature_ros1,
 )
+from imustation.acquisition.importers.ros1chunks import ChunkTable
 from imustation.acquisition.importers.rosbag1 import BagFormatError, Connection, Ros1Bag
 from imustation.errors import InputError
 
 #: the last indexes read: (path, size, mtime ns) -> (connections, counts, the index was cut short). An
 #: import reads a bag's index for its topics, its Imu definitions and its cut note: O(chunks) each time,
 #: seconds for a bag of one message per chunk
-_INDEXES: dict[tuple[str, int, int], tuple[dict[int, Connection], dict[int, int], bool]] = {}
+_INDEXES: dict[tuple[str, int, int], tuple[dict[int, Connection], dict[int, int], bool, ChunkTable | None]] = {}
 
 
 def _key(path: str) -> tuple[str, int, int]:
@@ -45,8 +46,8 @@ def ros1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
                 conns, counts = bag.index()
                 if len(_INDEXES) >= 4:
                     _INDEXES.pop(next(iter(_INDEXES)))
-                _INDEXES[key] = (conns, counts, bag.cut)
-        conns, counts, _cut = _INDEXES[key]
+                _INDEXES[key] = (conns, counts, bag.cut, bag.table)
+        conns, counts, _cut, _table = _INDEXES[key]
         return dict(conns), dict(counts)
     except (BagFormatError, OSError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
@@ -105,6 +106,9 @@ def iter_ros1(
     """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
     try:
         with Ros1Bag(path) as bag:
+            known = _INDEXES.get(_key(path))
+            if known is not None:
+                bag.table = known[3]  # the chunks' positions, from the index read for the topics
             yield from _decode(path, bag, topics, block, limit, temp_topics, notes, _bag_note)
     except (BagFormatError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag ({exc})") from None

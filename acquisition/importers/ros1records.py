@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.acquisition.importers.messages import gather_u32 as _gather_u32
+from imustation.acquisition.importers.messages import gather_u32
 
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 MAGIC = b"#ROSBAG V2.0\n"
@@ -148,16 +148,19 @@ def decompress(kind: str, data: bytes, size: int) -> bytes:
     return out
 
 
-def split_chunk(raw: bytes, conns: dict[int, Connection], partial: bool = False) -> ChunkMessages:
+def split_chunk(
+    raw: bytes, conns: dict[int, Connection], partial: bool = False, starts: np.ndarray | None = None
+) -> ChunkMessages:
     """The records of a decompressed chunk: message data (vectorised header parse) and connection records.
 
-    ``partial``: ``raw`` is the start of a chunk cut short; its complete records only.
+    ``partial``: ``raw`` is the start of a chunk cut short; its complete records only. ``starts``: ``raw``
+    is several chunks joined, each starting at these offsets (:func:`chunk_record_starts`).
     """
     b = np.frombuffer(raw, np.uint8)
-    rec = record_starts(raw, b, partial)
-    hl_a = _gather_u32(b, rec)
+    rec = record_starts(raw, b, partial) if starts is None else chunk_record_starts(raw, b, starts)
+    hl_a = gather_u32(b, rec)
     hs_a = rec + 4
-    dl_a = _gather_u32(b, hs_a + hl_a)
+    dl_a = gather_u32(b, hs_a + hl_a)
     ds_a = hs_a + hl_a + 4
     cid = np.full(len(hs_a), -1, np.int64)
     tim = np.zeros(len(hs_a), np.int64)
@@ -246,7 +249,7 @@ def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarra
                 plain = max(plain - 1, 0)
                 continue
             cand = pos + stride * np.arange(m, dtype=np.int64)
-            good = (_gather_u32(b, cand) == hn) & (_gather_u32(b, cand + 4 + hn) == dn)
+            good = (gather_u32(b, cand) == hn) & (gather_u32(b, cand + 4 + hn) == dn)
             k = m if good.all() else int(np.argmin(good))
             out.append(cand[:k])
             pos += k * stride
@@ -255,6 +258,41 @@ def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarra
     except struct.error:
         raise BagFormatError("truncated record in chunk") from None
     return np.concatenate(out) if out else np.empty(0, np.int64)
+
+
+#: records followed from every chunk's start at once (then each chunk that holds more is walked alone)
+FRONTIER_STEPS = 4
+
+
+def chunk_record_starts(raw: bytes, b: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Offsets of the records of several chunks joined in ``raw``, chunk k starting at ``starts[k]``.
+
+    A chunk per message (or per message of each topic, interleaved) holds one or two records: the
+    next record of every chunk is found at once from the one before, a few steps; a chunk that holds
+    more is walked by :func:`record_starts`."""
+    size = len(raw)
+    front = np.asarray(starts, np.int64)
+    ends = np.append(front[1:], size)
+    keep = front < ends  # an empty chunk holds no record
+    front, ends = front[keep], ends[keep]
+    out = []
+    for _ in range(FRONTIER_STEPS):
+        if not len(front):
+            break
+        if (front + 8 > ends).any():
+            raise BagFormatError("truncated record in chunk")
+        hn = gather_u32(b, front)
+        if (front + 8 + hn > ends).any():
+            raise BagFormatError("truncated record in chunk")
+        nxt = front + 8 + hn + gather_u32(b, front + 4 + hn)
+        if (nxt > ends).any():
+            raise BagFormatError("truncated record in chunk")
+        out.append(front)
+        more = nxt < ends
+        front, ends = nxt[more], ends[more]
+    for a, e in zip(front.tolist(), ends.tolist(), strict=True):
+        out.append(a + record_starts(raw[a:e], b[a:e]))
+    return np.sort(np.concatenate(out)) if out else np.empty(0, np.int64)
 
 
 @dataclass(frozen=True)

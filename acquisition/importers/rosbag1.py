@@ -20,6 +20,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from imustation.acquisition.importers.ros1chunks import ChunkTable, chunk_positions, read_chunks
 from imustation.acquisition.importers.ros1records import (
     MAGIC,
     OP_BAGHEADER,
@@ -37,6 +38,7 @@ from imustation.acquisition.importers.ros1records import (
     decompress,
     decompress_prefix,
     int_field,
+    layout,
     op_code,
     op_of,
     parse_fields,
@@ -86,6 +88,8 @@ class Ros1Bag:
             #: chunks and messages read by the last :meth:`chunks`, and the messages of those
             #: that came from a chunk cut short
             self.chunks_read = self.messages_read = self.salvaged = 0
+            #: every chunk's position from the index (:meth:`index`; None: not read, or not usable)
+            self.table: ChunkTable | None = None
         except BaseException:
             self.fh.close()
             raise
@@ -159,11 +163,18 @@ class Ros1Bag:
         self.fh.seek(self.index_pos)
         conns: dict[int, Connection] = {}
         infos: list[bytes] = []
+        table: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # chunk positions, connections, messages
         for item in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
             if isinstance(item, Run):  # chunk infos of one connection and length
                 if item.shape.data_len % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
                 infos.append(item.data.tobytes())
+                vo = layout(item.shape.key, 0, len(item.shape.key)).get("chunk_pos", (0, 0))
+                # the headers (the walk hands out the data only) hold each chunk's position
+                pos = chunk_positions(self.fh, item.at, vo[0]) if vo[1] == 8 else None
+                k, m = len(item.at), item.shape.data_len // 8
+                per = item.data.reshape(k, -1).copy().view("<u4").reshape(k, m, 2)[:, :, 1].sum(axis=1)
+                table.append((pos, np.full(k, m, np.int64), per.astype(np.int64)))
                 continue
             _at, op, hdr, data = item
             if op == OP_CONNECTION:
@@ -174,6 +185,14 @@ class Ros1Bag:
                 if len(data) % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
                 infos.append(data)
+                one = np.ones(1, np.int64)
+                cp = hdr.get("chunk_pos")
+                pos = one * int.from_bytes(cp, "little") if cp is not None and len(cp) == 8 else None
+                per = np.frombuffer(data, "<u4").reshape(-1, 2)[:, 1].sum()
+                table.append((pos, one * (len(data) // 8), one * int(per)))
+        self.table = None
+        if table and all(p is not None for p, _, _ in table):
+            self.table = ChunkTable(*(np.concatenate(x) for x in zip(*table, strict=True)))
         pairs = np.frombuffer(b"".join(infos), "<u4").reshape(-1, 2).astype(np.int64)
         ids, where = np.unique(pairs[:, 0], return_inverse=True)
         sums = np.bincount(where, pairs[:, 1], len(ids)) if len(ids) else np.zeros(0)
@@ -188,10 +207,14 @@ class Ros1Bag:
         it is None), and the complete messages of a chunk cut there are handed out too.
         """
         conns = {} if conns is None else conns
-        self.fh.seek(self.first_record)
         self.unread_from = None
         self.chunks_read = self.messages_read = self.salvaged = 0
         scan = self.index_pos == 0 or self.cut
+        if not scan:
+            yield from self._indexed_chunks(conns)
+            if self.chunks_read:
+                return
+        self.fh.seek(self.first_record)
         end = self.index_pos if 0 < self.index_pos <= self.size else self.size
         # small chunks (a recorder that flushes every message) are split and decoded together: per chunk
         # the cost is then a record read, not a numpy pass (one message per chunk: 0.6k -> tens of k msg/s)
@@ -257,6 +280,25 @@ class Ros1Bag:
             if not scan:
                 raise exc
             yield from self._stop(at, conns)
+
+    def _indexed_chunks(self, conns: dict[int, Connection]) -> Iterator[ChunkMessages]:
+        """The chunks of a closed bag from its index's chunk table (:mod:`.ros1chunks`); nothing (and
+        :attr:`chunks_read` 0) when the bag has no usable table: it is walked then."""
+        if self.table is None:
+            try:
+                self._read_index()
+            except BagFormatError:
+                return  # an index cut short or damaged: the walk finds out
+        if self.table is None:
+            return
+        counts = [0, 0]
+        batches = read_chunks(self.fh, self.table, self.first_record, self.index_pos, conns, counts)
+        if batches is None:
+            return
+        for msgs in batches:
+            self.chunks_read, self.messages_read = counts
+            yield msgs
+        self.chunks_read, self.messages_read = counts
 
     def _walk(
         self, end: int, keep: tuple[int, ...] = (OP_CHUNK, OP_CONNECTION, OP_MSGDATA)
@@ -327,6 +369,8 @@ class Ros1Bag:
                     if len(self._parsed) >= 1024:
                         self._parsed.clear()
                     self._parsed[key] = hdr
+                elif op in keep:  # a chunk info walked alone: its chunk's position (values differ: not kept)
+                    hdr = parse_fields(key, 0, hn)
                 else:
                     hdr = {}
             (dn,) = u32(buf, off + 4 + hn)
@@ -339,7 +383,8 @@ class Ros1Bag:
                 data = buf[off + 8 + hn : off + total]
             elif pos + total > self.size:
                 raise BagCutError("truncated record")
-            before, last = last, (op, key, hdr, dn)
+            # a chunk info's values differ from record to record: its run is found by its layout
+            before, last = last, (op, key, hdr if op != OP_CHUNK_INFO else {}, dn)
             yield pos, op, hdr, data
             pos += total
         self.fh.seek(pos)
