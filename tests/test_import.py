@@ -758,29 +758,51 @@ def test_small_chunk_bags_are_read_from_their_index(tmp_path, monkeypatch, compr
     assert res.thermometers["imu_temperature"][1] == 100 and not any("truncated" in n for n in res.notes)
 
 
-def test_a_chunk_table_that_does_not_tile_the_bag_is_not_used(tmp_path):
-    """A chunk info pointing one byte off, or an index-data record of another length: the bag is walked
-    instead (every message still read), never read from a table that does not match its data."""
+def test_a_chunk_table_that_does_not_tile_the_bag_is_not_used(tmp_path, monkeypatch):
+    """A chunk info pointing one byte off, or counting another number of messages: reading from the table
+    stops at the block it is in, and the bag is walked from there (every message still read), never read
+    from a table that does not match its data."""
     from bagmaker import write_big_imu_bag
 
-    from imustation.acquisition.importers.ros1chunks import layout
+    from imustation.acquisition.importers import ros1chunks
     from imustation.acquisition.importers.rosbag1 import Ros1Bag
 
+    monkeypatch.setattr(ros1chunks, "BLOCK_BYTES", 20_000)
     src = write_big_imu_bag(tmp_path / "one.bag", 300, chunk_bytes=1)
-    ref = _read_all(src, "old", ["/imu/data"])["/imu/data"][0]
     with Ros1Bag(str(src)) as bag:
         bag.index()
-        b = np.fromfile(src, np.uint8)
-        assert layout(b, bag.table, bag.first_record, bag.index_pos) is not None
+        counts = [0, 0, 0]
+        list(ros1chunks.read_chunks(bag.fh, bag.table, bag.first_record, bag.index_pos, {}, counts))
+        assert counts[2] is None and counts[1] == 300
         for edit in ("pos", "messages"):
-            table = bag.table
+            pos, msgs = bag.table.pos.copy(), bag.table.messages.copy()
             if edit == "pos":
-                pos = table.pos.copy()
                 pos[100] += 1
-                table = type(table)(pos, table.conns, table.messages)
             else:
-                msgs = table.messages.copy()
-                msgs[5] = 2
-                table = type(table)(table.pos, table.conns, msgs)
-            assert layout(b, table, bag.first_record, bag.index_pos) is None
-    np.testing.assert_array_equal(_read_all(src, "new", ["/imu/data"])["/imu/data"][0], ref)
+                msgs[100] = 2
+            counts = [0, 0, 0]
+            table = ros1chunks.ChunkTable(pos, bag.table.conns, msgs)
+            list(ros1chunks.read_chunks(bag.fh, table, bag.first_record, bag.index_pos, {}, counts))
+            assert 0 < counts[1] <= 100 and counts[2] == pos[counts[0]]  # walked on from the block's start
+            bag.table = table
+            t = np.concatenate([c.time for c in bag.chunks({})])
+            np.testing.assert_array_equal(np.diff(t), 2_500_000)
+            assert len(t) == 300
+            bag.index()  # the table as the index says
+
+
+def test_damaged_small_chunk_bags_read_or_fail_in_one_line(tmp_path):
+    """The fuzz corpus's small-chunk bags (tests/fuzz_corpus.py): every one imports, or fails with one
+    line, exit 2 (a damaged lz4 chunk, a chunk whose header says another size)."""
+    from fuzz_corpus import small_chunk_bags
+
+    cases = small_chunk_bags(tmp_path)
+    assert len(cases) == 16
+    for name, path, expect in cases:
+        res = run("import", str(path), "-o", str(tmp_path / f"{name}.h5"))
+        if expect["import"] == "invalid":
+            assert_one_line_error(res, name)
+        else:
+            assert res.exit_code == 0, (name, res.output)
+            if "cut" in name:
+                assert "truncated bag" in res.output, (name, res.output)

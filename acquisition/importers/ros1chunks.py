@@ -2,19 +2,19 @@
 
 A closed bag's index holds a chunk-info record per chunk: where the chunk starts, and how many
 messages of each connection it holds (http://wiki.ros.org/Bags/Format/2.0). From those positions
-every chunk's header and data lengths are gathered at once over the mapped file, instead of walking
-the data section record by record (a bag written a chunk per message is two records per message;
-lz4 and bz2 chunks, and chunks of interleaved topics, differ in length and make no run of constant
-stride for the walk to find). The table is used only when it tiles the data section exactly: the
-first chunk right after the bag header, each chunk followed by its index-data records (one per
-connection, 12 bytes per message) and then by the next chunk or the index. Anything else (a
-message or connection record outside a chunk, an index that does not match the data) and the bag
-is walked as before (:class:`.rosbag1.Ros1Bag`).
+the headers and data lengths of every chunk in a block of the file (4 MB read at once) are gathered
+together, instead of walking the data section record by record (a bag written a chunk per message
+is two records per message; lz4 and bz2 chunks, and chunks of interleaved topics, differ in length
+and make no run of constant stride for the walk to find). A block is used only where the table
+tiles it exactly: the first chunk right after the bag header, each chunk followed by its index-data
+records (one per connection, 12 bytes per message) and then by the next chunk or the index. Where
+it does not (a message or connection record outside a chunk, an index that does not match the
+data), reading stops at the first chunk of that block, and :class:`.rosbag1.Ros1Bag` walks the bag
+from there, record by record as before.
 """
 
 from __future__ import annotations
 
-import mmap
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -24,6 +24,7 @@ from imustation.acquisition.importers.messages import gather_u32
 from imustation.acquisition.importers.ros1records import (
     OP_CHUNK,
     OP_IDXDATA,
+    BagCutError,
     BagFormatError,
     ChunkMessages,
     Connection,
@@ -38,11 +39,15 @@ from imustation.acquisition.importers.ros1records import (
 
 #: decompressed chunk bytes split and handed out together
 BATCH_BYTES = 1 << 20
+#: file bytes read at once (chunks and their index data); a larger chunk is read alone
+BLOCK_BYTES = 1 << 22
+#: chunks whose layout is gathered at once, at the most (bounds the temporaries: ~50 bytes a chunk)
+WINDOW = 1 << 16
 
 
 @dataclass(frozen=True)
 class ChunkTable:
-    """Every chunk of a bag from its index: start offset, connections and messages (int64 arrays)."""
+    """Every chunk of a bag from its index: start offset (int64), connections (int32) and messages (int32)."""
 
     pos: np.ndarray
     conns: np.ndarray
@@ -54,121 +59,160 @@ def _u64(b: np.ndarray, at: np.ndarray) -> np.ndarray:
 
 
 def chunk_positions(fh, at: np.ndarray, value_offset: int) -> np.ndarray:
-    """The ``chunk_pos`` of the chunk-info records at offsets ``at`` of the open file ``fh`` whose value
-    sits ``value_offset`` bytes into their header (the same field layout in each)."""
-    with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        b = np.frombuffer(mm, np.uint8)
-        out = _u64(b, np.asarray(at, np.int64) + 4 + value_offset)
-        del b
-    return out
+    """The ``chunk_pos`` of the chunk-info records at offsets ``at`` (sorted) of the open file ``fh`` whose
+    value sits ``value_offset`` bytes into their header (the same field layout in each)."""
+    at = np.asarray(at, np.int64) + 4 + value_offset
+    if not len(at):
+        return np.empty(0, np.int64)
+    lo = int(at[0])
+    buf = np.empty(int(at[-1]) + 8 - lo, np.uint8)
+    fh.seek(lo)
+    if fh.readinto(buf) != len(buf):
+        raise BagCutError("truncated chunk info record")
+    return _u64(buf, at - lo)
 
 
 @dataclass(frozen=True)
 class Layout:
-    """Where each chunk's data is (start, length) and how it is stored (compression, decompressed size)."""
+    """Where the data of the chunks of a block is (start, length; from the block's start), how it is
+    stored (``kind[which[k]]``) and its decompressed size."""
 
     start: np.ndarray
     length: np.ndarray
-    kind: list[str]  # per distinct header
-    which: np.ndarray  # header index of each chunk
+    kind: list[str]
+    which: np.ndarray
     size: np.ndarray
 
 
-def layout(b: np.ndarray, table: ChunkTable, first_record: int, index_pos: int) -> Layout | None:
-    """The chunks' data from the mapped bag ``b``; None when the table does not tile the data section."""
-    pos = table.pos
-    n = len(pos)
-    if n == 0 or pos[0] != first_record or (np.diff(pos) <= 0).any() or pos[-1] + 8 >= index_pos:
+def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, messages: np.ndarray) -> Layout | None:
+    """The chunks starting at ``pos`` in the block ``b`` (offsets in it), each followed by its index-data
+    records up to ``nxt`` (the next chunk or the index); None when they do not tile the block so."""
+    if (nxt <= pos).any() or nxt[-1] > len(b):
         return None
     hn = gather_u32(b, pos)
-    if (hn > 1 << 20).any() or (pos + 8 + hn > index_pos).any():
+    if (hn > 1 << 20).any() or (pos + 8 + hn > nxt).any():
         return None
     dn = gather_u32(b, pos + 4 + hn)
     start = pos + 8 + hn
     end = start + dn
-    nxt = np.append(pos[1:], index_pos)
-    if (end > nxt).any():
+    if (end + 4 > nxt).any():
         return None
-    # the index-data records after each chunk: one per connection, 12 bytes per message; their header
-    # length is read from the first (the same fields in each)
-    h = int(gather_u32(b, end[:1])[0])
-    if h > 1 << 10 or end[0] + 4 + h > index_pos:
+    # the index-data records after each chunk: one per connection, 12 bytes per message, all with the
+    # header of the first (the same fields)
+    h = _idx_header(b, int(end[0]), int(nxt[0]))
+    if h is None or ((nxt - end) != conns.astype(np.int64) * (8 + h) + 12 * messages.astype(np.int64)).any():
         return None
-    try:
-        if op_code(parse_fields(b[end[0] + 4 : end[0] + 4 + h].tobytes(), 0, h)) != OP_IDXDATA:
-            return None
-    except BagFormatError:
-        return None
-    if ((nxt - end) != table.conns * (8 + h) + 12 * table.messages).any():
-        return None
-    which = np.zeros(n, np.int64)
+    which = np.zeros(len(pos), np.int8)
     kinds: list[str] = []
-    size = np.zeros(n, np.int64)
+    size = np.zeros(len(pos), np.int64)
     for k in np.unique(hn).tolist():
         g = np.flatnonzero(hn == k)
+        # chunk headers differ in their size value only (same compression, same fields): all compared with
+        # the first's at once, and a header unlike it looked at on its own
         rows = b[pos[g, None] + 4 + np.arange(k)]
-        # chunk headers differ in their size value only (same compression, same fields): the others are
-        # compared with the first's at once, and a header unlike it is parsed on its own
-        left = g
+        left = np.arange(len(g))
         while len(left):
-            r0 = rows[np.searchsorted(g, left[0])]
+            key = rows[left[0]].tobytes()
             try:
-                f = parse_fields(r0.tobytes(), 0, k)
-                if op_code(f) != OP_CHUNK:
+                f = parse_fields(key, 0, k)
+                if op_code(f) != OP_CHUNK or len(kinds) >= 64:
                     return None
                 kind = f.get("compression", b"none").decode()
-                vo, vl = header_layout(r0.tobytes(), 0, k)["size"]
+                vo, vl = header_layout(key, 0, k)["size"]
             except (BagFormatError, UnicodeDecodeError, KeyError):
                 return None
-            sub = rows[np.searchsorted(g, left)]
+            sub = rows[left]
             fixed = np.ones(k, bool)
             fixed[vo : vo + vl] = False
-            same = (sub[:, fixed] == r0[fixed]).all(axis=1)
+            same = (sub[:, fixed] == rows[left[0], fixed]).all(axis=1)
             mine = left[same]
-            val = sub[same][:, vo : vo + vl]
-            size[mine] = (val.astype(np.int64) << (8 * np.arange(vl))).sum(axis=1)
-            which[mine] = len(kinds)
+            size[g[mine]] = (sub[same][:, vo : vo + vl].astype(np.int64) << (8 * np.arange(vl))).sum(axis=1)
+            which[g[mine]] = len(kinds)
             kinds.append(kind)
             left = left[~same]
     return Layout(start, dn, kinds, which, size)
 
 
-def read_chunks(fh, table: ChunkTable, first_record: int, index_pos: int, conns: dict[int, Connection],
-                counts: list[int]) -> Iterator[ChunkMessages] | None:  # fmt: skip
-    """The messages of every chunk in file order, a batch of chunks at a time (``counts``: chunks and messages
-    read so far, updated); None when the table does not tile the bag (walk it instead)."""
-    mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    b = np.frombuffer(mm, np.uint8)
-    lay = layout(b, table, first_record, index_pos)
-    if lay is None:
-        del b
-        mm.close()
+def _idx_header(b: np.ndarray, at: int, stop: int) -> int | None:
+    """The header length of the index-data record at ``at`` (None if it is not one)."""
+    if at + 4 > stop:
         return None
-    return _batches(mm, b, lay, conns, counts)
-
-
-def _batches(mm, b, lay: Layout, conns, counts) -> Iterator[ChunkMessages]:
+    h = int(gather_u32(b, [at])[0])
+    if h > 1 << 10 or at + 4 + h > stop:
+        return None
     try:
-        n = len(lay.start)
-        cum = np.cumsum(lay.size)
-        i = 0
-        while i < n:
-            j = int(np.searchsorted(cum, (cum[i - 1] if i else 0) + BATCH_BYTES, side="left")) + 1
-            j = min(max(j, i + 1), n)
-            start, length = lay.start[i:j], lay.length[i:j]
-            raw = b"".join(_decompress_all(mm, lay, i, j, start, length))
-            bounds = np.concatenate([[0], np.cumsum(lay.size[i:j])[:-1]])
-            msgs = split_chunk(raw, conns, starts=bounds)
-            counts[0] += j - i
-            counts[1] += len(msgs.conn)
-            yield msgs
-            i = j
-    finally:
-        del b
-        mm.close()
+        return h if op_code(parse_fields(b[at + 4 : at + 4 + h].tobytes(), 0, h)) == OP_IDXDATA else None
+    except BagFormatError:
+        return None
 
 
-def _decompress_all(mm, lay: Layout, i: int, j: int, start: np.ndarray, length: np.ndarray) -> list[bytes]:
+def read_chunks(fh, table: ChunkTable, first_record: int, index_pos: int, conns: dict[int, Connection],
+                counts: list[int]) -> Iterator[ChunkMessages]:  # fmt: skip
+    """The messages of the chunks of ``table`` in file order, a batch of chunks at a time (``counts``: chunks
+    and messages read so far, updated). Stops at the first block the table does not tile: ``counts[2]`` is
+    then the file offset to walk on from (None when every chunk was read)."""
+    pos = table.pos
+    n = len(pos)
+    counts[2] = first_record
+    if n == 0 or pos[0] != first_record:
+        return
+    nxt = np.append(pos[1:], index_pos)
+    i = 0
+    while i < n:
+        base = int(pos[i])
+        j = max(int(np.searchsorted(nxt, base + BLOCK_BYTES, side="right")), i + 1)
+        j = min(j, n, i + WINDOW)
+        buf = np.empty(int(nxt[j - 1]) - base, np.uint8)
+        fh.seek(base)
+        if fh.readinto(buf) != len(buf):
+            return  # shorter than its index says: walked (and found cut)
+        lay = layout(buf, pos[i:j] - base, nxt[i:j] - base, table.conns[i:j], table.messages[i:j])
+        if lay is None:
+            return
+        yield from _batches(buf, lay, conns, counts)
+        i = j
+        counts[2] = int(nxt[i - 1])
+    counts[2] = None
+
+
+def _batches(b: np.ndarray, lay: Layout, conns, counts) -> Iterator[ChunkMessages]:
+    n = len(lay.start)
+    cum = np.cumsum(lay.size)
+    view = memoryview(b)
+    i = 0
+    while i < n:
+        j = int(np.searchsorted(cum, (cum[i - 1] if i else 0) + BATCH_BYTES, side="left")) + 1
+        j = min(max(j, i + 1), n)
+        start, length = lay.start[i:j], lay.length[i:j]
+        kinds = np.unique(lay.which[i:j])
+        if len(kinds) == 1 and lay.kind[int(kinds[0])] == "none":
+            if (length != lay.size[i:j]).any():
+                k = int(np.argmax(length != lay.size[i:j]))
+                raise BagFormatError(f"chunk holds {length[k]} bytes, its header says {lay.size[i + k]}")
+            raw = _gather(b, start, length)
+        else:
+            raw = b"".join(_decompress_all(view, lay, i, j, start, length))
+        bounds = np.concatenate([[0], np.cumsum(lay.size[i:j])[:-1]])
+        msgs = split_chunk(raw, conns, starts=bounds)
+        counts[0] += j - i
+        counts[1] += len(msgs.conn)
+        yield msgs
+        i = j
+
+
+def _gather(b: np.ndarray, start: np.ndarray, length: np.ndarray) -> bytes:
+    """The bytes ``b[start[k]:start[k] + length[k]]`` of every k (in order, apart), joined: a byte mask over
+    their span, made of runs (one byte a byte, not an index of eight)."""
+    lo, hi = int(start[0]), int(start[-1] + length[-1])
+    runs = np.empty(2 * len(start), np.int64)  # kept, skipped, kept, ...: the span as runs of one mask value
+    runs[0::2] = length
+    runs[1:-1:2] = start[1:] - (start[:-1] + length[:-1])
+    runs[-1] = 0
+    inside = np.repeat(np.tile(np.array([True, False]), len(start)), runs)
+    return b[lo:hi][inside].tobytes()
+
+
+def _decompress_all(mm: memoryview, lay: Layout, i: int, j: int, start: np.ndarray, length: np.ndarray) -> list[bytes]:
     """Chunks ``i:j`` decompressed, one codec call each (no per-chunk checks in Python: their sizes are
     compared at once after)."""
     which = lay.which[i:j]

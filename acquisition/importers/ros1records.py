@@ -220,15 +220,21 @@ def stamp(hdr: dict[str, bytes]) -> int:
     return sec * 1_000_000_000 + nsec
 
 
+#: a chunk's records are looked at in cycles of up to this many (topics interleaved: one record of each)
+MAX_CYCLE = 4
+
+
 def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarray:
     """Offsets of the records of a chunk (``partial``: of its complete records, the chunk cut short).
 
-    Records are walked one by one, but runs of records of one size (a topic's
-    messages of constant length, the common case) are found with numpy.
+    Records are walked one by one, but runs of records that repeat the last one to MAX_CYCLE walked (a
+    topic's messages of constant length, or the messages of topics interleaved, one of each in turn: the
+    common cases) are found with numpy, a window of cycles at a constant stride at once.
     """
     out: list = []
     pos, size = 0, len(raw)
     plain = 0  # records to walk one by one before trying a run again
+    hist: list[tuple[int, int, int]] = []  # (offset, header length, data length) of the last records walked
     try:
         while pos < size:
             if partial and pos + 8 > size:
@@ -242,22 +248,45 @@ def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarra
                 if partial:
                     break
                 raise BagFormatError("truncated record in chunk")
-            m = min((size - pos) // stride, 4096)
-            if plain or m < 4:
-                out.append(np.array([pos], np.int64))
-                pos += stride
-                plain = max(plain - 1, 0)
-                continue
-            cand = pos + stride * np.arange(m, dtype=np.int64)
-            good = (gather_u32(b, cand) == hn) & (gather_u32(b, cand + 4 + hn) == dn)
-            k = m if good.all() else int(np.argmin(good))
-            out.append(cand[:k])
-            pos += k * stride
-            if k < 4:
+            if not plain:
+                end = _cycles(b, [*hist[len(hist) - MAX_CYCLE + 1 :], (pos, hn, dn)], size, out)
+                if end:
+                    pos, hist = end, []
+                    continue
                 plain = 16
+            out.append(np.array([pos], np.int64))
+            hist = [*hist[1 - MAX_CYCLE :], (pos, hn, dn)]
+            pos += stride
+            plain = max(plain - 1, 0)
     except struct.error:
         raise BagFormatError("truncated record in chunk") from None
     return np.concatenate(out) if out else np.empty(0, np.int64)
+
+
+def _cycles(b: np.ndarray, recent: list[tuple[int, int, int]], size: int, out: list) -> int:
+    """Cycles of the last c of the ``recent`` records (c = 1 .. MAX_CYCLE, the last one not handed out yet)
+    repeated at a constant stride from the first of them; when at least MIN_RUN, their offsets are added
+    to ``out`` and the offset after them returned, else 0."""
+    for c in range(1, len(recent) + 1):
+        cyc = recent[len(recent) - c :]
+        s0 = cyc[0][0]
+        stride = sum(8 + h + d for _, h, d in cyc)
+        m = min((size - s0) // stride, 4096)
+        if m < MIN_RUN:
+            continue
+        base = s0 + stride * np.arange(m, dtype=np.int64)
+        good = np.ones(m, bool)
+        for off, h, d in cyc:
+            at = base + (off - s0)
+            good &= (gather_u32(b, at) == h) & (gather_u32(b, at + 4 + h) == d)
+        k = m if good.all() else int(np.argmin(good))
+        if k < MIN_RUN:
+            continue
+        offs = np.array([off - s0 for off, _, _ in cyc], np.int64)
+        out.append(np.array([cyc[-1][0]], np.int64))  # the last record walked, not handed out yet
+        out.append((base[1:k, None] + offs).reshape(-1))
+        return s0 + k * stride
+    return 0
 
 
 #: records followed from every chunk's start at once (then each chunk that holds more is walked alone)

@@ -174,7 +174,7 @@ class Ros1Bag:
                 pos = chunk_positions(self.fh, item.at, vo[0]) if vo[1] == 8 else None
                 k, m = len(item.at), item.shape.data_len // 8
                 per = item.data.reshape(k, -1).copy().view("<u4").reshape(k, m, 2)[:, :, 1].sum(axis=1)
-                table.append((pos, np.full(k, m, np.int64), per.astype(np.int64)))
+                table.append((pos, np.full(k, m, np.int32), per.astype(np.int32)))
                 continue
             _at, op, hdr, data = item
             if op == OP_CONNECTION:
@@ -185,11 +185,10 @@ class Ros1Bag:
                 if len(data) % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
                 infos.append(data)
-                one = np.ones(1, np.int64)
                 cp = hdr.get("chunk_pos")
-                pos = one * int.from_bytes(cp, "little") if cp is not None and len(cp) == 8 else None
+                pos = np.array([int.from_bytes(cp, "little")], np.int64) if cp is not None and len(cp) == 8 else None
                 per = np.frombuffer(data, "<u4").reshape(-1, 2)[:, 1].sum()
-                table.append((pos, one * (len(data) // 8), one * int(per)))
+                table.append((pos, np.array([len(data) // 8], np.int32), np.array([per], np.int32)))
         self.table = None
         if table and all(p is not None for p, _, _ in table):
             self.table = ChunkTable(*(np.concatenate(x) for x in zip(*table, strict=True)))
@@ -210,11 +209,12 @@ class Ros1Bag:
         self.unread_from = None
         self.chunks_read = self.messages_read = self.salvaged = 0
         scan = self.index_pos == 0 or self.cut
+        at: int | None = self.first_record
         if not scan:
-            yield from self._indexed_chunks(conns)
-            if self.chunks_read:
+            at = yield from self._indexed_chunks(conns)
+            if at is None:
                 return
-        self.fh.seek(self.first_record)
+        self.fh.seek(at)
         end = self.index_pos if 0 < self.index_pos <= self.size else self.size
         # small chunks (a recorder that flushes every message) are split and decoded together: per chunk
         # the cost is then a record read, not a numpy pass (one message per chunk: 0.6k -> tens of k msg/s)
@@ -282,23 +282,21 @@ class Ros1Bag:
             yield from self._stop(at, conns)
 
     def _indexed_chunks(self, conns: dict[int, Connection]) -> Iterator[ChunkMessages]:
-        """The chunks of a closed bag from its index's chunk table (:mod:`.ros1chunks`); nothing (and
-        :attr:`chunks_read` 0) when the bag has no usable table: it is walked then."""
+        """The chunks of a closed bag from its index's chunk table (:mod:`.ros1chunks`), as far as the table
+        tiles the bag; returns the offset to walk on from (None: every chunk read)."""
         if self.table is None:
             try:
                 self._read_index()
             except BagFormatError:
-                return  # an index cut short or damaged: the walk finds out
+                return self.first_record  # an index cut short or damaged: the walk finds out
         if self.table is None:
-            return
-        counts = [0, 0]
-        batches = read_chunks(self.fh, self.table, self.first_record, self.index_pos, conns, counts)
-        if batches is None:
-            return
-        for msgs in batches:
-            self.chunks_read, self.messages_read = counts
+            return self.first_record
+        counts: list = [0, 0, None]
+        for msgs in read_chunks(self.fh, self.table, self.first_record, self.index_pos, conns, counts):
+            self.chunks_read, self.messages_read = counts[0], counts[1]
             yield msgs
-        self.chunks_read, self.messages_read = counts
+        self.chunks_read, self.messages_read = counts[0], counts[1]
+        return counts[2]
 
     def _walk(
         self, end: int, keep: tuple[int, ...] = (OP_CHUNK, OP_CONNECTION, OP_MSGDATA)
