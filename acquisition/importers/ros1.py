@@ -102,16 +102,28 @@ def iter_ros1(
     limit: int | None,
     temp_topics: tuple[str, ...] = (),
     notes: list[str] | None = None,
+    mcap: bool = False,
 ) -> Iterator[tuple[str, Rows]]:
-    """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
+    """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`) of
+    a ROS 1 bag, or (``mcap``) of an MCAP file of ROS 1 messages (profile ``ros1``; :mod:`.mcap1`)."""
+    args = (topics, block, limit, temp_topics, notes)
+    if mcap:
+        yield from _read(path, Mcap1, McapFormatError, "damaged MCAP file", _mcap_note, *args)
+    else:
+        yield from _read(path, Ros1Bag, BagFormatError, "not a readable ROS bag", _bag_note, *args)
+
+
+def _read(path, reader, error, what, note_of, *args) -> Iterator[tuple[str, Rows]]:
+    """:func:`_decode` of the file ``path`` opened with ``reader`` (:class:`.Ros1Bag` or :class:`.Mcap1`); its
+    ``error`` (and a record cut inside a field) one line: ``path: what (why)``."""
     try:
-        with Ros1Bag(path) as bag:
-            known = _INDEXES.get(_key(path))
+        with reader(path) as f:
+            known = _INDEXES.get(_key(path)) if reader is Ros1Bag else None
             if known is not None:
-                bag.table = known[3]  # the chunks' positions, from the index read for the topics
-            yield from _decode(path, bag, topics, block, limit, temp_topics, notes, _bag_note)
-    except (BagFormatError, struct.error) as exc:
-        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+                f.table = known[3]  # the chunks' positions, from the index read for the topics
+            yield from _decode(path, f, *args, note_of)
+    except (error, struct.error) as exc:
+        raise InputError(f"{path}: {what} ({exc})") from None
 
 
 def _bag_note(bag: Ros1Bag) -> str:
@@ -134,22 +146,6 @@ def mcap1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
             return m.index()
     except (McapFormatError, OSError, struct.error) as exc:
         raise InputError(f"{path}: not a readable MCAP file ({exc})") from None
-
-
-def iter_mcap1(
-    path: str,
-    topics: list[str],
-    block: int,
-    limit: int | None,
-    temp_topics: tuple[str, ...] = (),
-    notes: list[str] | None = None,
-) -> Iterator[tuple[str, Rows]]:
-    """The same for an MCAP file of ROS 1 messages (profile ``ros1``; :mod:`.mcap1`)."""
-    try:
-        with Mcap1(path) as m:
-            yield from _decode(path, m, topics, block, limit, temp_topics, notes, _mcap_note)
-    except (McapFormatError, struct.error) as exc:
-        raise InputError(f"{path}: damaged MCAP file ({exc})") from None
 
 
 def _mcap_note(m: Mcap1) -> str:

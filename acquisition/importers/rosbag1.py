@@ -20,6 +20,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from imustation.acquisition.importers.chunked import ChunkedFile
 from imustation.acquisition.importers.ros1chunks import ChunkTable, chunk_positions, read_chunks
 from imustation.acquisition.importers.ros1records import (
     MAGIC,
@@ -58,50 +59,34 @@ WALK_BYTES = 1 << 22
 RUN_OPS = (OP_CHUNK, OP_CHUNK_INFO)
 
 
-class Ros1Bag:
+class Ros1Bag(ChunkedFile):
     """Sequential reader of a ROS 1 bag: :meth:`index` (topics, counts) and :meth:`chunks` (messages)."""
 
     def __init__(self, path: str):
-        self.path = str(path)
         self._parsed: dict[bytes, dict[str, bytes]] = {}
         self._walk_at = 0
-        self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
-        try:
-            if self.fh.read(len(MAGIC)) != MAGIC:
-                raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
-            hdr = self._header()
-            if op_code(hdr) != OP_BAGHEADER:
-                raise BagFormatError("first record is not the bag header")
-            self.index_pos = int_field(hdr, "index_pos")
-            self.conn_count = int_field(hdr, "conn_count")
-            self.chunk_count = int_field(hdr, "chunk_count")
-            if hdr.get("encryptor"):
-                raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
-            self._skip(self._u32())
-            self.first_record = self.fh.tell()
-            self.size = os.fstat(self.fh.fileno()).st_size
-            #: where reading stopped in a bag cut short or not closed (None: read to its end)
-            self.unread_from: int | None = None
-            #: the bag is indexed but cut short: its index (at ``index_pos``) is missing or
-            #: incomplete, so the chunks are read one after the other up to the cut
-            self.cut = self.index_pos > self.size
-            #: chunks and messages read by the last :meth:`chunks`, and the messages of those
-            #: that came from a chunk cut short
-            self.chunks_read = self.messages_read = self.salvaged = 0
-            #: every chunk's position from the index (:meth:`index`; None: not read, or not usable)
-            self.table: ChunkTable | None = None
-        except BaseException:
-            self.fh.close()
-            raise
+        #: the messages of the last :meth:`chunks` that came from a chunk cut short
+        self.salvaged = 0
+        #: every chunk's position from the index (:meth:`index`; None: not read, or not usable)
+        self.table: ChunkTable | None = None
+        super().__init__(path)
 
-    def __enter__(self) -> Ros1Bag:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.fh.close()
+    def _start(self) -> None:
+        if self.fh.read(len(MAGIC)) != MAGIC:
+            raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
+        hdr = self._header()
+        if op_code(hdr) != OP_BAGHEADER:
+            raise BagFormatError("first record is not the bag header")
+        self.index_pos = int_field(hdr, "index_pos")
+        self.conn_count = int_field(hdr, "conn_count")
+        self.chunk_count = int_field(hdr, "chunk_count")
+        if hdr.get("encryptor"):
+            raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
+        self._skip(self._u32())
+        self.first_record = self.fh.tell()
+        #: the bag is indexed but cut short: its index (at ``index_pos``) is missing or
+        #: incomplete, so the chunks are read one after the other up to the cut
+        self.cut = self.index_pos > self.size
 
     # -- low level
     def _u32(self) -> int:
@@ -143,21 +128,12 @@ class Ros1Bag:
         a bag cut short (:attr:`cut`) are scanned instead.
         """
         if self.index_pos == 0 or self.cut:
-            return self._scan()
+            return self.scan()
         try:
             return self._read_index()
         except BagCutError:
             self.cut = True  # cut inside the index: every chunk is there
-            return self._scan()
-
-    def _scan(self) -> tuple[dict[int, Connection], dict[int, int]]:
-        conns: dict[int, Connection] = {}
-        counts: dict[int, int] = {}
-        for ch in self.chunks(conns):
-            ids, n = np.unique(ch.conn, return_counts=True)
-            for i, k in zip(ids.tolist(), n.tolist(), strict=True):
-                counts[i] = counts.get(i, 0) + k
-        return conns, counts
+            return self.scan()
 
     def _read_index(self) -> tuple[dict[int, Connection], dict[int, int]]:
         self.fh.seek(self.index_pos)
