@@ -168,17 +168,23 @@ def split_chunk(
     done = np.zeros(len(hs_a), bool)
     for n in np.unique(hl_a).tolist():
         idx = np.flatnonzero(hl_a == n)
-        first = int(idx[0])
+        hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
+        # the first message header of this length is the template; a connection record of the same length
+        # (topic name and message header alike long) is passed over, left to the loop below
+        is_op2 = _op_is(hdr, raw, int(hs_a[idx[0]]), n, OP_MSGDATA)
+        if not is_op2.any():
+            continue
+        first = int(idx[np.argmax(is_op2)])
         f = parse_fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
         if op_code(f) != OP_MSGDATA or len(f.get("conn", b"")) != 4 or len(f.get("time", b"")) != 8:
             continue
         # field layout of this header length: everything but the conn and time values must match
         lay = layout(raw, int(hs_a[first]), n)
-        hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
         fixed = np.ones(n, bool)
         fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
         fixed[lay["time"][0] : lay["time"][0] + 8] = False
-        same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
+        row = hdr[int(np.argmax(is_op2))]
+        same = (hdr[:, fixed] == row[fixed]).all(axis=1)
         ok = idx[same]
         h = hdr[same]
         c0, t0 = lay["conn"][0], lay["time"][0]
@@ -198,6 +204,16 @@ def split_chunk(
             c = connection(hdr, raw[int(ds_a[i]) : int(ds_a[i] + dl_a[i])])
             conns[c.id] = c
     return ChunkMessages(raw, cid[is_msg], tim[is_msg], ds_a[is_msg], dl_a[is_msg])
+
+
+def _op_is(hdr: np.ndarray, raw: bytes, first: int, n: int, op: int) -> np.ndarray:
+    """Which rows of ``hdr`` (headers of length ``n``) hold ``op`` where the first's op value is (a cheap
+    test: a row that passes it is compared field by field after)."""
+    try:
+        at = layout(raw, first, n)["op"][0]
+    except KeyError:
+        return np.zeros(len(hdr), bool)
+    return hdr[:, at] == op
 
 
 def op_of(header: bytes) -> int:
