@@ -2,10 +2,12 @@
 
 rosbags' ``rosbag1.Reader`` builds an index entry (a Python object) for every
 message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
-400 Hz). This reader instead walks the file record by record
-(http://wiki.ros.org/Bags/Format/2.0), decompresses one chunk at a time
-(none / bz2 / lz4) and hands out its messages in file order, so memory is
-O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
+400 Hz). This reader instead takes a closed bag's chunks from its index's chunk
+table, a block of the file at a time (:mod:`.ros1chunks`), or walks the file
+record by record (http://wiki.ros.org/Bags/Format/2.0) where the table is missing
+or does not match; it decompresses one chunk at a time (none / bz2 / lz4) and hands
+out its messages in file order, so memory is O(chunk) plus 16 bytes a chunk for
+the table, whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
 with numpy, a chunk at a time (:func:`.messages.decode_imu_ros1`).
 
 The records and a chunk's contents are parsed by :mod:`.ros1records`.
