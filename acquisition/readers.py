@@ -52,9 +52,9 @@ from imustation.acquisition.config import StationConfig
 from imustation.acquisition.realtime import READER_PRIORITY, reader_priority, release_scheduling, request_scheduling
 from imustation.acquisition.sinks import MessageSink, Sink
 from imustation.clock import MonotonicClock
-from imustation.runfile.checks import RATE_FLOOR, RATE_MIN_ROWS, RATE_PROBE_ROWS, RATE_SIGMAS
+from imustation.runfile.checks import RATE_PROBE_ROWS
 from imustation.runfile.holes import find_holes
-from imustation.runfile.rate import stamp_rate
+from imustation.runfile.rate import capture_rate
 from imustation.status import DeviceStatus, ThermometerStatus
 
 #: a reader hands over what it has at least this often (wall s), or when this many items wait
@@ -293,16 +293,10 @@ PROBE_ROWS = RATE_PROBE_ROWS + 1
 
 def file_period_ns(first_stamps: np.ndarray, rate_hz: float) -> float:
     """The output period the run file's reader will count a device's holes with, ns: ``1e9 / rate_hz``
-    (Hz), or the rate its first ``PROBE_ROWS`` sample times show where they contradict it (a chip
-    whose clock is 0.5 % fast makes 0.5 % more samples in an outage than its nominal rate says;
-    the same rule as the reader's rate check, docs/runfile.md)."""
-    if len(first_stamps) < RATE_MIN_ROWS:
-        return 1e9 / rate_hz
-    sr = stamp_rate(np.asarray(first_stamps[:PROBE_ROWS], dtype=np.int64), rate_hz)
-    off = abs(rate_hz / sr.rate_hz - 1.0) if sr.rate_hz > 0 else 0.0
-    if off > RATE_FLOOR and off > RATE_SIGMAS * sr.sigma_hz / sr.rate_hz:
-        return 1e9 / sr.rate_hz
-    return 1e9 / rate_hz
+    (Hz), or the rate its first ``PROBE_ROWS`` sample times show where they contradict it by the reader's
+    rule (:func:`~imustation.runfile.rate.capture_rate`: a chip whose clock is 0.5 % fast makes 0.5 % more
+    samples in an outage than its nominal rate says; a start-up transient is not a rate, docs/runfile.md)."""
+    return 1e9 / capture_rate(first_stamps[:PROBE_ROWS], rate_hz)
 
 
 def lost_to_end(sink: Sink, what: str, rates: dict[str, float], last_t: dict[str, int], end_ns: int) -> dict[str, int]:

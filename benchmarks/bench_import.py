@@ -5,11 +5,13 @@ it in a fresh process per reader and prints time, messages/s and peak RSS:
 
     python benchmarks/bench_import.py [-n 2000000] [--format ros1|mcap|sqlite3] [--compression lz4]
                                       [--reader old|new|both] [--keep BAG] [--chunk-bytes 1]
+                                      [--versus-large [--topics 2]]
 
 ``--chunk-bytes 1`` writes one message per chunk (a recorder flushing each message): the streaming
-reader walks such chunks in runs and batches them, so it imports them at the speed of large-chunk
-bags. ``--versus-large`` writes both (the same N messages) and prints the one-message-per-chunk rate
-as a ratio of the large-chunk rate measured in the same run (streaming reader only).
+reader finds every chunk of a closed bag from its index and gathers them together, so it imports
+them at the speed of large-chunk bags. ``--versus-large`` writes both (the same N messages) and prints
+the one-message-per-chunk rate as a ratio of the large-chunk rate measured in the same run (streaming
+reader only; ``--topics 2``: two Imu topics interleaved in both).
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ def main() -> None:
     ap.add_argument("--chunk-bytes", type=int, default=None, help="ROS1 chunk threshold (1: a message per chunk)")
     ap.add_argument("--versus-large", action="store_true", help="ROS1: one message per chunk vs large chunks")
     ap.add_argument("--repeat", type=int, default=3, help="with --versus-large: imports of each (best taken)")
+    ap.add_argument("--topics", type=int, default=1, help="with --versus-large: Imu topics interleaved in the bag")
     ap.add_argument("--measure", nargs=2, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--baseline", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -76,7 +79,7 @@ def main() -> None:
     from bagmaker import write_big_imu_bag
 
     if args.versus_large:
-        versus_large(args.n, args.compression, args.repeat)
+        versus_large(args.n, args.compression, args.repeat, args.topics)
         return
     tmp = None
     if args.keep:
@@ -101,15 +104,17 @@ def main() -> None:
         shutil.rmtree(tmp)
 
 
-def versus_large(n: int, compression: str | None, repeat: int) -> None:
-    """Import rate of a one-message-per-chunk bag as a ratio of a large-chunk bag's, interleaved runs."""
+def versus_large(n: int, compression: str | None, repeat: int, topics: int = 1) -> None:
+    """Import rate of a one-message-per-chunk bag as a ratio of a large-chunk bag's, interleaved runs.
+    ``topics`` > 1: that many Imu topics interleaved (``n`` messages in all), in both bags."""
     from bagmaker import write_big_imu_bag
 
     tmp = tempfile.mkdtemp()
     bags = {}
+    names = tuple(f"/imu/t{j}" for j in range(topics)) if topics > 1 else ("/imu/data",)
     for name, chunk in (("large", None), ("small", 1)):
         bags[name] = os.path.join(tmp, f"{name}.bag")
-        write_big_imu_bag(bags[name], n, compression=compression, chunk_bytes=chunk)
+        write_big_imu_bag(bags[name], n // topics, compression=compression, chunk_bytes=chunk, topics=names)
         print(f"{name} chunks: {n} messages, {os.path.getsize(bags[name]) / 1e6:.0f} MB")
     best = dict.fromkeys(bags, 0.0)
     for _ in range(repeat):  # interleaved, so a change in the machine's load touches both

@@ -423,6 +423,55 @@ def bag_inputs(folder: Path) -> list[tuple[str, Path, dict[str, str]]]:
     huge[200, 1] = 4.3e19
     out.append(("huge.bag", write_imu_bag(folder / "huge.bag", t, huge, a), {"import": "any", "analyze": "invalid"}))
     out += _issue33_bags(folder, t, g, a)
+    out += small_chunk_bags(folder)
+    return out
+
+
+def small_chunk_bags(folder: Path) -> list[tuple[str, Path, dict[str, str]]]:
+    """Bags of a chunk per message (read from their index's chunk table): lz4, bz2, two topics
+    interleaved; each cut inside a chunk and exactly between two; a chunk info pointing one byte off
+    (the table is not used: walked), an lz4 chunk whose data is damaged, a chunk header's size wrong."""
+    from bagmaker import write_big_imu_bag
+    from rosbags.rosbag1 import Reader
+
+    ok, bad = {"import": "any", "analyze": "any"}, {"import": "invalid", "analyze": "invalid"}
+    out = []
+    one, two = ("/imu/data",), ("/imu/data", "/imu/b")
+    for name, comp, topics in (("lz4", "lz4", one), ("bz2", "bz2", one), ("two", None, two), ("two-lz4", "lz4", two)):
+        src = write_big_imu_bag(folder / f"one-{name}.bag", 500, compression=comp, chunk_bytes=1, topics=topics)
+        out.append((src.name, src, ok))
+        data = src.read_bytes()
+        with Reader(src) as r:
+            infos = [c.pos for c in r.chunk_infos]  # the reader empties its list when closed
+        cut = folder / f"one-{name}-cut.bag"
+        cut.write_bytes(data[: len(data) * 2 // 5])
+        edge = folder / f"one-{name}-cut-at-chunk.bag"
+        edge.write_bytes(data[: infos[len(infos) // 2]])
+        out += [(cut.name, cut, ok), (edge.name, edge, ok)]
+        if name in ("lz4", "two"):
+            # the chunk_pos of one chunk info one byte off: the table does not tile the bag, it is walked
+            at = data.index(b"chunk_pos=", infos[-1]) + len(b"chunk_pos=")
+            off = bytearray(data)
+            off[at : at + 8] = (int.from_bytes(data[at : at + 8], "little") + 1).to_bytes(8, "little")
+            p = folder / f"one-{name}-pos-off.bag"
+            p.write_bytes(bytes(off))
+            out.append((p.name, p, ok))
+        if name == "lz4":
+            mid = infos[len(infos) // 3]
+            hl = int.from_bytes(data[mid : mid + 4], "little")
+            dmg = bytearray(data)
+            dmg[mid + 8 + hl + 12] ^= 0xFF  # inside the lz4 block of a chunk
+            p = folder / "one-lz4-damaged.bag"
+            p.write_bytes(bytes(dmg))
+            out.append((p.name, p, bad))
+        if name == "two":
+            mid = infos[len(infos) // 3]
+            at = data.index(b"size=", mid) + len(b"size=")
+            big = bytearray(data)
+            big[at : at + 4] = (int.from_bytes(data[at : at + 4], "little") + 7).to_bytes(4, "little")
+            p = folder / "one-two-size.bag"
+            p.write_bytes(bytes(big))
+            out.append((p.name, p, bad))
     return out
 
 

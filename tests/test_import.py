@@ -705,10 +705,12 @@ def test_one_message_chunks_are_walked_in_runs(tmp_path, monkeypatch):
     np.testing.assert_array_equal(t, t_ref)
     np.testing.assert_array_equal(g, g_ref)
     np.testing.assert_array_equal(a, a_ref)
-    assert sum(found) > 2 * 2900  # chunks and chunk infos in runs
+    assert sum(found) > 2900  # chunk infos in runs (the closed bag's chunks come from its index: below)
     data = src.read_bytes()
     (tmp_path / "cut.bag").write_bytes(data[: len(data) // 2 + 7])
+    found.clear()
     res = import_recording(str(tmp_path / "cut.bag"), str(tmp_path / "cut.h5"))
+    assert sum(found) > 2 * 1400  # no index: the chunks walked in runs, twice (topics, then messages)
     k = res.reports["imu_data"].n
     assert 1000 < k < 3000 and any("truncated bag" in n for n in res.notes)
     with open_run(tmp_path / "cut.h5") as r:
@@ -722,3 +724,85 @@ def test_one_message_chunks_are_walked_in_runs(tmp_path, monkeypatch):
     bad[at : at + 4] = (1 << 21).to_bytes(4, "little")
     (tmp_path / "bad.bag").write_bytes(bytes(bad))
     assert_one_line_error(run("import", str(tmp_path / "bad.bag"), "-o", str(tmp_path / "bad.h5")), "bad.bag")
+
+
+@pytest.mark.parametrize("compression", [None, "lz4", "bz2"])
+@pytest.mark.parametrize("topics", [("/imu/data",), ("/imu/data", "/imu/b")])
+def test_small_chunk_bags_are_read_from_their_index(tmp_path, monkeypatch, compression, topics):
+    """A closed bag of a chunk per message (compressed, or two topics interleaved) is read from its index's
+    chunk table, every chunk gathered at once (before: lz4/bz2 and interleaved ones were walked record by
+    record, ~0.3 of the large-chunk rate): every message as rosbags reads it."""
+    from bagmaker import write_big_imu_bag
+
+    from imustation.acquisition.importers import ros1chunks
+
+    used = []
+    real = ros1chunks.layout
+
+    def counted(*args):
+        lay = real(*args)
+        used.append(lay is not None)
+        return lay
+
+    monkeypatch.setattr(ros1chunks, "layout", counted)
+    monkeypatch.setattr(ros1chunks, "BATCH_BYTES", 20_000)
+    src = write_big_imu_bag(tmp_path / "one.bag", 700, chunk_bytes=1, compression=compression, topics=topics,
+                            temp_every=7)  # fmt: skip
+    ref = _read_all(src, "old", list(topics))
+    got = _read_all(src, "new", list(topics))
+    assert used and all(used)
+    for tp in topics:
+        for x, y in zip(got[tp], ref[tp], strict=True):
+            np.testing.assert_array_equal(x, y)
+    res = import_recording(str(src), str(tmp_path / "o.h5"))
+    assert res.thermometers["imu_temperature"][1] == 100 and not any("truncated" in n for n in res.notes)
+
+
+def test_a_chunk_table_that_does_not_tile_the_bag_is_not_used(tmp_path, monkeypatch):
+    """A chunk info pointing one byte off, or counting another number of messages: reading from the table
+    stops at the block it is in, and the bag is walked from there (every message still read), never read
+    from a table that does not match its data."""
+    from bagmaker import write_big_imu_bag
+
+    from imustation.acquisition.importers import ros1chunks
+    from imustation.acquisition.importers.rosbag1 import Ros1Bag
+
+    monkeypatch.setattr(ros1chunks, "BLOCK_BYTES", 20_000)
+    src = write_big_imu_bag(tmp_path / "one.bag", 300, chunk_bytes=1)
+    with Ros1Bag(str(src)) as bag:
+        bag.index()
+        counts = [0, 0, 0]
+        list(ros1chunks.read_chunks(bag.fh, bag.table, bag.first_record, bag.index_pos, {}, counts))
+        assert counts[2] is None and counts[1] == 300
+        for edit in ("pos", "messages"):
+            pos, msgs = bag.table.pos.copy(), bag.table.messages.copy()
+            if edit == "pos":
+                pos[100] += 1
+            else:
+                msgs[100] = 2
+            counts = [0, 0, 0]
+            table = ros1chunks.ChunkTable(pos, bag.table.conns, msgs)
+            list(ros1chunks.read_chunks(bag.fh, table, bag.first_record, bag.index_pos, {}, counts))
+            assert 0 < counts[1] <= 100 and counts[2] == pos[counts[0]]  # walked on from the block's start
+            bag.table = table
+            t = np.concatenate([c.time for c in bag.chunks({})])
+            np.testing.assert_array_equal(np.diff(t), 2_500_000)
+            assert len(t) == 300
+            bag.index()  # the table as the index says
+
+
+def test_damaged_small_chunk_bags_read_or_fail_in_one_line(tmp_path):
+    """The fuzz corpus's small-chunk bags (tests/fuzz_corpus.py): every one imports, or fails with one
+    line, exit 2 (a damaged lz4 chunk, a chunk whose header says another size)."""
+    from fuzz_corpus import small_chunk_bags
+
+    cases = small_chunk_bags(tmp_path)
+    assert len(cases) == 16
+    for name, path, expect in cases:
+        res = run("import", str(path), "-o", str(tmp_path / f"{name}.h5"))
+        if expect["import"] == "invalid":
+            assert_one_line_error(res, name)
+        else:
+            assert res.exit_code == 0, (name, res.output)
+            if "cut" in name:
+                assert "truncated bag" in res.output, (name, res.output)

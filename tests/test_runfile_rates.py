@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 
 import h5py
 import numpy as np
@@ -19,6 +20,7 @@ from imustation.channels import ChannelSpec
 from imustation.cli import cli
 from imustation.errors import RateCorrected, RunFileError
 from imustation.runfile import DeviceSpec, RunWriter, open_run
+from imustation.runfile.checks import RATE_FLOOR
 from imustation.runfile.rate import stamp_rate
 
 RATE = 409.6  # ADIS16448
@@ -223,3 +225,88 @@ def test_a_device_in_pieces_too_short_for_any_estimate_is_skipped_and_the_others
     assert [(f["channel"], f["skipped"]) for f in doc["failures"]] == [("imu/gyro/x", "fragmented")]
     # the damaged device alone: every channel skipped, one line, exit 2 (docs/fleet.md)
     assert_one_line_error(run("analyze", p, "--channel", "imu/gyro/x", "-m", "20"), "skipped imu/gyro/x", "pieces")
+
+
+HOST_HZ = 400.0
+
+
+def _write_stamps(path, t: np.ndarray, rate_hz: float, losses=()) -> None:
+    """A capture's gyro record of stamps ``t`` (ns) stating ``rate_hz``; ``losses``: (t ns, lost) gap events."""
+    rng = np.random.default_rng(3)
+    spec = DeviceSpec(
+        "imu", "bmi088", "BMI088", "i2c:1", "sim", rate_hz, {},
+        (ChannelSpec("gyro", "<i2", "rad/s", 1e-4, axes=("x", "y", "z")),),
+    )  # fmt: skip
+    with RunWriter(path, station="t", config_text="", simulated=False, devices=[spec], ballast_bytes=0) as w:
+        w.append("imu", t, {"gyro": rng.normal(0, 40, (len(t), 3)).astype(np.int16)})
+        for at, lost in losses:
+            w.event(int(at), "imu", "gap", "not read", lost=int(lost))
+
+
+def _host_stamps(n: int, true_hz: float, transient_ms: float, settle: int, seed: int = 4) -> np.ndarray:
+    """Host-clock-like stamps: the newest sample of a read of 4 dated at the read (0-1 ms late), the others
+    a period apart before it, and a start-up transient: the first reads dated up to ``transient_ms`` early
+    and catching up over ``settle`` samples (what the timeline's steps giving way make of a late start)."""
+    rng = np.random.default_rng(seed)
+    i = np.arange(n)
+    late = np.repeat(rng.uniform(0, 1e6, n // 4 + 1), 4)[:n]
+    lag = -transient_ms * 1e6 * np.exp(-i / settle)
+    return np.rint(i * 1e9 / true_hz + late + lag).astype(np.int64)
+
+
+@pytest.mark.parametrize("n, transient_ms, settle", [(162, 4.0, 400), (24_000, 20.0, 600)])
+def test_a_start_up_transient_of_a_host_clock_record_is_not_a_rate(tmp_path, n, transient_ms, settle):
+    """Before: the fit over the first 4097 samples followed the transient and 'corrected' a 400 Hz capture
+    (test logs: '402.538 Hz fitted over the first 162 samples, 0.63 % off'); the whole span says 400 Hz."""
+    t = _host_stamps(n, HOST_HZ, transient_ms, settle)
+    first = stamp_rate(t[:4097], HOST_HZ)
+    assert abs(first.rate_hz / HOST_HZ - 1) > RATE_FLOOR  # what the old check saw (it corrected this)
+    assert abs(first.rate_hz / HOST_HZ - 1) > 5 * first.sigma_hz / first.rate_hz
+    p = tmp_path / "host.h5"
+    _write_stamps(p, t, HOST_HZ)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RateCorrected)
+        with open_run(p) as r:
+            assert r.devices["imu"].rate_hz == HOST_HZ and not r.devices["imu"].rate_note
+
+
+def test_a_chip_off_its_rate_over_a_long_host_clock_record_is_corrected_from_the_whole_span(tmp_path):
+    """A chip 0.5 % fast, read on a jittery host, with a hole its event logs: the span (rows + logged loss)
+    confirms what the fit over the runs says, beyond the jitter over the span; the fit's rate is used."""
+    true = HOST_HZ * 1.005
+    t = _host_stamps(48_000, true, 20.0, 600)
+    cut = 30_000
+    t = np.concatenate([t[:cut], t[cut + 500 :]])  # 500 samples lost, logged
+    p = tmp_path / "fast.h5"
+    _write_stamps(p, t, HOST_HZ, [(t[cut - 1] + 1e9 / true, 500)])
+    with pytest.warns(RateCorrected, match=r"rate_hz 400 contradicts its timestamps over its whole span \(401\.9"):
+        r = open_run(p)
+    with r:
+        assert r.devices["imu"].rate_hz == pytest.approx(true, rel=1e-4)
+    # a hole of 50 left unlogged: the span's count is short by 0.1 %, the span still fast; the fit is the rate
+    t = np.concatenate([t[:cut], t[cut + 50 :]])
+    q = tmp_path / "fast-unlogged.h5"
+    _write_stamps(q, t, HOST_HZ, [(t[cut - 1] + 1e9 / true, 500)])
+    with pytest.warns(RateCorrected):
+        r = open_run(q)
+    with r:
+        assert r.devices["imu"].rate_hz == pytest.approx(true, rel=1e-4)
+
+
+def test_the_probe_spans_a_long_record():
+    from imustation.runfile.rate import WINDOW_ROWS, WINDOWS, probe_windows
+
+    assert probe_windows(1000) == [(0, 1000)]
+    n = 17_280_000  # 12 h at 400 Hz
+    w = probe_windows(n)
+    assert len(w) == WINDOWS and w[0][0] == 0 and w[-1][1] == n and all(b - a == WINDOW_ROWS for a, b in w)
+
+
+def test_a_capture_counts_an_outage_with_the_rate_the_reader_will_confirm():
+    """Before: an outage after 200 samples was counted with the transient's 402.57 Hz, so the file logged
+    0.65 % too many lost samples and the reader then 'confirmed' that rate over the whole span."""
+    from imustation.runfile.rate import capture_rate
+
+    assert capture_rate(_host_stamps(200, HOST_HZ, 4.0, 400), HOST_HZ) == HOST_HZ
+    fast = _host_stamps(4097, HOST_HZ * 1.005, 1.0, 50)
+    assert capture_rate(fast, HOST_HZ) == pytest.approx(HOST_HZ * 1.005, rel=1e-4)

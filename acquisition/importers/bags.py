@@ -13,7 +13,7 @@ from pathlib import Path
 
 from imustation.acquisition.importers.mcap1 import profile
 from imustation.acquisition.importers.messages import BLOCK_ROWS, IMU_MD5, IMU_TYPES, TEMP_TYPES, Rows
-from imustation.acquisition.importers.ros1 import iter_mcap1, iter_ros1, mcap1_index, ros1_index
+from imustation.acquisition.importers.ros1 import iter_ros1, mcap1_index, ros1_index
 from imustation.acquisition.importers.ros2 import iter_rosbags, rosbags_connections
 from imustation.errors import InputError
 
@@ -98,7 +98,7 @@ def iter_bag(
     ``reader="old"``: rosbags for every format, messages deserialised one by one (the import as it was).
     """
     if _ros1_mcap(path):
-        yield from iter_mcap1(path, topics, block, limit, tuple(temp_topics), notes)
+        yield from iter_ros1(path, topics, block, limit, tuple(temp_topics), notes, mcap=True)
         return
     if _streaming(path, reader):
         conns, _ = ros1_index(path)

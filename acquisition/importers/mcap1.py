@@ -15,13 +15,13 @@ when the file has one, else from a scan. A file cut short is read up to the last
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
 from collections.abc import Iterator
 
 import numpy as np
 
+from imustation.acquisition.importers.chunked import ChunkedFile
 from imustation.acquisition.importers.ros1records import ChunkMessages, Connection, normalize_topic
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -88,37 +88,18 @@ def _decompress(kind: str, data: bytes, size: int) -> bytes:
     return out
 
 
-class Mcap1:
+class Mcap1(ChunkedFile):
     """Sequential reader of an MCAP file of ROS 1 messages: :meth:`index` and :meth:`chunks`."""
 
-    def __init__(self, path: str):
-        self.path = str(path)
-        self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
-        try:
-            self.size = os.fstat(self.fh.fileno()).st_size
-            if self.fh.read(8) != MAGIC:
-                raise McapFormatError("not an MCAP file (magic missing)")
-            op, content = self._record()
-            if op != OP_HEADER:
-                raise McapFormatError("first record is not the MCAP header")
-            self.profile = _str(content, 0)[0]
-            self.first_record = self.fh.tell()
-            #: where reading stopped in a file cut short (None: read to its end)
-            self.unread_from: int | None = None
-            self.chunks_read = self.messages_read = 0
-            self.schemas: dict[int, str] = {}  # schema id -> message type name
-        except BaseException:
-            self.fh.close()
-            raise
-
-    def __enter__(self) -> Mcap1:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.fh.close()
+    def _start(self) -> None:
+        if self.fh.read(8) != MAGIC:
+            raise McapFormatError("not an MCAP file (magic missing)")
+        op, content = self._record()
+        if op != OP_HEADER:
+            raise McapFormatError("first record is not the MCAP header")
+        self.profile = _str(content, 0)[0]
+        self.first_record = self.fh.tell()
+        self.schemas: dict[int, str] = {}  # schema id -> message type name
 
     def _record(self) -> tuple[int, bytes]:
         head = self.fh.read(9)
@@ -152,13 +133,7 @@ class Mcap1:
             found = None
         if found is not None:
             return found
-        conns: dict[int, Connection] = {}
-        counts: dict[int, int] = {}
-        for ch in self.chunks(conns):
-            ids, n = np.unique(ch.conn, return_counts=True)
-            for i, k in zip(ids.tolist(), n.tolist(), strict=True):
-                counts[i] = counts.get(i, 0) + k
-        return conns, counts
+        return self.scan()
 
     def _summary(self) -> tuple[dict[int, Connection], dict[int, int]] | None:
         if self.size < 8 + 8 + 9 + 20:

@@ -22,13 +22,14 @@ from imustation.acquisition.importers.messages import (
     decode_imu_ros1,
     decode_temperature_ros1,
 )
+from imustation.acquisition.importers.ros1chunks import ChunkTable
 from imustation.acquisition.importers.rosbag1 import BagFormatError, Connection, Ros1Bag
 from imustation.errors import InputError
 
 #: the last indexes read: (path, size, mtime ns) -> (connections, counts, the index was cut short). An
 #: import reads a bag's index for its topics, its Imu definitions and its cut note: O(chunks) each time,
 #: seconds for a bag of one message per chunk
-_INDEXES: dict[tuple[str, int, int], tuple[dict[int, Connection], dict[int, int], bool]] = {}
+_INDEXES: dict[tuple[str, int, int], tuple[dict[int, Connection], dict[int, int], bool, ChunkTable | None]] = {}
 
 
 def _key(path: str) -> tuple[str, int, int]:
@@ -45,8 +46,8 @@ def ros1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
                 conns, counts = bag.index()
                 if len(_INDEXES) >= 4:
                     _INDEXES.pop(next(iter(_INDEXES)))
-                _INDEXES[key] = (conns, counts, bag.cut)
-        conns, counts, _cut = _INDEXES[key]
+                _INDEXES[key] = (conns, counts, bag.cut, bag.table)
+        conns, counts, _cut, _table = _INDEXES[key]
         return dict(conns), dict(counts)
     except (BagFormatError, OSError, struct.error) as exc:
         raise InputError(f"{path}: not a readable ROS bag / MCAP file ({exc})") from None
@@ -101,13 +102,28 @@ def iter_ros1(
     limit: int | None,
     temp_topics: tuple[str, ...] = (),
     notes: list[str] | None = None,
+    mcap: bool = False,
 ) -> Iterator[tuple[str, Rows]]:
-    """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`)."""
+    """``(topic, block)`` of the Imu ``topics`` and Temperature ``temp_topics`` (see :func:`.bags.iter_bag`) of
+    a ROS 1 bag, or (``mcap``) of an MCAP file of ROS 1 messages (profile ``ros1``; :mod:`.mcap1`)."""
+    args = (topics, block, limit, temp_topics, notes)
+    if mcap:
+        yield from _read(path, Mcap1, McapFormatError, "damaged MCAP file", _mcap_note, *args)
+    else:
+        yield from _read(path, Ros1Bag, BagFormatError, "not a readable ROS bag", _bag_note, *args)
+
+
+def _read(path, reader, error, what, note_of, *args) -> Iterator[tuple[str, Rows]]:
+    """:func:`_decode` of the file ``path`` opened with ``reader`` (:class:`.Ros1Bag` or :class:`.Mcap1`); its
+    ``error`` (and a record cut inside a field) one line: ``path: what (why)``."""
     try:
-        with Ros1Bag(path) as bag:
-            yield from _decode(path, bag, topics, block, limit, temp_topics, notes, _bag_note)
-    except (BagFormatError, struct.error) as exc:
-        raise InputError(f"{path}: not a readable ROS bag ({exc})") from None
+        with reader(path) as f:
+            known = _INDEXES.get(_key(path)) if reader is Ros1Bag else None
+            if known is not None:
+                f.table = known[3]  # the chunks' positions, from the index read for the topics
+            yield from _decode(path, f, *args, note_of)
+    except (error, struct.error) as exc:
+        raise InputError(f"{path}: {what} ({exc})") from None
 
 
 def _bag_note(bag: Ros1Bag) -> str:
@@ -130,22 +146,6 @@ def mcap1_index(path: str) -> tuple[dict[int, Connection], dict[int, int]]:
             return m.index()
     except (McapFormatError, OSError, struct.error) as exc:
         raise InputError(f"{path}: not a readable MCAP file ({exc})") from None
-
-
-def iter_mcap1(
-    path: str,
-    topics: list[str],
-    block: int,
-    limit: int | None,
-    temp_topics: tuple[str, ...] = (),
-    notes: list[str] | None = None,
-) -> Iterator[tuple[str, Rows]]:
-    """The same for an MCAP file of ROS 1 messages (profile ``ros1``; :mod:`.mcap1`)."""
-    try:
-        with Mcap1(path) as m:
-            yield from _decode(path, m, topics, block, limit, temp_topics, notes, _mcap_note)
-    except (McapFormatError, struct.error) as exc:
-        raise InputError(f"{path}: damaged MCAP file ({exc})") from None
 
 
 def _mcap_note(m: Mcap1) -> str:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imustation.acquisition.importers.messages import gather_u32 as _gather_u32
+from imustation.acquisition.importers.messages import gather_u32
 
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 MAGIC = b"#ROSBAG V2.0\n"
@@ -148,16 +148,19 @@ def decompress(kind: str, data: bytes, size: int) -> bytes:
     return out
 
 
-def split_chunk(raw: bytes, conns: dict[int, Connection], partial: bool = False) -> ChunkMessages:
+def split_chunk(
+    raw: bytes, conns: dict[int, Connection], partial: bool = False, starts: np.ndarray | None = None
+) -> ChunkMessages:
     """The records of a decompressed chunk: message data (vectorised header parse) and connection records.
 
-    ``partial``: ``raw`` is the start of a chunk cut short; its complete records only.
+    ``partial``: ``raw`` is the start of a chunk cut short; its complete records only. ``starts``: ``raw``
+    is several chunks joined, each starting at these offsets (:func:`chunk_record_starts`).
     """
     b = np.frombuffer(raw, np.uint8)
-    rec = record_starts(raw, b, partial)
-    hl_a = _gather_u32(b, rec)
+    rec = record_starts(raw, b, partial) if starts is None else chunk_record_starts(raw, b, starts)
+    hl_a = gather_u32(b, rec)
     hs_a = rec + 4
-    dl_a = _gather_u32(b, hs_a + hl_a)
+    dl_a = gather_u32(b, hs_a + hl_a)
     ds_a = hs_a + hl_a + 4
     cid = np.full(len(hs_a), -1, np.int64)
     tim = np.zeros(len(hs_a), np.int64)
@@ -165,17 +168,23 @@ def split_chunk(raw: bytes, conns: dict[int, Connection], partial: bool = False)
     done = np.zeros(len(hs_a), bool)
     for n in np.unique(hl_a).tolist():
         idx = np.flatnonzero(hl_a == n)
-        first = int(idx[0])
+        hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
+        # the first message header of this length is the template; a connection record of the same length
+        # (topic name and message header alike long) is passed over, left to the loop below
+        is_op2 = _op_is(hdr, raw, int(hs_a[idx[0]]), n, OP_MSGDATA)
+        if not is_op2.any():
+            continue
+        first = int(idx[np.argmax(is_op2)])
         f = parse_fields(raw, int(hs_a[first]), int(hs_a[first]) + n)
         if op_code(f) != OP_MSGDATA or len(f.get("conn", b"")) != 4 or len(f.get("time", b"")) != 8:
             continue
         # field layout of this header length: everything but the conn and time values must match
         lay = layout(raw, int(hs_a[first]), n)
-        hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
         fixed = np.ones(n, bool)
         fixed[lay["conn"][0] : lay["conn"][0] + 4] = False
         fixed[lay["time"][0] : lay["time"][0] + 8] = False
-        same = (hdr[:, fixed] == hdr[0, fixed]).all(axis=1)
+        row = hdr[int(np.argmax(is_op2))]
+        same = (hdr[:, fixed] == row[fixed]).all(axis=1)
         ok = idx[same]
         h = hdr[same]
         c0, t0 = lay["conn"][0], lay["time"][0]
@@ -195,6 +204,16 @@ def split_chunk(raw: bytes, conns: dict[int, Connection], partial: bool = False)
             c = connection(hdr, raw[int(ds_a[i]) : int(ds_a[i] + dl_a[i])])
             conns[c.id] = c
     return ChunkMessages(raw, cid[is_msg], tim[is_msg], ds_a[is_msg], dl_a[is_msg])
+
+
+def _op_is(hdr: np.ndarray, raw: bytes, first: int, n: int, op: int) -> np.ndarray:
+    """Which rows of ``hdr`` (headers of length ``n``) hold ``op`` where the first's op value is (a cheap
+    test: a row that passes it is compared field by field after)."""
+    try:
+        at = layout(raw, first, n)["op"][0]
+    except KeyError:
+        return np.zeros(len(hdr), bool)
+    return hdr[:, at] == op
 
 
 def op_of(header: bytes) -> int:
@@ -217,15 +236,21 @@ def stamp(hdr: dict[str, bytes]) -> int:
     return sec * 1_000_000_000 + nsec
 
 
+#: a chunk's records are looked at in cycles of up to this many (topics interleaved: one record of each)
+MAX_CYCLE = 4
+
+
 def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarray:
     """Offsets of the records of a chunk (``partial``: of its complete records, the chunk cut short).
 
-    Records are walked one by one, but runs of records of one size (a topic's
-    messages of constant length, the common case) are found with numpy.
+    Records are walked one by one, but runs of records that repeat the last one to MAX_CYCLE walked (a
+    topic's messages of constant length, or the messages of topics interleaved, one of each in turn: the
+    common cases) are found with numpy, a window of cycles at a constant stride at once.
     """
     out: list = []
     pos, size = 0, len(raw)
     plain = 0  # records to walk one by one before trying a run again
+    hist: list[tuple[int, int, int]] = []  # (offset, header length, data length) of the last records walked
     try:
         while pos < size:
             if partial and pos + 8 > size:
@@ -239,22 +264,80 @@ def record_starts(raw: bytes, b: np.ndarray, partial: bool = False) -> np.ndarra
                 if partial:
                     break
                 raise BagFormatError("truncated record in chunk")
-            m = min((size - pos) // stride, 4096)
-            if plain or m < 4:
-                out.append(np.array([pos], np.int64))
-                pos += stride
-                plain = max(plain - 1, 0)
-                continue
-            cand = pos + stride * np.arange(m, dtype=np.int64)
-            good = (_gather_u32(b, cand) == hn) & (_gather_u32(b, cand + 4 + hn) == dn)
-            k = m if good.all() else int(np.argmin(good))
-            out.append(cand[:k])
-            pos += k * stride
-            if k < 4:
+            if not plain:
+                end = _cycles(b, [*hist[len(hist) - MAX_CYCLE + 1 :], (pos, hn, dn)], size, out)
+                if end:
+                    pos, hist = end, []
+                    continue
                 plain = 16
+            out.append(np.array([pos], np.int64))
+            hist = [*hist[1 - MAX_CYCLE :], (pos, hn, dn)]
+            pos += stride
+            plain = max(plain - 1, 0)
     except struct.error:
         raise BagFormatError("truncated record in chunk") from None
     return np.concatenate(out) if out else np.empty(0, np.int64)
+
+
+def _cycles(b: np.ndarray, recent: list[tuple[int, int, int]], size: int, out: list) -> int:
+    """Cycles of the last c of the ``recent`` records (c = 1 .. MAX_CYCLE, the last one not handed out yet)
+    repeated at a constant stride from the first of them; when at least MIN_RUN, their offsets are added
+    to ``out`` and the offset after them returned, else 0."""
+    for c in range(1, len(recent) + 1):
+        cyc = recent[len(recent) - c :]
+        s0 = cyc[0][0]
+        stride = sum(8 + h + d for _, h, d in cyc)
+        m = min((size - s0) // stride, 4096)
+        if m < MIN_RUN:
+            continue
+        base = s0 + stride * np.arange(m, dtype=np.int64)
+        good = np.ones(m, bool)
+        for off, h, d in cyc:
+            at = base + (off - s0)
+            good &= (gather_u32(b, at) == h) & (gather_u32(b, at + 4 + h) == d)
+        k = m if good.all() else int(np.argmin(good))
+        if k < MIN_RUN:
+            continue
+        offs = np.array([off - s0 for off, _, _ in cyc], np.int64)
+        out.append(np.array([cyc[-1][0]], np.int64))  # the last record walked, not handed out yet
+        out.append((base[1:k, None] + offs).reshape(-1))
+        return s0 + k * stride
+    return 0
+
+
+#: records followed from every chunk's start at once (then each chunk that holds more is walked alone)
+FRONTIER_STEPS = 4
+
+
+def chunk_record_starts(raw: bytes, b: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Offsets of the records of several chunks joined in ``raw``, chunk k starting at ``starts[k]``.
+
+    A chunk per message (or per message of each topic, interleaved) holds one or two records: the
+    next record of every chunk is found at once from the one before, a few steps; a chunk that holds
+    more is walked by :func:`record_starts`."""
+    size = len(raw)
+    front = np.asarray(starts, np.int64)
+    ends = np.append(front[1:], size)
+    keep = front < ends  # an empty chunk holds no record
+    front, ends = front[keep], ends[keep]
+    out = []
+    for _ in range(FRONTIER_STEPS):
+        if not len(front):
+            break
+        if (front + 8 > ends).any():
+            raise BagFormatError("truncated record in chunk")
+        hn = gather_u32(b, front)
+        if (front + 8 + hn > ends).any():
+            raise BagFormatError("truncated record in chunk")
+        nxt = front + 8 + hn + gather_u32(b, front + 4 + hn)
+        if (nxt > ends).any():
+            raise BagFormatError("truncated record in chunk")
+        out.append(front)
+        more = nxt < ends
+        front, ends = nxt[more], ends[more]
+    for a, e in zip(front.tolist(), ends.tolist(), strict=True):
+        out.append(a + record_starts(raw[a:e], b[a:e]))
+    return np.sort(np.concatenate(out)) if out else np.empty(0, np.int64)
 
 
 @dataclass(frozen=True)

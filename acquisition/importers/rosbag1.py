@@ -2,10 +2,12 @@
 
 rosbags' ``rosbag1.Reader`` builds an index entry (a Python object) for every
 message when it opens a bag (~150-180 bytes per message: 2.6 GB for 12 h at
-400 Hz). This reader instead walks the file record by record
-(http://wiki.ros.org/Bags/Format/2.0), decompresses one chunk at a time
-(none / bz2 / lz4) and hands out its messages in file order, so memory is
-O(chunk) whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
+400 Hz). This reader instead takes a closed bag's chunks from its index's chunk
+table, a block of the file at a time (:mod:`.ros1chunks`), or walks the file
+record by record (http://wiki.ros.org/Bags/Format/2.0) where the table is missing
+or does not match; it decompresses one chunk at a time (none / bz2 / lz4) and hands
+out its messages in file order, so memory is O(chunk) plus 16 bytes a chunk for
+the table, whatever the bag's length. ``sensor_msgs/Imu`` messages are decoded
 with numpy, a chunk at a time (:func:`.messages.decode_imu_ros1`).
 
 The records and a chunk's contents are parsed by :mod:`.ros1records`.
@@ -20,6 +22,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from imustation.acquisition.importers.chunked import ChunkedFile
+from imustation.acquisition.importers.ros1chunks import ChunkTable, chunk_positions, read_chunks
 from imustation.acquisition.importers.ros1records import (
     MAGIC,
     OP_BAGHEADER,
@@ -37,6 +41,7 @@ from imustation.acquisition.importers.ros1records import (
     decompress,
     decompress_prefix,
     int_field,
+    layout,
     op_code,
     op_of,
     parse_fields,
@@ -56,48 +61,34 @@ WALK_BYTES = 1 << 22
 RUN_OPS = (OP_CHUNK, OP_CHUNK_INFO)
 
 
-class Ros1Bag:
+class Ros1Bag(ChunkedFile):
     """Sequential reader of a ROS 1 bag: :meth:`index` (topics, counts) and :meth:`chunks` (messages)."""
 
     def __init__(self, path: str):
-        self.path = str(path)
         self._parsed: dict[bytes, dict[str, bytes]] = {}
         self._walk_at = 0
-        self.fh = open(self.path, "rb")  # noqa: SIM115 (closed by close / the context manager)
-        try:
-            if self.fh.read(len(MAGIC)) != MAGIC:
-                raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
-            hdr = self._header()
-            if op_code(hdr) != OP_BAGHEADER:
-                raise BagFormatError("first record is not the bag header")
-            self.index_pos = int_field(hdr, "index_pos")
-            self.conn_count = int_field(hdr, "conn_count")
-            self.chunk_count = int_field(hdr, "chunk_count")
-            if hdr.get("encryptor"):
-                raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
-            self._skip(self._u32())
-            self.first_record = self.fh.tell()
-            self.size = os.fstat(self.fh.fileno()).st_size
-            #: where reading stopped in a bag cut short or not closed (None: read to its end)
-            self.unread_from: int | None = None
-            #: the bag is indexed but cut short: its index (at ``index_pos``) is missing or
-            #: incomplete, so the chunks are read one after the other up to the cut
-            self.cut = self.index_pos > self.size
-            #: chunks and messages read by the last :meth:`chunks`, and the messages of those
-            #: that came from a chunk cut short
-            self.chunks_read = self.messages_read = self.salvaged = 0
-        except BaseException:
-            self.fh.close()
-            raise
+        #: the messages of the last :meth:`chunks` that came from a chunk cut short
+        self.salvaged = 0
+        #: every chunk's position from the index (:meth:`index`; None: not read, or not usable)
+        self.table: ChunkTable | None = None
+        super().__init__(path)
 
-    def __enter__(self) -> Ros1Bag:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.fh.close()
+    def _start(self) -> None:
+        if self.fh.read(len(MAGIC)) != MAGIC:
+            raise BagFormatError("not a ROS 1 bag (v2.0 magic missing)")
+        hdr = self._header()
+        if op_code(hdr) != OP_BAGHEADER:
+            raise BagFormatError("first record is not the bag header")
+        self.index_pos = int_field(hdr, "index_pos")
+        self.conn_count = int_field(hdr, "conn_count")
+        self.chunk_count = int_field(hdr, "chunk_count")
+        if hdr.get("encryptor"):
+            raise BagFormatError(f"encrypted bag ({hdr['encryptor'].decode()}) not supported")
+        self._skip(self._u32())
+        self.first_record = self.fh.tell()
+        #: the bag is indexed but cut short: its index (at ``index_pos``) is missing or
+        #: incomplete, so the chunks are read one after the other up to the cut
+        self.cut = self.index_pos > self.size
 
     # -- low level
     def _u32(self) -> int:
@@ -139,31 +130,29 @@ class Ros1Bag:
         a bag cut short (:attr:`cut`) are scanned instead.
         """
         if self.index_pos == 0 or self.cut:
-            return self._scan()
+            return self.scan()
         try:
             return self._read_index()
         except BagCutError:
             self.cut = True  # cut inside the index: every chunk is there
-            return self._scan()
-
-    def _scan(self) -> tuple[dict[int, Connection], dict[int, int]]:
-        conns: dict[int, Connection] = {}
-        counts: dict[int, int] = {}
-        for ch in self.chunks(conns):
-            ids, n = np.unique(ch.conn, return_counts=True)
-            for i, k in zip(ids.tolist(), n.tolist(), strict=True):
-                counts[i] = counts.get(i, 0) + k
-        return conns, counts
+            return self.scan()
 
     def _read_index(self) -> tuple[dict[int, Connection], dict[int, int]]:
         self.fh.seek(self.index_pos)
         conns: dict[int, Connection] = {}
         infos: list[bytes] = []
+        table: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # chunk positions, connections, messages
         for item in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
             if isinstance(item, Run):  # chunk infos of one connection and length
                 if item.shape.data_len % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
                 infos.append(item.data.tobytes())
+                vo = layout(item.shape.key, 0, len(item.shape.key)).get("chunk_pos", (0, 0))
+                # the headers (the walk hands out the data only) hold each chunk's position
+                pos = chunk_positions(self.fh, item.at, vo[0]) if vo[1] == 8 else None
+                k, m = len(item.at), item.shape.data_len // 8
+                per = item.data.reshape(k, -1).copy().view("<u4").reshape(k, m, 2)[:, :, 1].sum(axis=1)
+                table.append((pos, np.full(k, m, np.int32), per.astype(np.int32)))
                 continue
             _at, op, hdr, data = item
             if op == OP_CONNECTION:
@@ -174,6 +163,13 @@ class Ros1Bag:
                 if len(data) % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
                 infos.append(data)
+                cp = hdr.get("chunk_pos")
+                pos = np.array([int.from_bytes(cp, "little")], np.int64) if cp is not None and len(cp) == 8 else None
+                per = np.frombuffer(data, "<u4").reshape(-1, 2)[:, 1].sum()
+                table.append((pos, np.array([len(data) // 8], np.int32), np.array([per], np.int32)))
+        self.table = None
+        if table and all(p is not None for p, _, _ in table):
+            self.table = ChunkTable(*(np.concatenate(x) for x in zip(*table, strict=True)))
         pairs = np.frombuffer(b"".join(infos), "<u4").reshape(-1, 2).astype(np.int64)
         ids, where = np.unique(pairs[:, 0], return_inverse=True)
         sums = np.bincount(where, pairs[:, 1], len(ids)) if len(ids) else np.zeros(0)
@@ -188,10 +184,15 @@ class Ros1Bag:
         it is None), and the complete messages of a chunk cut there are handed out too.
         """
         conns = {} if conns is None else conns
-        self.fh.seek(self.first_record)
         self.unread_from = None
         self.chunks_read = self.messages_read = self.salvaged = 0
         scan = self.index_pos == 0 or self.cut
+        at: int | None = self.first_record
+        if not scan:
+            at = yield from self._indexed_chunks(conns)
+            if at is None:
+                return
+        self.fh.seek(at)
         end = self.index_pos if 0 < self.index_pos <= self.size else self.size
         # small chunks (a recorder that flushes every message) are split and decoded together: per chunk
         # the cost is then a record read, not a numpy pass (one message per chunk: 0.6k -> tens of k msg/s)
@@ -257,6 +258,23 @@ class Ros1Bag:
             if not scan:
                 raise exc
             yield from self._stop(at, conns)
+
+    def _indexed_chunks(self, conns: dict[int, Connection]) -> Iterator[ChunkMessages]:
+        """The chunks of a closed bag from its index's chunk table (:mod:`.ros1chunks`), as far as the table
+        tiles the bag; returns the offset to walk on from (None: every chunk read)."""
+        if self.table is None:
+            try:
+                self._read_index()
+            except BagFormatError:
+                return self.first_record  # an index cut short or damaged: the walk finds out
+        if self.table is None:
+            return self.first_record
+        counts: list = [0, 0, None]
+        for msgs in read_chunks(self.fh, self.table, self.first_record, self.index_pos, conns, counts):
+            self.chunks_read, self.messages_read = counts[0], counts[1]
+            yield msgs
+        self.chunks_read, self.messages_read = counts[0], counts[1]
+        return counts[2]
 
     def _walk(
         self, end: int, keep: tuple[int, ...] = (OP_CHUNK, OP_CONNECTION, OP_MSGDATA)
@@ -327,6 +345,8 @@ class Ros1Bag:
                     if len(self._parsed) >= 1024:
                         self._parsed.clear()
                     self._parsed[key] = hdr
+                elif op in keep:  # a chunk info walked alone: its chunk's position (values differ: not kept)
+                    hdr = parse_fields(key, 0, hn)
                 else:
                     hdr = {}
             (dn,) = u32(buf, off + 4 + hn)
@@ -339,7 +359,8 @@ class Ros1Bag:
                 data = buf[off + 8 + hn : off + total]
             elif pos + total > self.size:
                 raise BagCutError("truncated record")
-            before, last = last, (op, key, hdr, dn)
+            # a chunk info's values differ from record to record: its run is found by its layout
+            before, last = last, (op, key, hdr if op != OP_CHUNK_INFO else {}, dn)
             yield pos, op, hdr, data
             pos += total
         self.fh.seek(pos)

@@ -15,7 +15,7 @@ import contextlib
 import datetime as _dt
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import h5py
@@ -23,7 +23,15 @@ import numpy as np
 from h5py import h5d
 
 from imustation.errors import RunFileError
-from imustation.runfile.rate import stamp_rate
+from imustation.runfile.rate import (  # noqa: F401 - RATE_FLOOR, RATE_SIGMAS: the reader's rule, named here too
+    RATE_FLOOR,
+    RATE_SIGMAS,
+    WINDOW_ROWS,
+    confirmed,
+    probe_windows,
+    span_rate,
+    windows_rate,
+)
 from imustation.runfile.schema import (
     CELSIUS,
     COUNTER,
@@ -43,16 +51,14 @@ from imustation.runfile.schema import (
 TORN_ROWS_MAX = 1 << 21
 #: highest sample rate a run file may state, Hz (no inertial sensor comes near it)
 MAX_RATE_HZ = 1e6
-#: rate_hz and the rate its first timestamps show may differ by at most this factor; beyond it the
-#: file is refused (the stamps or the rate are not what the file says)
+#: rate_hz and the rate its timestamps show (probed across the record) may differ by at most this factor;
+#: beyond it the file is refused (the stamps or the rate are not what the file says)
 RATE_TOLERANCE = 1.33
-#: within it, a rate the stamps contradict by more than RATE_SIGMAS standard errors of their fit and
-#: more than RATE_FLOOR (relative) is corrected to the stamps' rate, with a RateCorrected warning (a
-#: deviation below the floor moves a noise density by less than 0.05 %)
-RATE_SIGMAS = 5.0
-RATE_FLOOR = 1e-3
-#: timestamps compared with rate_hz; fewer than RATE_MIN_ROWS are not checked
-RATE_PROBE_ROWS = 4096
+#: within it, a rate is corrected to the stamps' (with a RateCorrected warning) only where the whole
+#: record contradicts it (:func:`.rate.confirmed`: RATE_SIGMAS, RATE_FLOOR)
+#: timestamps of a window the rate is probed in (:func:`.rate.probe_windows`: windows spread over the
+#: whole record); a record of fewer than RATE_MIN_ROWS is not checked
+RATE_PROBE_ROWS = WINDOW_ROWS - 1
 RATE_MIN_ROWS = 64
 #: a rate whose period fewer than this fraction of the positive steps are near contradicts the stamps
 RATE_MIN_REGULAR = 0.1
@@ -270,53 +276,74 @@ def _check_rate_attr(path: str, where: str, attrs: dict[str, Any]) -> float:
 
 
 def _check_rate(
-    path: str, where: str, t: h5py.Dataset, n: int, rate_hz: float, monotonic: bool
+    path: str,
+    where: str,
+    t: h5py.Dataset,
+    n: int,
+    rate_hz: float,
+    monotonic: bool,
+    losses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[float, str] | None:
-    """``rate_hz`` against the first RATE_PROBE_ROWS timestamps (:func:`.rate.stamp_rate`: a fit over
-    the runs of regular steps, holes excluded, so a file whose every loss is logged reads).
+    """``rate_hz`` against the timestamps probed across the record (:func:`.rate.probe_windows`; a fit over
+    the runs of regular steps, :func:`.rate.windows_rate`: holes excluded, so a file whose every loss is
+    logged reads).
 
-    Refused: stamps stepping back where ``monotonic`` (every capture; an import keeps file order and
-    says so in its events), a rate the stamps contradict beyond RATE_TOLERANCE or near whose period
-    too few steps lie. Returns ``(the stamps' rate, Hz; why)`` when they contradict it beyond their
-    jitter (RATE_SIGMAS, RATE_FLOOR), else None.
+    Refused: probed stamps stepping back where ``monotonic`` (every capture; an import keeps file order and
+    says so in its events), a rate the stamps contradict beyond RATE_TOLERANCE or near whose period too few
+    steps lie. Returns ``(the fitted rate, Hz; why)`` when the fit contradicts it beyond its standard error
+    (RATE_SIGMAS, RATE_FLOOR) and so does the record's whole span, the same way, beyond RATE_FLOOR and its
+    stamps' jitter (:func:`.rate.span_rate`, with ``losses()``: the times and counts of the losses the
+    events log), else None (never without ``losses``).
     """
-    k = min(n, RATE_PROBE_ROWS + 1)
-    if k < 2:
+    if n < 2:
         return None
-    with damaged_file(path, f"{where}/t rows 0:{k}", t):
-        stamps = np.asarray(t[:k], dtype=np.int64)
-    d = np.diff(stamps)
-    if monotonic and (d < 0).any():
-        i = int(np.argmax(d < 0))
-        raise RunFileError(
-            f"{path}: {where}/t steps back at row {i + 1} ({int(stamps[i])} -> {int(stamps[i + 1])} ns); "
-            "a capture's times only increase"
-        )
-    if k < RATE_MIN_ROWS:
+    windows = []
+    for a, b in probe_windows(n):
+        with damaged_file(path, f"{where}/t rows {a}:{b}", t):
+            stamps = np.asarray(t[a:b], dtype=np.int64)
+        d = np.diff(stamps)
+        if monotonic and (d < 0).any():
+            i = int(np.argmax(d < 0))
+            raise RunFileError(
+                f"{path}: {where}/t steps back at row {a + i + 1} ({int(stamps[i])} -> {int(stamps[i + 1])} ns); "
+                "a capture's times only increase"
+            )
+        windows.append((a, stamps))
+    if n < RATE_MIN_ROWS:
         return None
-    sr = stamp_rate(stamps, rate_hz)
+    k = sum(len(w) for _, w in windows)
+    over = f"over {k} samples" if k == n else f"over {k} samples in {len(windows)} windows across {n}"
+    sr = windows_rate(windows, rate_hz)
     head = f"{path}: {where}: rate_hz {rate_hz:g} contradicts its timestamps"
     if sr.regular < max(8, RATE_MIN_REGULAR * sr.steps):
-        pos = d[d > 0]
+        pos = np.concatenate([np.diff(w) for _, w in windows])
+        pos = pos[pos > 0]
         seen = (
             f"median step {np.median(pos) / 1e6:.6g} ms: {1e9 / np.median(pos):.6g} Hz"
             if len(pos)
             else "times that do not increase"
         )
-        raise RunFileError(
-            f"{head} ({sr.regular} of {sr.steps} steps within 1.5 periods of it over the first {k} samples; {seen})"
-        )
+        raise RunFileError(f"{head} ({sr.regular} of {sr.steps} steps within 1.5 periods of it {over}; {seen})")
     ratio = rate_hz / sr.rate_hz
     if not 1 / RATE_TOLERANCE <= ratio <= RATE_TOLERANCE:
-        raise RunFileError(f"{head} ({sr.rate_hz:.6g} Hz over the first {k} samples)")
-    off = abs(ratio - 1.0)
-    if off > RATE_FLOOR and off > RATE_SIGMAS * sr.sigma_hz / sr.rate_hz:
-        return sr.rate_hz, (
-            f"{path}: {where}: rate_hz {rate_hz:g} contradicts its timestamps "
-            f"({sr.rate_hz:.6g} +- {sr.sigma_hz:.2g} Hz fitted over the first {k} samples, {off:.2%} off); "
-            f"using {sr.rate_hz:.6g} Hz"
-        )
-    return None
+        raise RunFileError(f"{head} ({sr.rate_hz:.6g} Hz {over})")
+    spans: list = []
+
+    def span():
+        spans.append(span_rate(windows, n, rate_hz, *losses()))
+        return spans[0]
+
+    # a fit over the runs of a short host-clock record follows its start-up transient: a rate is wrong only
+    # where the whole span says so too. The span confirms, the fit over every probed run (holes logged or
+    # not) gives the rate: a hole no event logs shortens the span's count, a transient at an end moves it
+    if losses is None or not confirmed(sr, rate_hz, span):
+        return None
+    sp, hz = spans[0], sr.rate_hz
+    return hz, (
+        f"{head} over its whole span ({sp.rate_hz:.6g} Hz from {sp.count} periods in {sp.span_s:.6g} s, jitter "
+        f"{sp.jitter_ns / 1e6:.3g} ms; {sr.rate_hz:.6g} +- {sr.sigma_hz:.2g} Hz fitted {over}; "
+        f"{abs(rate_hz / hz - 1):.2%} off); using {hz:.6g} Hz"
+    )
 
 
 def _check_dataset(path: str, where: str, ds: Any, kinds: str, ndims: tuple[int, ...]) -> None:
@@ -348,7 +375,9 @@ def _check_channel(path: str, where: str, ds: h5py.Dataset) -> None:
         raise RunFileError(f"{path}: {where} has shape {ds.shape} but axes {attrs['axes']!r}")
 
 
-def _check_device(path: str, name: str, g: Any, complete: bool) -> tuple[float, str] | None:
+def _check_device(
+    path: str, name: str, g: Any, complete: bool, losses: Callable[[str], tuple[np.ndarray, np.ndarray]]
+) -> tuple[float, str] | None:
     where = f"devices/{name}"
     if not isinstance(g, h5py.Group):
         raise RunFileError(f"{path}: {where} is a dataset, expected a device group")
@@ -369,10 +398,10 @@ def _check_device(path: str, name: str, g: Any, complete: bool) -> tuple[float, 
         else:
             _check_channel(path, f"{where}/{key}", ds)
     n = _check_extents(path, where, dsets, complete)
-    return _check_rate(path, where, dsets[TIME], n, rate, attrs["driver"] != IMPORT_DRIVER)
+    return _check_rate(path, where, dsets[TIME], n, rate, attrs["driver"] != IMPORT_DRIVER, lambda: losses(name))
 
 
-def _check_thermometer(path: str, name: str, g: Any, complete: bool) -> None:
+def _check_thermometer(path: str, name: str, g: Any, complete: bool, _losses: Any = None) -> None:
     where = f"thermometers/{name}"
     if not isinstance(g, h5py.Group):
         raise RunFileError(f"{path}: {where} is a dataset, expected a thermometer group")
@@ -433,12 +462,26 @@ def check_structure(
     for gname in (DEVICES, THERMOMETERS, EVENTS):
         if gname not in root:
             raise RunFileError(f"{path}: no /{gname} (every run file has it)")
+    logged: list[np.ndarray] = []
+
+    def losses(name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Times (sorted) and counts of the losses the events log for device ``name`` (read once, when a
+        rate is in doubt)."""
+        if not logged:
+            _check_events(path, root[EVENTS], complete)
+            with damaged_file(path, "events", root[EVENTS]):
+                logged.append(root[EVENTS].fields(["t", "source", "lost"])[()])
+        rows = logged[0]
+        mine = rows[(rows["source"] == name.encode()) & (rows["lost"] > 0)]
+        order = np.argsort(mine["t"], kind="stable")
+        return mine["t"][order].astype(np.int64), mine["lost"][order].astype(np.int64)
+
     for gname, check in ((DEVICES, _check_device), (THERMOMETERS, _check_thermometer)):
         grp = root[gname]
         if not isinstance(grp, h5py.Group):
             raise RunFileError(f"{path}: /{gname} is a dataset, expected a group")
         for name, sub in _members(path, grp, gname).items():
-            note = check(path, name, sub, complete)
+            note = check(path, name, sub, complete, losses)
             if note and corrections is not None:
                 corrections[name] = (float(note[0]), note[1])
     _check_events(path, root[EVENTS], complete)

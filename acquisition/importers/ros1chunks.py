@@ -1,0 +1,256 @@
+"""The chunks of a closed ROS 1 bag found from its index, and read together with numpy.
+
+A closed bag's index holds a chunk-info record per chunk: where the chunk starts, and how many
+messages of each connection it holds (http://wiki.ros.org/Bags/Format/2.0). From those positions
+the headers and data lengths of every chunk in a block of the file (4 MB read at once) are gathered
+together, instead of walking the data section record by record (a bag written a chunk per message
+is two records per message; lz4 and bz2 chunks, and chunks of interleaved topics, differ in length
+and make no run of constant stride for the walk to find). A block is used only where the table
+tiles it exactly: the first chunk right after the bag header, each chunk followed by its index-data
+records (one per connection, 12 bytes per message) and then by the next chunk or the index. Where
+it does not (a message or connection record outside a chunk, an index that does not match the
+data), reading stops at the first chunk of that block, and :class:`.rosbag1.Ros1Bag` walks the bag
+from there, record by record as before.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from imustation.acquisition.importers.messages import gather_u32
+from imustation.acquisition.importers.ros1records import (
+    OP_CHUNK,
+    OP_IDXDATA,
+    BagCutError,
+    BagFormatError,
+    ChunkMessages,
+    Connection,
+    decompress,
+    op_code,
+    parse_fields,
+    split_chunk,
+)
+from imustation.acquisition.importers.ros1records import (
+    layout as header_layout,
+)
+
+#: decompressed chunk bytes split and handed out together
+BATCH_BYTES = 1 << 20
+#: file bytes read at once (chunks and their index data); a larger chunk is read alone
+BLOCK_BYTES = 1 << 22
+#: chunks whose layout is gathered at once, at the most (bounds the temporaries: ~50 bytes a chunk)
+WINDOW = 1 << 16
+
+
+@dataclass(frozen=True)
+class ChunkTable:
+    """Every chunk of a bag from its index: start offset (int64), connections (int32) and messages (int32)."""
+
+    pos: np.ndarray
+    conns: np.ndarray
+    messages: np.ndarray
+
+
+def _u64(b: np.ndarray, at: np.ndarray) -> np.ndarray:
+    return b[np.asarray(at, np.int64)[:, None] + np.arange(8)].view("<u8")[:, 0].astype(np.int64)
+
+
+def chunk_positions(fh, at: np.ndarray, value_offset: int) -> np.ndarray:
+    """The ``chunk_pos`` of the chunk-info records at offsets ``at`` (sorted) of the open file ``fh`` whose
+    value sits ``value_offset`` bytes into their header (the same field layout in each)."""
+    at = np.asarray(at, np.int64) + 4 + value_offset
+    if not len(at):
+        return np.empty(0, np.int64)
+    lo = int(at[0])
+    buf = np.empty(int(at[-1]) + 8 - lo, np.uint8)
+    fh.seek(lo)
+    if fh.readinto(buf) != len(buf):
+        raise BagCutError("truncated chunk info record")
+    return _u64(buf, at - lo)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where the data of the chunks of a block is (start, length; from the block's start), how it is
+    stored (``kind[which[k]]``) and its decompressed size."""
+
+    start: np.ndarray
+    length: np.ndarray
+    kind: list[str]
+    which: np.ndarray
+    size: np.ndarray
+
+
+def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, messages: np.ndarray) -> Layout | None:
+    """The chunks starting at ``pos`` in the block ``b`` (offsets in it), each followed by its index-data
+    records up to ``nxt`` (the next chunk or the index); None when they do not tile the block so."""
+    if (nxt <= pos).any() or nxt[-1] > len(b):
+        return None
+    hn = gather_u32(b, pos)
+    if (hn > 1 << 20).any() or (pos + 8 + hn > nxt).any():
+        return None
+    dn = gather_u32(b, pos + 4 + hn)
+    start = pos + 8 + hn
+    end = start + dn
+    if (end + 4 > nxt).any():
+        return None
+    # the index-data records after each chunk: one per connection, 12 bytes per message, all with the
+    # header of the first (the same fields)
+    h = _idx_header(b, int(end[0]), int(nxt[0]))
+    if h is None or ((nxt - end) != conns.astype(np.int64) * (8 + h) + 12 * messages.astype(np.int64)).any():
+        return None
+    which = np.zeros(len(pos), np.int8)
+    kinds: list[str] = []
+    size = np.zeros(len(pos), np.int64)
+    for k in np.unique(hn).tolist():
+        g = np.flatnonzero(hn == k)
+        # chunk headers differ in their size value only (same compression, same fields): all compared with
+        # the first's at once, and a header unlike it looked at on its own
+        rows = b[pos[g, None] + 4 + np.arange(k)]
+        left = np.arange(len(g))
+        while len(left):
+            key = rows[left[0]].tobytes()
+            try:
+                f = parse_fields(key, 0, k)
+                if op_code(f) != OP_CHUNK or len(kinds) >= 64:
+                    return None
+                kind = f.get("compression", b"none").decode()
+                vo, vl = header_layout(key, 0, k)["size"]
+            except (BagFormatError, UnicodeDecodeError, KeyError):
+                return None
+            sub = rows[left]
+            fixed = np.ones(k, bool)
+            fixed[vo : vo + vl] = False
+            same = (sub[:, fixed] == rows[left[0], fixed]).all(axis=1)
+            mine = left[same]
+            size[g[mine]] = (sub[same][:, vo : vo + vl].astype(np.int64) << (8 * np.arange(vl))).sum(axis=1)
+            which[g[mine]] = len(kinds)
+            kinds.append(kind)
+            left = left[~same]
+    return Layout(start, dn, kinds, which, size)
+
+
+def _idx_header(b: np.ndarray, at: int, stop: int) -> int | None:
+    """The header length of the index-data record at ``at`` (None if it is not one)."""
+    if at + 4 > stop:
+        return None
+    h = int(gather_u32(b, [at])[0])
+    if h > 1 << 10 or at + 4 + h > stop:
+        return None
+    try:
+        return h if op_code(parse_fields(b[at + 4 : at + 4 + h].tobytes(), 0, h)) == OP_IDXDATA else None
+    except BagFormatError:
+        return None
+
+
+def read_chunks(fh, table: ChunkTable, first_record: int, index_pos: int, conns: dict[int, Connection],
+                counts: list[int]) -> Iterator[ChunkMessages]:  # fmt: skip
+    """The messages of the chunks of ``table`` in file order, a batch of chunks at a time (``counts``: chunks
+    and messages read so far, updated). Stops at the first block the table does not tile: ``counts[2]`` is
+    then the file offset to walk on from (None when every chunk was read)."""
+    pos = table.pos
+    n = len(pos)
+    counts[2] = first_record
+    if n == 0 or pos[0] != first_record:
+        return
+    nxt = np.append(pos[1:], index_pos)
+    i = 0
+    while i < n:
+        base = int(pos[i])
+        j = max(int(np.searchsorted(nxt, base + BLOCK_BYTES, side="right")), i + 1)
+        j = min(j, n, i + WINDOW)
+        buf = np.empty(int(nxt[j - 1]) - base, np.uint8)
+        fh.seek(base)
+        if fh.readinto(buf) != len(buf):
+            return  # shorter than its index says: walked (and found cut)
+        lay = layout(buf, pos[i:j] - base, nxt[i:j] - base, table.conns[i:j], table.messages[i:j])
+        if lay is None:
+            return
+        yield from _batches(buf, lay, conns, counts)
+        i = j
+        counts[2] = int(nxt[i - 1])
+    counts[2] = None
+
+
+def _batches(b: np.ndarray, lay: Layout, conns, counts) -> Iterator[ChunkMessages]:
+    n = len(lay.start)
+    cum = np.cumsum(lay.size)
+    view = memoryview(b)
+    i = 0
+    while i < n:
+        j = int(np.searchsorted(cum, (cum[i - 1] if i else 0) + BATCH_BYTES, side="left")) + 1
+        j = min(max(j, i + 1), n)
+        start, length = lay.start[i:j], lay.length[i:j]
+        kinds = np.unique(lay.which[i:j])
+        if len(kinds) == 1 and lay.kind[int(kinds[0])] == "none":
+            if (length != lay.size[i:j]).any():
+                k = int(np.argmax(length != lay.size[i:j]))
+                raise BagFormatError(f"chunk holds {length[k]} bytes, its header says {lay.size[i + k]}")
+            raw = _gather(b, start, length)
+        else:
+            raw = b"".join(_decompress_all(view, lay, i, j, start, length))
+        bounds = np.concatenate([[0], np.cumsum(lay.size[i:j])[:-1]])
+        msgs = split_chunk(raw, conns, starts=bounds)
+        counts[0] += j - i
+        counts[1] += len(msgs.conn)
+        yield msgs
+        i = j
+
+
+def _gather(b: np.ndarray, start: np.ndarray, length: np.ndarray) -> bytes:
+    """The bytes ``b[start[k]:start[k] + length[k]]`` of every k (in order, apart), joined: a byte mask over
+    their span, made of runs (one byte a byte, not an index of eight)."""
+    lo, hi = int(start[0]), int(start[-1] + length[-1])
+    runs = np.empty(2 * len(start), np.int64)  # kept, skipped, kept, ...: the span as runs of one mask value
+    runs[0::2] = length
+    runs[1:-1:2] = start[1:] - (start[:-1] + length[:-1])
+    runs[-1] = 0
+    inside = np.repeat(np.tile(np.array([True, False]), len(start)), runs)
+    return b[lo:hi][inside].tobytes()
+
+
+def _decompress_all(mm: memoryview, lay: Layout, i: int, j: int, start: np.ndarray, length: np.ndarray) -> list[bytes]:
+    """Chunks ``i:j`` decompressed, one codec call each (no per-chunk checks in Python: their sizes are
+    compared at once after)."""
+    which = lay.which[i:j]
+    codecs = {w: _codec(lay.kind[w]) for w in np.unique(which).tolist()}
+    try:
+        if len(codecs) == 1:
+            dec = next(iter(codecs.values()))
+            parts = [dec(mm[a : a + k]) for a, k in zip(start.tolist(), length.tolist(), strict=True)]
+        else:
+            parts = [codecs[w](mm[a : a + k]) for w, a, k in zip(which.tolist(), start.tolist(), length.tolist(),
+                                                                   strict=True)]  # fmt: skip
+    except (OSError, ValueError, RuntimeError, EOFError) as exc:
+        # the chunk that fails, named as the walk names it
+        for w, a, k, s in zip(which.tolist(), start.tolist(), length.tolist(), lay.size[i:j].tolist(), strict=True):
+            decompress(lay.kind[w], mm[a : a + k], s)
+        raise BagFormatError(f"chunk does not decompress ({exc})") from None
+    got = np.fromiter(map(len, parts), np.int64, len(parts))
+    bad = np.flatnonzero(got != lay.size[i:j])
+    if len(bad):
+        k = int(bad[0])
+        raise BagFormatError(f"chunk holds {got[k]} bytes, its header says {lay.size[i + k]}")
+    return parts
+
+
+def _codec(kind: str):
+    """The decompressor of a chunk compression (``none``, ``bz2``, ``lz4``)."""
+    if kind == "none":
+        return _same
+    if kind == "bz2":
+        import bz2
+
+        return bz2.decompress
+    if kind == "lz4":
+        import lz4.frame
+
+        return lz4.frame.decompress
+    raise BagFormatError(f"chunk compression {kind!r} is not supported")
+
+
+def _same(data: bytes) -> bytes:
+    return data
