@@ -41,7 +41,7 @@ def lab(stall: bool = True) -> dict:
     return raw
 
 
-def _capture(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
+def capture_lab(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
     """Record ``raw`` through the station, logging when each device was read.
 
     Returns the run file and, per device, the samples its simulator made between the read that emptied it
@@ -91,7 +91,7 @@ def _capture(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
     return path, produced
 
 
-def _assert_the_file_accounts_for_every_sample(path) -> dict:
+def assert_the_file_accounts_for_every_sample(path) -> dict:
     """Every device: every hole its data show is logged, every logged loss is in a hole or at an edge."""
     with open_run(path) as run:
         checks = check_run(run)
@@ -109,8 +109,8 @@ def _assert_the_file_accounts_for_every_sample(path) -> dict:
 def test_a_stall_on_one_device_virtual_clock_every_device_accounts_exactly(tmp_path, monkeypatch):
     """The stall holds the one-thread station 2 s: every FIFO overruns, the serial buffers fill, the ADIS16448
     (no FIFO) is not read. Every loss is logged where it is, and written + logged = what each simulator made."""
-    path, produced = _capture(tmp_path, lab(), 10.0, monkeypatch)
-    checks = _assert_the_file_accounts_for_every_sample(path)
+    path, produced = capture_lab(tmp_path, lab(), 10.0, monkeypatch)
+    checks = assert_the_file_accounts_for_every_sample(path)
     for name, c in checks.items():
         assert c.samples + c.logged == produced[name], name
         assert len(c.holes) == 1 and c.holes.samples > 0, name  # the stall, in every record
@@ -120,8 +120,8 @@ def test_a_stall_on_one_device_virtual_clock_every_device_accounts_exactly(tmp_p
 def test_a_stall_on_one_device_host_clock_the_file_accounts_for_every_sample(tmp_path, monkeypatch):
     """Chips simulated on the host clock, one reader thread per bus: the stall holds the BMX055 bus; the
     others lose what a busy host makes them lose. Whatever was lost, the file states all of it."""
-    path, _ = _capture(tmp_path, lab(), 5.0, monkeypatch, clock=MonotonicClock())
-    _assert_the_file_accounts_for_every_sample(path)
+    path, _ = capture_lab(tmp_path, lab(), 5.0, monkeypatch, clock=MonotonicClock())
+    assert_the_file_accounts_for_every_sample(path)
     out = CliRunner().invoke(cli, ["inspect", str(path)])
     assert out.exit_code == 0 and "holes found: 0 not logged" in out.output
 
@@ -138,7 +138,7 @@ def test_a_paced_capture_from_the_command_line_accounts_for_every_sample(tmp_pat
     args = ["capture", str(cfg), "--simulate", "--duration", "6s", "--sim-speed", "40", "-o", str(out), "--quiet"]
     res = CliRunner().invoke(cli, args)
     assert res.exit_code == 0, res.output
-    checks = _assert_the_file_accounts_for_every_sample(out)
+    checks = assert_the_file_accounts_for_every_sample(out)
     assert checks["adis"].holes.samples > 500
     assert "holes found: 0 not logged" in CliRunner().invoke(cli, ["inspect", str(out)]).output
 
