@@ -18,7 +18,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 import pytest
 
-from imustation.acquisition import capture, readers, realtime
+from imustation.acquisition import capture, realtime, restarts
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.readers import HostOutbox
 from imustation.acquisition.scheduler import Poller, run_deadline
@@ -249,7 +249,7 @@ def test_a_reader_process_that_dies_is_a_logged_fault_not_a_lost_capture(tmp_pat
     (SIGKILL); restarts are off (a cap of 0 an hour). The capture goes on with i2c:1 and finishes the
     file: the dead reader's device has a fault event naming it, and a gap counting what it did not read
     to the end; the status says failed."""
-    monkeypatch.setattr(readers, "RESTARTS_PER_HOUR", 0)
+    monkeypatch.setattr(restarts, "RESTARTS_PER_HOUR", 0)
     cfg = _config([{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}])
     out = tmp_path / "dead.h5"
     killed = []
@@ -383,19 +383,19 @@ def test_a_successor_killed_too_is_another_attempt_and_the_devices_still_come_ba
 def test_restarts_back_off_and_are_capped_per_hour(monkeypatch):
     """A reader that dies at once is started again after 1, 2, 4 ... s, at most 60 s; the eleventh restart
     within an hour waits for the first to be an hour old; a cap of 0 never starts it again."""
-    restarts: list[float] = []
+    started: list[float] = []
     delays = []
     now = 1000.0
     for _ in range(10):
-        delays.append(readers.restart_delay(restarts, now))
+        delays.append(restarts.restart_delay(started, now))
         now += delays[-1]
-        restarts.append(now)
+        started.append(now)
     assert delays == [1, 2, 4, 8, 16, 32, 60, 60, 60, 60]
-    assert readers.restart_delay(restarts, now) == pytest.approx(1001.0 + 3600.0 - now)
-    assert readers.restart_delay(restarts, 1001.0 + 3600.0 + 1.0) == 60.0  # the first has aged out
-    assert readers.restart_delay([], 5000.0 + 3 * 3600) == 1.0
-    monkeypatch.setattr(readers, "RESTARTS_PER_HOUR", 0)
-    assert readers.restart_delay([], now) is None
+    assert restarts.restart_delay(started, now) == pytest.approx(1001.0 + 3600.0 - now)
+    assert restarts.restart_delay(started, 1001.0 + 3600.0 + 1.0) == 60.0  # the first has aged out
+    assert restarts.restart_delay([], 5000.0 + 3 * 3600) == 1.0
+    monkeypatch.setattr(restarts, "RESTARTS_PER_HOUR", 0)
+    assert restarts.restart_delay([], now) is None
 
 
 def test_reader_messages_pickle_as_the_main_side_expects():
