@@ -12,7 +12,10 @@ simulators' own cost inside each poll - for ``--duration`` seconds in each of:
 each idle and with ``--busy`` busy-loop processes beside it (started and stopped
 here). Prints per device the samples written and lost (and per 10,000), the CPU
 each reader process used per sample of its devices while recording, the writer's
-CPU per sample, and the machine's load (1-minute load average after each case).
+CPU per sample, the machine's load (1-minute load average after each case), and
+whether the run file accounts for every sample (``imustation inspect``'s check:
+every hole logged, written + logged = produced; on the host clock this is the
+check the test suite cannot make, its outcome depending on the machine's load).
 
 Targets (issue 36): readers, idle: 0 lost; beside two busy loops: at most 1 in
 10,000 per device.
@@ -30,10 +33,13 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 
 from imustation.acquisition import capture, load_config
 from imustation.clock import MonotonicClock
 from imustation.configs import config_path
+from imustation.runfile import open_run
+from imustation.runfile.holes import check_run, check_thermometers
 
 TARGET_BUSY_PER_10K = 1.0
 
@@ -58,9 +64,37 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
         for p in loops:
             p.kill()
             p.wait()
+    accounting = file_accounting(out)
     os.unlink(out)
     main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
-    return {"summary": summary, "main_cpu": main_cpu, "wall": wall, "load": os.getloadavg()[0], "config": cfg}
+    return {
+        "summary": summary,
+        "main_cpu": main_cpu,
+        "wall": wall,
+        "load": os.getloadavg()[0],
+        "config": cfg,
+        "accounting": accounting,
+    }
+
+
+def file_accounting(path: str) -> list[str]:
+    """What the run file's own check finds wrong (empty: every hole logged, written + logged = produced),
+    and the rates its reader corrected from the stamps (they change how it counts a hole)."""
+    problems = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with open_run(path) as run:
+            for name, c in check_run(run).items():
+                if not c.consistent:
+                    problems.append(
+                        f"{name}: {c.samples} written + {c.logged} logged != {c.produced} produced; "
+                        f"unlogged holes {[(h.lost, h.logged) for h in c.unlogged[:3]]}"
+                    )
+            for name, c in check_thermometers(run).items():
+                if c is not None and not c.consistent:
+                    problems.append(f"thermometer {name}: {c.samples} read + {c.logged} logged != {c.produced}")
+    problems += [f"note: {w.message}" for w in caught if "contradicts its timestamps" in str(w.message)]
+    return problems
 
 
 def report(mode: str, busy: int, res: dict) -> bool:
@@ -85,6 +119,10 @@ def report(mode: str, busy: int, res: dict) -> bool:
         )
     else:
         print(f"  CPU per sample (one process, readers and writer): {1e6 * res['main_cpu'] / max(1, total):.1f} us")
+    problems = res["accounting"]
+    print("  the file accounts for every sample" if not problems else "  the file's check:")
+    for line in problems:
+        print(f"    {line}")
     return ok
 
 
