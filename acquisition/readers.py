@@ -47,6 +47,7 @@ from typing import Any
 
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.realtime import READER_PRIORITY, reader_priority, release_scheduling, request_scheduling
+from imustation.acquisition.scheduler import DeadlineStats
 from imustation.acquisition.sinks import MessageSink
 from imustation.clock import MonotonicClock
 
@@ -75,6 +76,8 @@ class ReaderOptions:
     cpus: tuple[int, ...] | None = None
     #: SCHED_FIFO base priority (realtime.reader_priority adds to it by hold time); 0 asks for nothing
     priority: int = READER_PRIORITY
+    #: hybrid sleep before polls of a device without a FIFO, us (0: off; scheduler.run_deadline)
+    spin_us: int = 0
 
 
 class HostOutbox(MessageSink):
@@ -181,11 +184,16 @@ def reader_main(
         out = HostOutbox(data, station.counts, conn)
         station.start(out)
         out.send("started", 0, station.t0)
+        station.spin_ns, station.deadline_stats = options.spin_us * 1000, DeadlineStats()
+        steal0 = steal_s()
         cpu0 = time.process_time()
         # the run ends when the main process's does: its origin plus the duration
         remaining_s = max(0.0, (t0 + round(duration_s * 1e9) - station.t0) / 1e9)
         summary = station.run(out, remaining_s, should_stop=out.should_stop)
         release_scheduling()
+        note = lateness_note(config, station.deadline_stats, options.spin_us, steal_s() - steal0)
+        if note:
+            out.event(station.elapsed_ns(), "station", "note", note)
         out.send("done", station.elapsed_ns(), summary.stop_reason, time.process_time() - cpu0)
         out.close()
     except (BrokenPipeError, EOFError, ConnectionResetError):
@@ -208,3 +216,30 @@ def reader_main(
             station.close()
         conn.close()
         data.close()
+
+
+def steal_s() -> float:
+    """CPU time the hypervisor has run other guests on this machine's CPUs since boot, s (``steal`` in
+    /proc/stat; 0 where there is none or no /proc): a reader not run for tens of ms on a virtual machine
+    is often this, which nothing inside the machine changes."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK") if fields[0] == "cpu" and len(fields) > 8 else 0.0
+    except (OSError, ValueError):
+        return 0.0
+
+
+def lateness_note(config: StationConfig, stats: DeadlineStats | None, spin_us: int, steal: float) -> str:
+    """One line for the run file when polls of the reader's devices without a FIFO started late (later
+    than half their hold time after due: a sample at risk), with what the host took meanwhile; "" when
+    none did."""
+    if stats is None or not stats.late:
+        return ""
+    bus = ", ".join(dict.fromkeys(d.bus for d in config.devices))
+    spin = f", hybrid sleep {spin_us} us" if spin_us else ""
+    host = f"; the hypervisor ran other guests for {steal:.2f} s of CPU meanwhile (steal)" if steal > 0 else ""
+    return (
+        f"reader process for {bus}: {stats.late} of {stats.polls} polls started over "
+        f"{stats.hold_ns / 2e6:.2f} ms late (the latest {stats.worst_ns / 1e6:.1f} ms){spin}{host}"
+    )

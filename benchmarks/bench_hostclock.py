@@ -22,6 +22,7 @@ Targets (issue 36): readers, idle: 0 lost; beside two busy loops: at most 1 in
 
     python benchmarks/bench_hostclock.py                   # 60 s per case, 4 cases
     python benchmarks/bench_hostclock.py --duration 600 --only readers
+    python benchmarks/bench_hostclock.py --duration 600 --only readers --spin-us 500   # hybrid sleep
 """
 
 from __future__ import annotations
@@ -48,14 +49,16 @@ def busy_loops(n: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
-def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
+def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str, spin_us: int = 0) -> dict:
     loops = busy_loops(busy)
     try:
         out = os.path.join(folder, f"{mode}-{busy}.h5")
         self0 = resource.getrusage(resource.RUSAGE_SELF)
         wall0 = time.monotonic()
         if mode == "readers":
-            summary = capture(cfg, out, duration_s, simulate=True, real_time=True, overwrite=True)
+            summary = capture(
+                cfg, out, duration_s, simulate=True, real_time=True, overwrite=True, reader_spin_us=spin_us
+            )
         else:
             summary = capture(cfg, out, duration_s, simulate=True, clock=MonotonicClock(), overwrite=True)
         wall = time.monotonic() - wall0
@@ -64,7 +67,7 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
         for p in loops:
             p.kill()
             p.wait()
-    accounting = file_accounting(out)
+    accounting, late = file_accounting(out), late_polls(out)
     os.unlink(out)
     main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
     return {
@@ -74,13 +77,14 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
         "load": os.getloadavg()[0],
         "config": cfg,
         "accounting": accounting,
+        "late": late,
     }
 
 
 def file_accounting(path: str) -> list[str]:
     """What the run file's own check finds wrong (empty: every hole logged, written + logged = produced),
     and the rates its reader corrected from the stamps (they change how it counts a hole)."""
-    problems = []
+    problems: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         with open_run(path) as run:
@@ -95,6 +99,12 @@ def file_accounting(path: str) -> list[str]:
                     problems.append(f"thermometer {name}: {c.samples} read + {c.logged} logged != {c.produced}")
     problems += [f"note: {w.message}" for w in caught if "contradicts its timestamps" in str(w.message)]
     return problems
+
+
+def late_polls(path: str) -> list[str]:
+    """The readers' notes of polls started late (acquisition/readers.py lateness_note)."""
+    with open_run(path) as run:
+        return [e.detail for e in run.events() if e.kind == "note" and "polls started over" in e.detail]
 
 
 def report(mode: str, busy: int, res: dict) -> bool:
@@ -123,6 +133,8 @@ def report(mode: str, busy: int, res: dict) -> bool:
     print("  the file accounts for every sample" if not problems else "  the file's check:")
     for line in problems:
         print(f"    {line}")
+    for line in res["late"]:
+        print(f"  {line}")
     return ok
 
 
@@ -132,6 +144,13 @@ def main() -> None:
     ap.add_argument("--busy", type=int, default=2, help="busy-loop processes in the loaded cases (default 2)")
     ap.add_argument("--config", default="lab-example.toml")
     ap.add_argument("--only", choices=["readers", "threads"], default=None, help="run one mode only")
+    ap.add_argument(
+        "--spin-us",
+        type=int,
+        default=0,
+        help="readers: hybrid sleep, the last N us before a poll of a device without a FIFO spent reading "
+        "the clock instead of sleeping (default 0: off)",
+    )
     args = ap.parse_args()
     cfg = load_config(config_path(args.config))
     print(f"{args.config}: {len(cfg.devices)} devices, {os.cpu_count()} CPUs; uptime: ", end="", flush=True)
@@ -141,7 +160,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         for mode in modes:
             for busy in (0, args.busy):
-                res = run_case(cfg, mode, busy, args.duration, folder)
+                res = run_case(cfg, mode, busy, args.duration, folder, args.spin_us)
                 verdicts[(mode, busy)] = report(mode, busy, res)
     if "readers" in modes:
         idle, loaded = verdicts[("readers", 0)], verdicts[("readers", args.busy)]
