@@ -179,3 +179,21 @@ def test_a_capture_with_the_wire_accounts_for_every_sample_by_the_counter(tmp_pa
         assert len(events) == 2 and all(e.detail.startswith("counter jump") for e in events)
         assert "checksum" in events[1].detail
         assert run.devices["adis"].has_counter
+
+
+def test_a_data_ready_pin_the_bus_cannot_count_on_is_a_config_error():
+    from imustation.acquisition.config import parse_config
+    from imustation.errors import ConfigError
+
+    def cfg(bus, pin):
+        device = {"name": "adis", "driver": "adis16448", "bus": bus, "data_ready": pin}
+        return parse_config({"station": {}, "device": [device]})
+
+    assert cfg("cp2130:?cs=0", "gpio4").devices[0].settings["data_ready"] == "gpio4"
+    assert cfg("mcp2210:?cs=1", "gp6").devices[0].settings["data_ready"] == "gp6"
+    with pytest.raises(ConfigError, match=r"device\[0\].data_ready.*'gp6' on a cp2130: bus: allowed \"gpio4\""):
+        cfg("cp2130:?cs=0", "gp6")
+    with pytest.raises(ConfigError, match=r"'gpio4' on a mcp2210: bus: allowed \"gp6\""):
+        cfg("mcp2210:", "gpio4")
+    with pytest.raises(ConfigError, match="data_ready = 'dio1'"):
+        cfg("cp2130:", "dio1")
