@@ -1,7 +1,7 @@
 """A reader process lost mid-run, the main process's side: when it is started again, and what its
 devices lost meanwhile (docs/capture.md, "A reader process that dies").
 
-* the back-off (:func:`restart_delay`): 1 s, doubled for each restart of that reader in the last
+* the back-off (:func:`restart_delay`, the state :class:`Restarts`): 1 s, doubled for each restart of that reader in the last
   hour, at most 60 s; at most 10 restarts an hour (the eleventh waits until the first is an hour
   old); ``RESTARTS_PER_HOUR = 0``: a dead reader is not started again;
 * its devices' counts (:func:`failed_counts`, :func:`carried`): failed with one fault more while it
@@ -34,6 +34,64 @@ RESTART_FIRST_S = 1.0
 RESTART_MAX_S = 60.0
 RESTARTS_PER_HOUR = 10
 HOUR_S = 3600.0
+
+
+class Restarts:
+    """When a lost reader process is started again: its back-off, and its successor opening its devices.
+
+    Times are monotonic seconds. :meth:`lost` (the reader is gone, or its successor failed to open)
+    backs off by :func:`restart_delay`; :meth:`due` says when to start a successor, which
+    :meth:`started` records; :meth:`reopened` ends the attempt (returning how many it took);
+    :meth:`opening_too_long` says a successor has had ``OPEN_TIMEOUT_S`` to open and has not.
+    """
+
+    def __init__(self, open_timeout_s: float):
+        self.open_timeout_s = open_timeout_s
+        #: when the next successor is started (None: not waiting)
+        self.restart_at: float | None = None
+        #: a successor is opening its devices (since ``_opening_since``)
+        self.reopening = False
+        self._opening_since = 0.0
+        #: when it was started again (pruned to the last hour by restart_delay)
+        self.times: list[float] = []
+        self.attempts = 0
+
+    @property
+    def pending(self) -> bool:
+        """Waiting to start a successor, or a successor opening its devices."""
+        return self.restart_at is not None or self.reopening
+
+    def lost(self, now: float) -> float | None:
+        """The reader (or the successor opening) is gone at ``now``: the back-off before the next attempt,
+        s, or None when it is not started again."""
+        self.reopening = False
+        delay = restart_delay(self.times, now)
+        self.restart_at = None if delay is None else now + delay
+        return delay
+
+    def due(self, now: float) -> bool:
+        """Time to start a successor."""
+        return self.restart_at is not None and now >= self.restart_at
+
+    def started(self, now: float) -> None:
+        """A successor was spawned at ``now``; it opens its devices."""
+        self.restart_at = None
+        self.times.append(now)
+        self.attempts += 1
+        self.reopening, self._opening_since = True, now
+
+    def opening_too_long(self, now: float) -> bool:
+        return now - self._opening_since > self.open_timeout_s
+
+    def reopened(self) -> int:
+        """The successor opened its devices and records: the attempts it took (counted from 0 again)."""
+        self.reopening = False
+        attempts, self.attempts = self.attempts, 0
+        return attempts
+
+    def cancel(self) -> None:
+        """No more attempts (the run is over, or stopped)."""
+        self.restart_at, self.reopening = None, False
 
 
 def fault_detail(what: str, why: str, delay: float | None) -> str:

@@ -44,12 +44,12 @@ from imustation.acquisition.config import StationConfig
 from imustation.acquisition.readers import ReaderOptions, reader_main
 from imustation.acquisition.restarts import (
     OutageLog,
+    Restarts,
     carried,
     failed_counts,
     fault_detail,
     lost_to_end,
     reconnect_detail,
-    restart_delay,
 )
 from imustation.acquisition.sinks import MessageSink, Sink, deliver, shifted
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
@@ -273,13 +273,8 @@ class Worker:
         self.end_ns = 0
         #: CPU time the process used, s (reader processes, when done)
         self.cpu_s: float | None = None
-        #: a lost reader process is started again (restarts.restart_delay): at this monotonic time (None: not
-        #: waiting), its successor opening its devices (``reopening``), the times it was started again
-        self.restart_at: float | None = None
-        self.reopening = False
-        self._opening_since = 0.0
-        self.restarts: list[float] = []
-        self._attempts = 0
+        #: a lost reader process is started again after a back-off (restarts.Restarts)
+        self.restarts = Restarts(OPEN_TIMEOUT_S)
         self._duration_s = 0.0
         self._pace: float | None = None
         #: the counts its earlier processes reached (a restarted reader's are added to them)
@@ -315,7 +310,7 @@ class Worker:
     @property
     def restarting(self) -> bool:
         """A lost reader process waiting to be started again, or its successor opening its devices."""
-        return self.restart_at is not None or self.reopening
+        return self.restarts.pending
 
     @property
     def what(self) -> str:
@@ -355,7 +350,7 @@ class Worker:
     def stop(self) -> None:
         if self.restarting and not self.done:
             # nothing of it is recording: it ends here (its devices' gap runs to now)
-            self.restart_at, self.reopening = None, False
+            self.restarts.cancel()
             self.done, self.reason = True, "stopped"
             self._kill()
             return
@@ -415,7 +410,7 @@ class Worker:
     def lose(self, sink: Sink, mirror: Callable[[tuple], None], why: str) -> None:
         """A reader process is gone mid-run: each of its devices and thermometers gets a ``fault`` event
         and is ``failed`` in the status, and the reader is started again after a back-off
-        (:func:`~imustation.acquisition.readers.restart_delay`; never: its devices are not read for the
+        (:class:`~imustation.acquisition.restarts.Restarts`; never: its devices are not read for the
         rest of the capture); the capture goes on with the other buses."""
         self.lost_reason = why
         self.outages.lost(sink)
@@ -425,57 +420,47 @@ class Worker:
         self._counts = ({}, {})
         mirror(self._base)
         self._kill()
-        delay = restart_delay(self.restarts, time.monotonic())
+        delay = self.restarts.lost(time.monotonic())
         for name in self.names:
             sink.event(t, name, "fault", fault_detail(self.what, why, delay))
-        if delay is None:
-            self.done = True
-        else:
-            self.restart_at = time.monotonic() + delay
+        self.done = delay is None
 
     def _tend(self, sink: Sink, mirror: Callable[[tuple], None]) -> None:
         """A lost reader process: start it again when its back-off is over, tell it to record once it has
         opened its devices; a successor that fails to open them is another attempt, backed off in turn."""
         now = time.monotonic()
         self.t_ns = time.monotonic_ns() - (self.t0 or 0)  # nothing of it comes from before now
+        restarts = self.restarts
         if self.t_ns >= self.end_ns:
-            self.restart_at, self.reopening, self.done = None, False, True  # the run is over: gap to its end
+            restarts.cancel()
+            self.done = True  # the run is over: gap to its end
             self._kill()
             return
-        if self.restart_at is not None:
-            if now < self.restart_at:
-                return
-            self.restart_at = None
-            self._close_pipes()
-            self.restarts.append(now)
-            self._attempts += 1
-            self._spawn()
-            self.reopening, self._opening_since = True, now
+        if not restarts.reopening:
+            if restarts.due(now):
+                self._close_pipes()
+                restarts.started(now)
+                self._spawn()
             return
         try:
             if not self.conn.poll(0):
-                if now - self._opening_since <= OPEN_TIMEOUT_S:
+                if not restarts.opening_too_long(now):
                     return
                 raise WorkerError(f"{self.what} did not open them in {OPEN_TIMEOUT_S:g} s")
             msg = self._recv(self.conn)
             self.conn.send(("run", self._duration_s, self._pace, self.t0))
         except Exception as exc:  # noqa: BLE001 - the successor failed too: another attempt later
-            self.reopening = False
             self._kill()
-            delay = restart_delay(self.restarts, now)
-            if delay is None:
-                self.done = True
-            else:
-                self.restart_at = now + delay
+            self.done = restarts.lost(now) is None
             self.lost_reason = str(exc) if isinstance(exc, WorkerError) else f"{type(exc).__name__}: {exc}"
             return
-        self.reopening, self.lost_reason, self.offset_ns = False, "", 0
+        attempts = restarts.reopened()
+        self.lost_reason, self.offset_ns = "", 0
         if len(msg) > 3:
             self.scheduling = msg[3]
         t = time.monotonic_ns() - (self.t0 or 0)
         for name in self.names:
-            sink.event(t, name, "reconnect", reconnect_detail(self.what, self._attempts))
-        self._attempts = 0
+            sink.event(t, name, "reconnect", reconnect_detail(self.what, attempts))
         self.outages.restarted(self.names)
 
     def _add_gap(self, name: str, lost: int) -> None:

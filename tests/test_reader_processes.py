@@ -451,6 +451,23 @@ def test_a_successor_killed_too_is_another_attempt_and_the_devices_still_come_ba
     assert final["state"] == "ok" and final["faults"] == len(faults)
 
 
+def test_the_restart_state_of_a_lost_reader(monkeypatch):
+    """restarts.Restarts on explicit times: lost -> backed off 1 s -> due -> started (opening) -> reopened
+    after 1 attempt; lost again -> 2 s; a successor that takes longer than the open timeout is too long;
+    a cap of 0 never starts it again."""
+    r = restarts.Restarts(open_timeout_s=120.0)
+    assert not r.pending and r.lost(100.0) == 1.0 and r.pending
+    assert not r.due(100.5) and r.due(101.0)
+    r.started(101.0)
+    assert r.reopening and not r.due(200.0) and not r.opening_too_long(221.0) and r.opening_too_long(221.5)
+    assert r.reopened() == 1 and not r.pending
+    assert r.lost(300.0) == 2.0  # one restart within the hour before
+    r.cancel()
+    assert not r.pending
+    monkeypatch.setattr(restarts, "RESTARTS_PER_HOUR", 0)
+    assert r.lost(400.0) is None and not r.pending
+
+
 def test_restarts_back_off_and_are_capped_per_hour(monkeypatch):
     """A reader that dies at once is started again after 1, 2, 4 ... s, at most 60 s; the eleventh restart
     within an hour waits for the first to be an hour old; a cap of 0 never starts it again."""
