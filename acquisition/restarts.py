@@ -1,9 +1,10 @@
 """A reader process lost mid-run, the main process's side: when it is started again, and what its
 devices lost meanwhile (docs/capture.md, "A reader process that dies").
 
-* the back-off (:func:`restart_delay`, the state :class:`Restarts`): 1 s, doubled for each restart of that reader in the last
-  hour, at most 60 s; at most 10 restarts an hour (the eleventh waits until the first is an hour
-  old); ``RESTARTS_PER_HOUR = 0``: a dead reader is not started again;
+* the back-off (:func:`restart_delay`; the state: :class:`Restarts`): 1 s, doubled for each
+  restart of that reader in the last hour, at most 60 s; at most 10 restarts an hour (the
+  eleventh waits until the first is an hour old); ``RESTARTS_PER_HOUR = 0``: a dead reader is
+  not started again;
 * its devices' counts (:func:`failed_counts`, :func:`carried`): failed with one fault more while it
   is gone, going on from those it reached once a successor runs;
 * the events: a ``fault`` per device when it is lost (:func:`fault_detail`), a ``reconnect`` when a
