@@ -163,6 +163,9 @@ class BusFactory:
                 function.descriptor.idVendor, function.descriptor.idProduct = target.vid, target.pid
             bridge_cs = parsed.int_param("cs", 0, 0, 15)
             function.attach(bridge_cs, chip)
+            pin = dev.settings.get("data_ready", "none")
+            if pin == cls.COUNTER_PIN and hasattr(chip, "data_ready_edges"):
+                function.wire_counter(pin, chip.data_ready_edges)  # the board's wire from DIO1
             self._usb_backend.attach(function)
             backend = self._usb_backend
         bridge = open_spi(url, mode=getattr(driver, "spi_mode", 0), sleep=self.clock.sleep, backend=backend)

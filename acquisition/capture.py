@@ -101,6 +101,7 @@ def capture(
     real_time: bool = False,
     reader_priority: int = READER_PRIORITY,
     reader_cpus: Sequence[int] | None = None,
+    reader_spin_us: int = 0,
     on_note: Callable[[str], None] | None = None,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
@@ -123,7 +124,10 @@ def capture(
         a reader process as in a capture of real devices (a rehearsal: what this host loses).
     reader_priority : host clock: the SCHED_FIFO priority the reader processes ask for
         (:mod:`~imustation.acquisition.realtime`; 0 asks for nothing); ``reader_cpus``: the CPUs
-        they run on (None: the kernel places them).
+        they run on (None: the kernel places them); ``reader_spin_us``: hybrid sleep, the last this
+        many us before a poll of a device without a FIFO spent reading the clock instead of sleeping
+        (:func:`~imustation.acquisition.scheduler.run_deadline`; 0: off; ``benchmarks/bench_hostclock.py
+        --spin-us``).
     on_note : called with each line the operator should read (e.g. scheduling the OS refused).
     early_stop : SIGINT/SIGTERM received before this call (the CLI records them from its
         start, read once the capture's own handlers are in place): the capture opens its
@@ -179,7 +183,7 @@ def capture(
     if real_time or (not simulate and clock is None and trace is None and replay is None):
         # the host clock: every bus in a reader process of its own (a trace is recorded in one process)
         cpus = tuple(reader_cpus) if reader_cpus is not None else None
-        readers = ReaderOptions(simulate=simulate, priority=reader_priority, cpus=cpus)
+        readers = ReaderOptions(simulate=simulate, priority=reader_priority, cpus=cpus, spin_us=reader_spin_us)
         clock = MonotonicClock()
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()

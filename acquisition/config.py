@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
+from imustation.drivers.bus.spi_open import counter_pin
 from imustation.drivers.bus.url import KNOWN_SCHEMES, parse_bus_url
 from imustation.drivers.sim import sim_axes
 from imustation.drivers.sim.faults import parse_faults
@@ -163,6 +164,14 @@ def _parse_device(path: str, i: int, entry: Any, names: set[str]) -> DeviceConfi
         settings = DRIVERS[driver].check_settings(settings)
     except ImustationError as exc:
         raise ConfigError(path, f"{where} ({name})", str(exc)) from None
+    pin = settings.get("data_ready", "none")
+    if pin != "none":
+        # the wire goes to the one pin the bridge counts on (a sim: bus simulates a CP2130)
+        scheme = parse_bus_url(bus, KNOWN_SCHEMES).scheme
+        counting = counter_pin("cp2130" if scheme == "sim" else scheme)
+        if pin != counting:
+            allowed = f'"{counting}" or "none"' if counting else '"none" (no bridge counter on this bus)'
+            raise ConfigError(path, f"{where}.data_ready", f"{pin!r} on a {scheme}: bus: allowed {allowed}")
     if address is None:
         address = getattr(DRIVERS[driver], "default_address", None)
     return DeviceConfig(name, driver, bus, address, settings, dict(sim), i)

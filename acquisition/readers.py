@@ -26,13 +26,12 @@ captures use with ``--workers``). A reader process
 Stop signals are for the main process (readers ignore them) and a reader the
 main process lost is a device fault logged in the run file, not the end of the
 capture (:class:`~imustation.acquisition.workers.WorkerPool`): it is started
-again after a back-off (:func:`restart_delay`), re-opens its devices, and what
-they made meanwhile is one logged gap per device (:func:`outage_loss`).
+again after a back-off, re-opens its devices, and what they made meanwhile is
+one logged gap per device (:mod:`~imustation.acquisition.restarts`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import fcntl
 import gc
 import os
@@ -46,16 +45,11 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
 
-import numpy as np
-
 from imustation.acquisition.config import StationConfig
 from imustation.acquisition.realtime import READER_PRIORITY, reader_priority, release_scheduling, request_scheduling
-from imustation.acquisition.sinks import MessageSink, Sink
+from imustation.acquisition.scheduler import DeadlineStats
+from imustation.acquisition.sinks import MessageSink
 from imustation.clock import MonotonicClock
-from imustation.runfile.checks import RATE_PROBE_ROWS
-from imustation.runfile.holes import find_holes
-from imustation.runfile.rate import capture_rate
-from imustation.status import DeviceStatus, ThermometerStatus
 
 #: a reader hands over what it has at least this often (wall s), or when this many items wait
 SEND_INTERVAL_S = 0.02
@@ -70,12 +64,6 @@ F_SETPIPE_SZ = 1031  # <linux/fcntl.h>: F_LINUX_SPECIFIC_BASE + 7
 HOST_SIM_BLOCK = 512
 #: the signals the main process handles for every process
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
-#: a dead reader process is started again after this back-off, s, doubled for each restart of it in
-#: the last hour, up to RESTART_MAX_S; at most RESTARTS_PER_HOUR restarts an hour (0: none)
-RESTART_FIRST_S = 1.0
-RESTART_MAX_S = 60.0
-RESTARTS_PER_HOUR = 10
-HOUR_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -88,6 +76,8 @@ class ReaderOptions:
     cpus: tuple[int, ...] | None = None
     #: SCHED_FIFO base priority (realtime.reader_priority adds to it by hold time); 0 asks for nothing
     priority: int = READER_PRIORITY
+    #: hybrid sleep before polls of a device without a FIFO, us (0: off; scheduler.run_deadline)
+    spin_us: int = 0
 
 
 class HostOutbox(MessageSink):
@@ -194,11 +184,16 @@ def reader_main(
         out = HostOutbox(data, station.counts, conn)
         station.start(out)
         out.send("started", 0, station.t0)
+        station.spin_ns, station.deadline_stats = options.spin_us * 1000, DeadlineStats()
+        steal0 = steal_s()
         cpu0 = time.process_time()
         # the run ends when the main process's does: its origin plus the duration
         remaining_s = max(0.0, (t0 + round(duration_s * 1e9) - station.t0) / 1e9)
         summary = station.run(out, remaining_s, should_stop=out.should_stop)
         release_scheduling()
+        note = lateness_note(config, station.deadline_stats, options.spin_us, steal_s() - steal0)
+        if note:
+            out.event(station.elapsed_ns(), "station", "note", note)
         out.send("done", station.elapsed_ns(), summary.stop_reason, time.process_time() - cpu0)
         out.close()
     except (BrokenPipeError, EOFError, ConnectionResetError):
@@ -223,92 +218,28 @@ def reader_main(
         data.close()
 
 
-# -- a reader lost mid-run (the main process's side) ------------------------------------------
-def failed_counts(counts: tuple, rates: dict[str, float], names: list[str]) -> tuple:
-    """A lost reader's last counts (devices, thermometers), each failed with one fault more; ``rates``:
-    its devices' output rates, Hz (the others of ``names`` are thermometers)."""
-    devices, thermometers = counts
+def steal_s() -> float:
+    """CPU time the hypervisor has run other guests on this machine's CPUs since boot, s (``steal`` in
+    /proc/stat; 0 where there is none or no /proc): a reader not run for tens of ms on a virtual machine
+    is often this, which nothing inside the machine changes."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK") if fields[0] == "cpu" and len(fields) > 8 else 0.0
+    except (OSError, ValueError):
+        return 0.0
+
+
+def lateness_note(config: StationConfig, stats: DeadlineStats | None, spin_us: int, steal: float) -> str:
+    """One line for the run file when polls of the reader's devices without a FIFO started late (later
+    than half their hold time after due: a sample at risk), with what the host took meanwhile; "" when
+    none did."""
+    if stats is None or not stats.late:
+        return ""
+    bus = ", ".join(dict.fromkeys(d.bus for d in config.devices))
+    spin = f", hybrid sleep {spin_us} us" if spin_us else ""
+    host = f"; the hypervisor ran other guests for {steal:.2f} s of CPU meanwhile (steal)" if steal > 0 else ""
     return (
-        {n: _failed(devices.get(n) or DeviceStatus(rate_cfg_hz=r)) for n, r in rates.items()},
-        {n: _failed(thermometers.get(n) or ThermometerStatus()) for n in names if n not in rates},
+        f"reader process for {bus}: {stats.late} of {stats.polls} polls started over "
+        f"{stats.hold_ns / 2e6:.2f} ms late (the latest {stats.worst_ns / 1e6:.1f} ms){spin}{host}"
     )
-
-
-def _failed(counts: Any) -> Any:
-    return dataclasses.replace(counts, state="failed", faults=counts.faults + 1)
-
-
-def restart_delay(restarts: list[float], now: float) -> float | None:
-    """Seconds from ``now`` (monotonic s) until a dead reader process is started again; None: never
-    (``RESTARTS_PER_HOUR`` 0). ``restarts``: when it was started again before (monotonic s; pruned in
-    place to the last hour). A reader that dies at once backs off 1, 2, 4 ... 60 s and, once it has been
-    started ``RESTARTS_PER_HOUR`` times within an hour, waits for the oldest of those to be an hour old."""
-    if RESTARTS_PER_HOUR <= 0:
-        return None
-    restarts[:] = [t for t in restarts if now - t < HOUR_S]
-    delay = min(RESTART_MAX_S, RESTART_FIRST_S * 2.0 ** len(restarts))
-    if len(restarts) >= RESTARTS_PER_HOUR:
-        delay = max(delay, restarts[-RESTARTS_PER_HOUR] + HOUR_S - now)
-    return delay
-
-
-def carried(base: tuple, counts: tuple) -> tuple:
-    """A restarted reader's counts (devices, thermometers) on top of ``base``, what its predecessors
-    reached: samples, readings, losses and faults go on counting; the state is the new reader's."""
-    base_dev, base_th = base
-    devices, thermometers = counts
-    out_dev = dict(base_dev)
-    for n, c in devices.items():
-        b = base_dev.get(n)
-        out_dev[n] = c if b is None else dataclasses.replace(
-            c, samples=b.samples + c.samples, gaps=b.gaps + c.gaps, lost=b.lost + c.lost, faults=b.faults + c.faults
-        )  # fmt: skip
-    out_th = dict(base_th)
-    for n, c in thermometers.items():
-        b = base_th.get(n)
-        out_th[n] = c if b is None else dataclasses.replace(
-            c, readings=b.readings + c.readings, lost=b.lost + c.lost, faults=b.faults + c.faults
-        )  # fmt: skip
-    return out_dev, out_th
-
-
-def outage_loss(
-    last: tuple[int, int | None] | None, first: tuple[int, int | None], period_ns: float, modulus: int, reading: bool
-) -> int:
-    """Samples (or thermometer readings, ``reading``) missing between the last one a dead reader handed
-    over and the first of the reader started after it, as the run file's hole finder counts them
-    (:func:`~imustation.runfile.holes.find_holes`): ``last`` / ``first`` are (time ns, device counter or
-    None); no ``last``: the reader died before its first sample, all from the run's start are missing.
-    ``period_ns``: the output (or poll) period, ns; ``modulus``: where the counter wraps (0: never)."""
-    if last is None:
-        return max(0, int(first[0] // period_ns))
-    t = np.array([last[0], first[0]], dtype=np.int64)
-    counter = None if reading or last[1] is None or first[1] is None else np.array([last[1], first[1]])
-    return find_holes(t, period_ns, counter, modulus, late_polls=reading).samples
-
-
-#: the first sample times of a device a file reader checks its rate against (then uses for its holes)
-PROBE_ROWS = RATE_PROBE_ROWS + 1
-
-
-def file_period_ns(first_stamps: np.ndarray, rate_hz: float) -> float:
-    """The output period the run file's reader will count a device's holes with, ns: ``1e9 / rate_hz``
-    (Hz), or the rate its first ``PROBE_ROWS`` sample times show where they contradict it by the reader's
-    rule (:func:`~imustation.runfile.rate.capture_rate`: a chip whose clock is 0.5 % fast makes 0.5 % more
-    samples in an outage than its nominal rate says; a start-up transient is not a rate, docs/runfile.md)."""
-    return 1e9 / capture_rate(first_stamps[:PROBE_ROWS], rate_hz)
-
-
-def lost_to_end(sink: Sink, what: str, rates: dict[str, float], last_t: dict[str, int], end_ns: int) -> dict[str, int]:
-    """Log for each device of a lost reader one ``gap`` after its last sample (``last_t``, station ns) with
-    the samples its rate (Hz) fits from there to ``end_ns``; return them by device (written + logged
-    losses = produced, as for every other loss)."""
-    out = {}
-    for name, rate in rates.items():
-        period = 1e9 / rate
-        last = last_t.get(name, -period)
-        lost = int((end_ns - last) // period)
-        if lost > 0:
-            sink.event(int(last + period), name, "gap", f"{what} lost: not read to the end", lost=lost)
-            out[name] = lost
-    return out

@@ -15,6 +15,9 @@
   overwritten (one output period for a chip without a FIFO, its buffer for the
   others). A device is polled at least twice per hold time, and when several are
   due the one whose hold runs out first goes first (earliest deadline first).
+  Optionally (``spin_ns``) the last moments before a poll of a device without a
+  FIFO are waited for by reading the clock instead of sleeping (hybrid sleep), and
+  how late its polls started is kept (:class:`DeadlineStats`).
 
 A :class:`Poller` is one device or thermometer: ``poll(sink)`` reads it once and
 returns the interval to its next poll. Times are ns on the station clock.
@@ -27,7 +30,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from imustation.acquisition.sinks import MessageSink, Sink, deliver
 from imustation.clock import Clock
@@ -40,6 +43,9 @@ POLLS_PER_HOLD = 2
 BETWEEN_NS = 20_000_000
 #: run_deadline: longest sleep (s), so a stop is seen promptly even with nothing due
 MAX_SLEEP_S = 0.02
+#: run_deadline with ``spin_ns``: only a poll of a device holding its samples at most this long (ns) is
+#: waited for by spinning (a chip without a FIFO: the ADIS16448's 2.44 ms), never a FIFO's
+SPIN_HOLD_NS = 5_000_000
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,37 @@ class Poller:
     #: how long a sample waits in the device before it is overwritten or dropped, ns (0: unknown,
     #: nothing is lost by a late poll - a thermometer); only :func:`run_deadline` uses it
     hold_ns: int = 0
+
+
+@dataclass
+class DeadlineStats:
+    """How late :func:`run_deadline` started its polls of the devices with the shortest hold time.
+
+    ``late``: polls that started later than half that hold time after they were due (a sample at risk;
+    with the two polls per hold, one already lost if the poll before was late too); ``worst_ns``: the
+    latest start, ns after due; ``spun_ns``: time spent spinning (hybrid sleep), ns.
+    """
+
+    hold_ns: int = 0
+    polls: int = 0
+    late: int = 0
+    worst_ns: int = 0
+    spun_ns: int = 0
+    #: start lateness of each late poll, ns (the first 100)
+    late_ns: list[int] = field(default_factory=list)
+
+    def add(self, lateness_ns: int) -> None:
+        self.polls += 1
+        if lateness_ns > self.worst_ns:
+            self.worst_ns = lateness_ns
+        if lateness_ns > self.hold_ns // 2:
+            self.late += 1
+            if len(self.late_ns) < 100:
+                self.late_ns.append(lateness_ns)
+
+
+def _busy() -> None:
+    """One turn of a spin: nothing, the clock is read again at once."""
 
 
 def _heap(pollers: Sequence[Poller], t0: int) -> list[tuple[int, int]]:
@@ -194,6 +231,9 @@ def run_deadline(
     between: Callable[[int], None],
     should_stop: Callable[[], bool],
     sleep: Callable[[float], None] = time.sleep,
+    spin_ns: int = 0,
+    spin: Callable[[], None] = _busy,
+    stats: DeadlineStats | None = None,
 ) -> str:
     """Poll one bus's devices in this thread on the host clock until ``end`` (ns); return why it stopped early.
 
@@ -204,8 +244,20 @@ def run_deadline(
     reader's hand-over to the writer) runs whenever nothing is due, and at least every
     ``BETWEEN_NS`` while polls are due.
     ``sleep(seconds)`` waits for the next due poll (tests pass a virtual clock's).
+
+    Hybrid sleep: with ``spin_ns`` > 0, a poll of a device whose hold time is at most
+    ``SPIN_HOLD_NS`` is slept for until ``spin_ns`` before it is due, and the rest waited
+    for by reading the clock (``spin()`` between two reads; tests pass one that moves a
+    virtual clock): a sleep that returns late by less than ``spin_ns`` then costs nothing.
+    It costs CPU (``spin_ns`` per poll) and cannot help when the reader is not run at all.
+    ``stats``: filled with how late the polls of the devices with the shortest hold started.
     """
     n = len(pollers)
+    holds = [p.hold_ns for p in pollers if p.hold_ns > 0]
+    shortest = min(holds) if holds else 0
+    if stats is not None:
+        stats.hold_ns = shortest
+    spins = [spin_ns > 0 and 0 < p.hold_ns <= SPIN_HOLD_NS for p in pollers]
     step = [_step(p, p.interval_ns) for p in pollers]
     due = [t0 + s for s in step]
     deadline = [t0 + (p.hold_ns or s) for p, s in zip(pollers, step, strict=True)]
@@ -222,14 +274,26 @@ def run_deadline(
             nxt = min(due)
             if nxt > end:
                 return ""
-            wait = (nxt - clock.now_ns()) / 1e9
-            if wait > 0:
-                sleep(min(wait, MAX_SLEEP_S))
+            wait_ns = nxt - clock.now_ns()
+            spinning = spin_ns > 0 and any(spins[k] and due[k] == nxt for k in range(n))
+            if spinning and wait_ns <= spin_ns:
+                t_spin = clock.now_ns()
+                while clock.now_ns() < nxt:
+                    spin()
+                if stats is not None:
+                    stats.spun_ns += clock.now_ns() - t_spin
+                continue
+            if spinning:
+                wait_ns -= spin_ns  # wake up before it; spin the rest
+            if wait_ns > 0:
+                sleep(min(wait_ns / 1e9, MAX_SLEEP_S))
             continue
         i = min(ready, key=lambda k: (deadline[k], k))
         if due[i] > end:
             return ""
         p = pollers[i]
+        if stats is not None and p.hold_ns == shortest > 0:
+            stats.add(now - due[i])
         interval = p.poll(sink)
         t = clock.now_ns()
         step[i] = _step(p, interval)

@@ -39,7 +39,7 @@ from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
 from imustation.acquisition.modes import check_options
 from imustation.acquisition.readers import ReaderOptions
-from imustation.acquisition.scheduler import Poller, run_deadline, run_threaded, run_virtual
+from imustation.acquisition.scheduler import DeadlineStats, Poller, run_deadline, run_threaded, run_virtual
 from imustation.acquisition.sinks import Sink, tick_of
 from imustation.acquisition.timeline import Timeline
 from imustation.acquisition.workers import WorkerPool, bus_groups, partition
@@ -228,6 +228,10 @@ class Station:
         self.workers = workers
         self.readers = readers
         self.reader_process = reader_process
+        #: a reader process: hybrid sleep before polls of devices without a FIFO (ns; 0 off), and how late
+        #: those polls started (scheduler.run_deadline)
+        self.spin_ns = 0
+        self.deadline_stats: DeadlineStats | None = None
         self._pool: WorkerPool | None = None
         self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed, trace=trace, replay=replay)
         self.devices: dict[str, DeviceState] = {}
@@ -391,6 +395,8 @@ class Station:
                     end=end,
                     between=self._between(tick),
                     should_stop=should_stop,
+                    spin_ns=self.spin_ns,
+                    stats=self.deadline_stats,
                 )
             else:
                 reason = run_threaded(

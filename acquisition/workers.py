@@ -40,21 +40,18 @@ from collections.abc import Callable, Mapping
 from multiprocessing.connection import Connection
 from typing import Any, Protocol
 
-import numpy as np
-
 from imustation.acquisition.config import StationConfig
-from imustation.acquisition.readers import (
-    PROBE_ROWS,
-    ReaderOptions,
+from imustation.acquisition.readers import ReaderOptions, reader_main
+from imustation.acquisition.restarts import (
+    OutageLog,
+    Restarts,
     carried,
     failed_counts,
-    file_period_ns,
+    fault_detail,
     lost_to_end,
-    outage_loss,
-    reader_main,
-    restart_delay,
+    reconnect_detail,
 )
-from imustation.acquisition.sinks import APPEND, EVENT, TEMPERATURE, MessageSink, Sink, deliver, shifted
+from imustation.acquisition.sinks import MessageSink, Sink, deliver, shifted
 from imustation.drivers import DRIVERS, THERMOMETER_DRIVERS
 from imustation.drivers.sim import output_rate
 from imustation.errors import ImustationError
@@ -272,37 +269,18 @@ class Worker:
         self.scheduling: Any = None
         #: a reader process lost during the run: why ("" while it runs)
         self.lost_reason = ""
-        #: station time of each device's last sample handed over, ns; output rates, Hz
-        self.last_t: dict[str, int] = {}
-        self.rates: dict[str, float] = {}
         #: the run's planned end, station ns
         self.end_ns = 0
         #: CPU time the process used, s (reader processes, when done)
         self.cpu_s: float | None = None
-        #: a lost reader process is started again (readers.restart_delay): at this monotonic time (None: not
-        #: waiting), its successor opening its devices (``reopening``), the times it was started again
-        self.restart_at: float | None = None
-        self.reopening = False
-        self._opening_since = 0.0
-        self.restarts: list[float] = []
-        self._attempts = 0
+        #: a lost reader process is started again after a back-off (restarts.Restarts)
+        self.restarts = Restarts(OPEN_TIMEOUT_S)
         self._duration_s = 0.0
         self._pace: float | None = None
         #: the counts its earlier processes reached (a restarted reader's are added to them)
         self._base: tuple = ({}, {})
-        #: each device's counter at its last sample, each thermometer's last reading (station ns); periods, ns;
-        #: counter moduli
-        self.last_c: dict[str, int | None] = {}
-        self.last_reading: dict[str, int] = {}
-        self.periods: dict[str, float] = {}
-        self.moduli: dict[str, int] = {}
-        #: after a restart: the devices and thermometers whose first sample closes the outage, with the
-        #: losses the new reader logged before it
-        self._resync: dict[str, int] = {}
-        #: each device's first sample times (what the file's reader checks its rate against)
-        self._probe: dict[str, list[np.ndarray]] = {}
-        #: outages closed by a first sample whose gap waits for the probe (last, first, logged, reading)
-        self._deferred: dict[str, tuple] = {}
+        #: what its devices handed over last, and the gap of each outage after a restart
+        self.outages = OutageLog(self.what, self._add_gap)
 
     def _spawn(self) -> None:
         """Start the process (again, for a lost reader)."""
@@ -332,7 +310,7 @@ class Worker:
     @property
     def restarting(self) -> bool:
         """A lost reader process waiting to be started again, or its successor opening its devices."""
-        return self.restart_at is not None or self.reopening
+        return self.restarts.pending
 
     @property
     def what(self) -> str:
@@ -346,11 +324,18 @@ class Worker:
         msg = self._recv(self.conn)
         if len(msg) > 3:
             self.scheduling = msg[3]
-        self.rates = {od.name: od.info.rate_hz for od in msg[1]}
-        self.periods = {od.name: 1e9 / od.info.rate_hz for od in msg[1]}
-        self.periods.update({name: float(period) for name, (_, period) in msg[2].items()})
-        self.moduli = {od.name: int(od.info.settings.get("counter_modulus", 0) or 0) for od in msg[1]}
+        self.outages.opened(msg[1], msg[2])
         return msg[1], msg[2]
+
+    @property
+    def rates(self) -> dict[str, float]:
+        """Its devices' output rates, Hz."""
+        return self.outages.rates
+
+    @property
+    def last_t(self) -> dict[str, int]:
+        """Station time of each device's last sample handed over, ns."""
+        return self.outages.last_t
 
     def start(self, duration_s: float, pace: float | None, t0: int | None = None) -> None:
         """Tell the worker to record; ``t0``: the run's origin on the host clock (reader processes)."""
@@ -365,7 +350,7 @@ class Worker:
     def stop(self) -> None:
         if self.restarting and not self.done:
             # nothing of it is recording: it ends here (its devices' gap runs to now)
-            self.restart_at, self.reopening = None, False
+            self.restarts.cancel()
             self.done, self.reason = True, "stopped"
             self._kill()
             return
@@ -407,22 +392,11 @@ class Worker:
             if msg[0] == "started" and self.t0 is not None:
                 self.offset_ns = msg[4] - self.t0
             off = self.offset_ns
-            last_t = self.last_t
+            seen = self.outages.seen
             for item in msg[1]:
                 if off:
                     item = shifted(item, off)
-                if self._resync:
-                    self._close_outage(sink, item)
-                if item[0] == APPEND and len(item[2]):
-                    last_t[item[1]] = int(item[2][-1])
-                    self.last_c[item[1]] = None if item[4] is None else int(item[4][-1])
-                    probe = self._probe.setdefault(item[1], [])
-                    if sum(map(len, probe)) < PROBE_ROWS:
-                        probe.append(item[2][:PROBE_ROWS])
-                        if item[1] in self._deferred and sum(map(len, probe)) >= PROBE_ROWS:
-                            self.log_outage(sink, item[1])
-                elif item[0] == TEMPERATURE and len(item[2]):
-                    self.last_reading[item[1]] = int(item[2][-1])
+                seen(sink, item)
                 deliver(sink, item)
             mirror(carried(self._base, msg[2]))
             self.t_ns = msg[3] + off
@@ -436,111 +410,61 @@ class Worker:
     def lose(self, sink: Sink, mirror: Callable[[tuple], None], why: str) -> None:
         """A reader process is gone mid-run: each of its devices and thermometers gets a ``fault`` event
         and is ``failed`` in the status, and the reader is started again after a back-off
-        (:func:`~imustation.acquisition.readers.restart_delay`; never: its devices are not read for the
+        (:class:`~imustation.acquisition.restarts.Restarts`; never: its devices are not read for the
         rest of the capture); the capture goes on with the other buses."""
         self.lost_reason = why
-        for name in list(self._deferred):
-            self.log_outage(sink, name)
+        self.outages.lost(sink)
         t = time.monotonic_ns() - (self.t0 or 0)
         self.t_ns = t
         self._base = failed_counts(carried(self._base, self._counts), self.rates, self.names)
         self._counts = ({}, {})
-        self._resync = {}
         mirror(self._base)
         self._kill()
-        delay = restart_delay(self.restarts, time.monotonic())
-        then = "not read for the rest of the capture" if delay is None else f"starting it again in {delay:.0f} s"
+        delay = self.restarts.lost(time.monotonic())
         for name in self.names:
-            sink.event(t, name, "fault", f"{self.what} ended during the run ({why}); {then}")
-        if delay is None:
-            self.done = True
-        else:
-            self.restart_at = time.monotonic() + delay
+            sink.event(t, name, "fault", fault_detail(self.what, why, delay))
+        self.done = delay is None
 
     def _tend(self, sink: Sink, mirror: Callable[[tuple], None]) -> None:
         """A lost reader process: start it again when its back-off is over, tell it to record once it has
         opened its devices; a successor that fails to open them is another attempt, backed off in turn."""
         now = time.monotonic()
         self.t_ns = time.monotonic_ns() - (self.t0 or 0)  # nothing of it comes from before now
+        restarts = self.restarts
         if self.t_ns >= self.end_ns:
-            self.restart_at, self.reopening, self.done = None, False, True  # the run is over: gap to its end
+            restarts.cancel()
+            self.done = True  # the run is over: gap to its end
             self._kill()
             return
-        if self.restart_at is not None:
-            if now < self.restart_at:
-                return
-            self.restart_at = None
-            self._close_pipes()
-            self.restarts.append(now)
-            self._attempts += 1
-            self._spawn()
-            self.reopening, self._opening_since = True, now
+        if not restarts.reopening:
+            if restarts.due(now):
+                self._close_pipes()
+                restarts.started(now)
+                self._spawn()
             return
         try:
             if not self.conn.poll(0):
-                if now - self._opening_since <= OPEN_TIMEOUT_S:
+                if not restarts.opening_too_long(now):
                     return
                 raise WorkerError(f"{self.what} did not open them in {OPEN_TIMEOUT_S:g} s")
             msg = self._recv(self.conn)
             self.conn.send(("run", self._duration_s, self._pace, self.t0))
         except Exception as exc:  # noqa: BLE001 - the successor failed too: another attempt later
-            self.reopening = False
             self._kill()
-            delay = restart_delay(self.restarts, now)
-            if delay is None:
-                self.done = True
-            else:
-                self.restart_at = now + delay
+            self.done = restarts.lost(now) is None
             self.lost_reason = str(exc) if isinstance(exc, WorkerError) else f"{type(exc).__name__}: {exc}"
             return
-        self.reopening, self.lost_reason, self.offset_ns = False, "", 0
+        attempts = restarts.reopened()
+        self.lost_reason, self.offset_ns = "", 0
         if len(msg) > 3:
             self.scheduling = msg[3]
         t = time.monotonic_ns() - (self.t0 or 0)
         for name in self.names:
-            sink.event(
-                t,
-                name,
-                "reconnect",
-                f"{self.what} started again after {self._attempts} attempt(s); re-opened with the same settings",
-            )
-        self._attempts = 0
-        self._resync = dict.fromkeys(self.names, 0)
+            sink.event(t, name, "reconnect", reconnect_detail(self.what, attempts))
+        self.outages.restarted(self.names)
 
-    def _close_outage(self, sink: Sink, item: tuple) -> None:
-        """After a restart: the losses the new reader logs before a device's first sample are part of the
-        outage; that first sample closes it with one ``gap`` of the rest, as the hole finder counts it."""
-        name = item[2] if item[0] == EVENT else item[1]
-        if name not in self._resync:
-            return
-        if item[0] == EVENT:
-            self._resync[name] += max(0, int(item[5]))
-            return
-        if item[0] not in (APPEND, TEMPERATURE) or not len(item[2]):
-            return
-        logged = self._resync.pop(name)
-        reading = item[0] == TEMPERATURE
-        first = (int(item[2][0]), None if reading or item[4] is None else int(item[4][0]))
-        prev = self.last_reading.get(name) if reading else self.last_t.get(name)
-        last = None if prev is None else (prev, None if reading else self.last_c.get(name))
-        self._deferred[name] = (last, first, logged, reading)
-        if reading or sum(map(len, self._probe.get(name, ()))) >= PROBE_ROWS:
-            self.log_outage(sink, name)
-        # else: the file's reader fits the device's rate over its first PROBE_ROWS samples, those
-        # after the outage too: the gap is logged once they have come (or at the end)
-
-    def log_outage(self, sink: Sink, name: str) -> None:
-        """Log the outage gap of ``name`` that waits (see :meth:`_close_outage`)."""
-        last, first, logged, reading = self._deferred.pop(name)
-        period = self.periods[name]
-        if not reading and self._probe.get(name):
-            period = file_period_ns(np.concatenate(self._probe[name]), self.rates[name])
-        lost = outage_loss(last, first, period, self.moduli.get(name, 0), reading) - logged
-        if lost <= 0:
-            return
-        prev = None if last is None else last[0]
-        at = int(prev + period) if prev is not None else 0
-        sink.event(at, name, "gap", f"{self.what} was not running: samples not read", lost=lost)
+    def _add_gap(self, name: str, lost: int) -> None:
+        """An outage gap logged: counted with the counts its earlier processes reached."""
         devices, thermometers = self._base
         if name in devices:
             c = devices[name]
@@ -550,15 +474,12 @@ class Worker:
 
     @property
     def pending_outage(self) -> dict[str, int]:
-        """After a restart: the devices and thermometers without a sample yet (with what the new reader
-        logged lost before it)."""
-        return self._resync
+        """After a restart: the devices and thermometers without a sample yet."""
+        return self.outages.pending
 
     def flush_outages(self, sink: Sink, mirror: Callable[[tuple], None]) -> None:
-        """At the end: log the outage gaps still waiting for their devices' first ``PROBE_ROWS`` samples."""
-        if self._deferred:
-            for name in list(self._deferred):
-                self.log_outage(sink, name)
+        """At the end: log the outage gaps still waiting for their devices' first samples."""
+        if self.outages.flush(sink):
             mirror(carried(self._base, self._counts))
 
     def _kill(self) -> None:

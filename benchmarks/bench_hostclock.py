@@ -12,13 +12,17 @@ simulators' own cost inside each poll - for ``--duration`` seconds in each of:
 each idle and with ``--busy`` busy-loop processes beside it (started and stopped
 here). Prints per device the samples written and lost (and per 10,000), the CPU
 each reader process used per sample of its devices while recording, the writer's
-CPU per sample, and the machine's load (1-minute load average after each case).
+CPU per sample, the machine's load (1-minute load average after each case), and
+whether the run file accounts for every sample (``imustation inspect``'s check:
+every hole logged, written + logged = produced; on the host clock this is the
+check the test suite cannot make, its outcome depending on the machine's load).
 
 Targets (issue 36): readers, idle: 0 lost; beside two busy loops: at most 1 in
 10,000 per device.
 
     python benchmarks/bench_hostclock.py                   # 60 s per case, 4 cases
     python benchmarks/bench_hostclock.py --duration 600 --only readers
+    python benchmarks/bench_hostclock.py --duration 600 --only readers --spin-us 500   # hybrid sleep
 """
 
 from __future__ import annotations
@@ -30,10 +34,13 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 
 from imustation.acquisition import capture, load_config
 from imustation.clock import MonotonicClock
 from imustation.configs import config_path
+from imustation.runfile import open_run
+from imustation.runfile.holes import check_run, check_thermometers
 
 TARGET_BUSY_PER_10K = 1.0
 
@@ -42,14 +49,16 @@ def busy_loops(n: int) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
-def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
+def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str, spin_us: int = 0) -> dict:
     loops = busy_loops(busy)
     try:
         out = os.path.join(folder, f"{mode}-{busy}.h5")
         self0 = resource.getrusage(resource.RUSAGE_SELF)
         wall0 = time.monotonic()
         if mode == "readers":
-            summary = capture(cfg, out, duration_s, simulate=True, real_time=True, overwrite=True)
+            summary = capture(
+                cfg, out, duration_s, simulate=True, real_time=True, overwrite=True, reader_spin_us=spin_us
+            )
         else:
             summary = capture(cfg, out, duration_s, simulate=True, clock=MonotonicClock(), overwrite=True)
         wall = time.monotonic() - wall0
@@ -58,9 +67,44 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str) -> dict:
         for p in loops:
             p.kill()
             p.wait()
+    accounting, late = file_accounting(out), late_polls(out)
     os.unlink(out)
     main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
-    return {"summary": summary, "main_cpu": main_cpu, "wall": wall, "load": os.getloadavg()[0], "config": cfg}
+    return {
+        "summary": summary,
+        "main_cpu": main_cpu,
+        "wall": wall,
+        "load": os.getloadavg()[0],
+        "config": cfg,
+        "accounting": accounting,
+        "late": late,
+    }
+
+
+def file_accounting(path: str) -> list[str]:
+    """What the run file's own check finds wrong (empty: every hole logged, written + logged = produced),
+    and the rates its reader corrected from the stamps (they change how it counts a hole)."""
+    problems: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with open_run(path) as run:
+            for name, c in check_run(run).items():
+                if not c.consistent:
+                    problems.append(
+                        f"{name}: {c.samples} written + {c.logged} logged != {c.produced} produced; "
+                        f"unlogged holes {[(h.lost, h.logged) for h in c.unlogged[:3]]}"
+                    )
+            for name, c in check_thermometers(run).items():
+                if c is not None and not c.consistent:
+                    problems.append(f"thermometer {name}: {c.samples} read + {c.logged} logged != {c.produced}")
+    problems += [f"note: {w.message}" for w in caught if "contradicts its timestamps" in str(w.message)]
+    return problems
+
+
+def late_polls(path: str) -> list[str]:
+    """The readers' notes of polls started late (acquisition/readers.py lateness_note)."""
+    with open_run(path) as run:
+        return [e.detail for e in run.events() if e.kind == "note" and "polls started over" in e.detail]
 
 
 def report(mode: str, busy: int, res: dict) -> bool:
@@ -85,6 +129,12 @@ def report(mode: str, busy: int, res: dict) -> bool:
         )
     else:
         print(f"  CPU per sample (one process, readers and writer): {1e6 * res['main_cpu'] / max(1, total):.1f} us")
+    problems = res["accounting"]
+    print("  the file accounts for every sample" if not problems else "  the file's check:")
+    for line in problems:
+        print(f"    {line}")
+    for line in res["late"]:
+        print(f"  {line}")
     return ok
 
 
@@ -94,6 +144,13 @@ def main() -> None:
     ap.add_argument("--busy", type=int, default=2, help="busy-loop processes in the loaded cases (default 2)")
     ap.add_argument("--config", default="lab-example.toml")
     ap.add_argument("--only", choices=["readers", "threads"], default=None, help="run one mode only")
+    ap.add_argument(
+        "--spin-us",
+        type=int,
+        default=0,
+        help="readers: hybrid sleep, the last N us before a poll of a device without a FIFO spent reading "
+        "the clock instead of sleeping (default 0: off)",
+    )
     args = ap.parse_args()
     cfg = load_config(config_path(args.config))
     print(f"{args.config}: {len(cfg.devices)} devices, {os.cpu_count()} CPUs; uptime: ", end="", flush=True)
@@ -103,7 +160,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         for mode in modes:
             for busy in (0, args.busy):
-                res = run_case(cfg, mode, busy, args.duration, folder)
+                res = run_case(cfg, mode, busy, args.duration, folder, args.spin_us)
                 verdicts[(mode, busy)] = report(mode, busy, res)
     if "readers" in modes:
         idle, loaded = verdicts[("readers", 0)], verdicts[("readers", args.busy)]

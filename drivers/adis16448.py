@@ -50,6 +50,7 @@ SENS_AVG_RANGE_SHIFT = 8
 MSC_CTRL_CRC = 1 << 4
 MSC_CTRL_DR_ENABLE = 1 << 2
 MSC_CTRL_DR_ACTIVE_HIGH = 1 << 1
+MSC_CTRL_DR_LINE_DIO2 = 1 << 0  # data ready on DIO2; clear: on DIO1, §4.3
 GLOB_CMD_SOFTWARE_RESET = 0x80  # low byte only, as Linux writes it (§4.1)
 
 # --- timing -------------------------------------------------------------------------
@@ -72,6 +73,10 @@ CONFIG_CHECK_S = 1.0
 #: polls once per sample, and decoding (and handing over) one sample at a time costs more
 #: than the USB transfer itself; 50 ms is far inside the run file's flush interval
 BATCH_S = 0.05
+
+#: ``data_ready`` values: the bridge pins that count edges (docs/reference/bridge-counters.md), or none
+DATA_READY_PINS = ("none", "gpio4", "gp6")
+CHECKSUM_NOTE = "checksum: burst CRC mismatch, sample dropped"
 
 # --- scales (docs/reference/sensors.md §4.4) ------------------------------------------------
 ACCEL_G_PER_LSB = 1.0 / 1200.0  # [L-ADIS][PX4-ADIS][JC]
@@ -213,6 +218,13 @@ class ADIS16448:
         Setting("filter_taps", 1, FIR_TAPS, "SENS_AVG Bartlett FIR taps (1 = off)"),
         Setting("crc", True, (True, False), "MSC_CTRL bit4: burst carries a CRC-16 (newer lots only)"),
         Setting("stall_us", STALL_US_DEFAULT, None, "CS-high time between 16-bit frames, us (>= 9)"),
+        Setting(
+            "data_ready",
+            "none",
+            DATA_READY_PINS,
+            "bridge input wired to DIO1 (data ready): gpio4 (CP2130 event counter), gp6 (MCP2210 interrupt "
+            "counter), none (losses inferred from read times)",
+        ),
     )
 
     def __init__(self, spi: SPIDevice, settings: Mapping[str, Any], *, sleep: Sleep = time.sleep):
@@ -242,6 +254,13 @@ class ADIS16448:
         self._check_every = max(1, round(CONFIG_CHECK_S * self._rate))
         #: bursts dropped for a CRC mismatch (a health figure)
         self.crc_errors = 0
+        #: DIO1 wired to the bridge's edge counter: each sample's number is the count of data-ready pulses
+        #: before the burst read it; a poll whose count has not moved reads no burst
+        self._counting = self.settings["data_ready"] != "none"
+        self._count = 0
+        self._held_count: list[int] = []
+        #: a burst dropped for its CRC while counting: the count shows the loss, the note goes with the next block
+        self._dropped = False
 
     @classmethod
     def check_settings(cls, settings: Mapping[str, Any]) -> dict[str, Any]:
@@ -316,10 +335,11 @@ class ADIS16448:
             self.write_reg(reg, value)
         self._check_config()
         lot1, lot2, serial, diag = self.read_regs([REG_LOT_ID1, REG_LOT_ID2, REG_SERIAL_NUM, REG_DIAG_STAT])
+        modulus = self.spi.start_event_counter(self.settings["data_ready"]) if self._counting else 0
         self._sleep(2.0 / self._rate)  # the first output period after configuration
         self._last = None
         self._clear_held()
-        self._lost, self._error = 0, None
+        self._lost, self._error, self._dropped = 0, None, False
         self._last_read = self._now()
         if self._crc:
             rx = self._burst()
@@ -329,6 +349,11 @@ class ADIS16448:
                     f"{self.spi.where}: burst CRC does not match on the first read"
                     " (lots without burst CRC need crc = false)"
                 )
+        if self._counting:
+            self._count = self.spi.read_event_counter()  # the samples made so far are not this capture's
+            counting = {"counter_modulus": modulus}
+        else:
+            counting = {}
         g = self._range.dps_per_lsb * DEG2RAD
         return DriverInfo(
             model="ADIS16448",
@@ -346,6 +371,8 @@ class ADIS16448:
                 "sens_avg": self._config_words()[REG_SENS_AVG],
                 "msc_ctrl": self._config_words()[REG_MSC_CTRL],
                 "diag_at_open": "; ".join(decode_diag(diag & ~DIAG_INFO_MASK)) or "ok",
+                "data_ready": str(self.settings["data_ready"]),
+                **counting,
             },
             channels=(
                 ChannelSpec("gyro", "int16", "rad/s", g, 0.0, ("x", "y", "z")),
@@ -355,7 +382,8 @@ class ADIS16448:
                 ChannelSpec("temp", "int16", "degC", TEMP_C_PER_LSB, TEMP_OFFSET_C),
                 ChannelSpec("diag", "uint16", "", 1.0),
             ),
-            has_counter=False,
+            # the data-ready pulses the bridge counted number the samples
+            has_counter=self._counting,
             # no FIFO: one burst per output period; what it makes while nobody reads is gone
             poll_interval_s=1.0 / self._rate,
             overflow="newest",
@@ -376,44 +404,68 @@ class ADIS16448:
         raised at the call after the one that hands over the samples before it.
         A dropped burst is reported (``lost``) with the next block, or at once
         when nothing is held.
+
+        With DIO1 wired to the bridge's counter (``data_ready``) each poll first
+        reads the count of data-ready pulses: unchanged, no burst is read; moved,
+        the burst is read and its sample numbered with the count (``Block.counter``,
+        modulo 2**16), so a count that moved by more than one is a loss the
+        station sees (a counter jump), not one it infers from the read times.
         """
         self._raise_held()
         self._polls += 1
+        fresh = True
         try:
             if self._polls % self._check_every == 0:
                 self._check_config()
-            rx = self._burst()
-            read, before = self._burst_ns, self._last_read
-            self._last_read = read
+            if self._counting:
+                count = self.spi.read_event_counter()
+                fresh, self._count = count != self._count, count
+                if not fresh:
+                    self._last_read = self._now()  # found nothing new: the read before the next sample
+            if fresh:
+                rx = self._burst()
+                read, before = self._burst_ns, self._last_read
+                self._last_read = read
         except (BusError, DeviceError) as exc:
             if not self._held:
                 raise
             self._error = exc
             return self._release()
-        data = rx[2 : 2 + 2 * BURST_WORDS]
-        if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
-            self.crc_errors += 1
-            self._last = None
-            before = self._release() if self._held else None
-            self._lost += 1  # handed over with the next block: it comes after ``before``
-            try:
-                self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
-            except (BusError, DeviceError) as exc:
-                if before is None:
-                    raise
-                self._error = exc
-            return before if before is not None else self._release()
         held = self._held
-        if data != self._last:  # else the same sample read twice: no new data yet
-            self._last = data
-            if not held:
-                self._first_held = self._polls
-            held.append(data)
-            self._held_read.append(read)
-            self._held_before.append(before)
+        if fresh:
+            data = rx[2 : 2 + 2 * BURST_WORDS]
+            if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
+                return self._crc_mismatch()
+            # the same sample read twice is no new data (without the wire: no new sample yet; with it: the
+            # sample after the count came during the read before, which took it under the count before)
+            if data != self._last:
+                self._last = data
+                if not held:
+                    self._first_held = self._polls
+                held.append(data)
+                self._held_read.append(read)
+                self._held_before.append(before)
+                self._held_count.append(self._count)
         if held and (len(held) >= self._batch or self._polls - self._first_held + 1 >= self._batch or self._lost):
             return self._release()
         return _NOTHING
+
+    def _crc_mismatch(self) -> Block:
+        """A burst whose CRC does not match: dropped and counted lost (with the wire, the count shows it)."""
+        self.crc_errors += 1
+        self._last = None
+        before = self._release() if self._held else None
+        if self._counting:
+            self._dropped = True
+        else:
+            self._lost += 1  # handed over with the next block: it comes after ``before``
+        try:
+            self._check_config()  # a reset chip fails every CRC: catch it now, not at the next check
+        except (BusError, DeviceError) as exc:
+            if before is None:
+                raise
+            self._error = exc
+        return before if before is not None else self._release()
 
     def drain(self) -> Block:
         """The samples read but not yet handed over (the capture is ending).
@@ -433,18 +485,20 @@ class ADIS16448:
         """Decode the held bursts into one block, with the polls since each was read; a dropped burst counts
         as lost before it."""
         lost, self._lost = self._lost, 0
-        note = "checksum: burst CRC mismatch, sample dropped" if lost else ""
         if not self._held:
-            return Block(_EMPTY, lost=lost, note=note)
+            return Block(_EMPTY, lost=lost, note=CHECKSUM_NOTE if lost else "")
+        note = CHECKSUM_NOTE if lost or self._dropped else ""
+        self._dropped = False
         words = np.frombuffer(b"".join(self._held), dtype=">u2").reshape(-1, BURST_WORDS)
         stamps = {}
         if self.clock_ns is not None:
             stamps = {"read_ns": np.array(self._held_read), "previous_read_ns": np.array(self._held_before)}
+        counter = np.array(self._held_count, dtype=np.int64) if self._counting else None
         self._clear_held()
-        return Block(_decode(words), lost=lost, note=note, **stamps)
+        return Block(_decode(words), counter=counter, lost=lost, note=note, **stamps)
 
     def _clear_held(self) -> None:
-        for held in (self._held, self._held_read, self._held_before):
+        for held in (self._held, self._held_read, self._held_before, self._held_count):
             held.clear()
 
     def _now(self) -> int:

@@ -14,7 +14,6 @@ import random
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -110,36 +109,51 @@ def _last_status_on_disk(stdout: str) -> int:
     return lines[-1]["on_disk"]["gyro"] if lines else 0
 
 
+def _wait_on_disk(proc, target: int) -> int:
+    """Read the capture's status lines until one reports at least ``target`` samples on disk: the kill
+    moment is a point in the recording, not a wall-clock delay (how far a delay gets depends on how
+    fast the machine is). Returns the samples that line reported."""
+    for line in proc.stdout:
+        try:
+            on_disk = json.loads(line)["on_disk"].get("gyro", 0)
+        except (ValueError, KeyError):
+            continue
+        if on_disk >= target:
+            return on_disk
+    raise AssertionError(f"capture ended before {target} samples were on disk: {proc.stderr.read()}")
+
+
 def _kill_at_random(config_file, tmp_path, reference, kills: int, seed: int, *extra) -> list[int]:
     rng = random.Random(seed)
     sizes = []
     for i in range(kills):
         out = tmp_path / f"kill{i}.h5"
         proc = _start(config_file, out, *extra)
-        wait_for_file(tmp_path / f"kill{i}.001.h5" if extra else out, proc, timeout=30.0, poll=0.02)
-        time.sleep(rng.uniform(0.0, 1.5))
-        proc.send_signal(signal.SIGKILL)
+        # a random point of the first 1.5 wall seconds' recording (0 .. 120,000 samples at PACE)
+        target = rng.randint(1, int(1.5 * PACE * RATE))
+        try:
+            reached = _wait_on_disk(proc, target)
+        finally:
+            proc.send_signal(signal.SIGKILL)
         stdout, _ = proc.communicate(timeout=30)
         assert proc.returncode == -signal.SIGKILL
         paths = sorted(tmp_path.glob(f"kill{i}.*.h5")) if extra else [out]
         n = _check_prefix(paths, reference, complete=False)
-        # everything the last status reported as flushed survives the kill (a bound on
-        # "samples" minus one flush interval at nominal pace would not hold under CPU
-        # load, when the paced clock catches up in bursts)
-        assert n >= _last_status_on_disk(stdout)
+        # everything a status reported as flushed survives the kill
+        assert n >= max(reached, _last_status_on_disk(stdout)) >= target
         sizes.append(n)
     return sizes
 
 
 def test_sigkill_at_random_moments_leaves_readable_prefixes(config_file, tmp_path, reference):
     sizes = _kill_at_random(config_file, tmp_path, reference, kills=3, seed=1)
-    assert len(set(sizes)) == 3  # different moments, different files
+    assert min(sizes) > 0
 
 
 @pytest.mark.slow
 def test_sigkill_soak(config_file, tmp_path, reference):
     sizes = _kill_at_random(config_file, tmp_path, reference, kills=25, seed=2)
-    assert len(set(sizes)) > 20
+    assert min(sizes) > 0
 
 
 @pytest.mark.slow
@@ -152,7 +166,7 @@ def test_sigterm_second_capture_and_live_reading(config_file, tmp_path, referenc
     proc = _start(config_file, out)
     try:
         wait_for_file(out, proc, timeout=30.0, poll=0.02)
-        time.sleep(0.5)
+        _wait_on_disk(proc, 1)  # recording, some of it on disk
         # a second capture of the same output is refused, even with --overwrite
         res = CliRunner().invoke(cli, ["capture", str(config_file), "--simulate", "-o", str(out), "--overwrite"])
         assert res.exit_code == 2 and "another capture" in res.output
@@ -160,7 +174,7 @@ def test_sigterm_second_capture_and_live_reading(config_file, tmp_path, referenc
         res = CliRunner().invoke(cli, ["inspect", str(out)])
         assert res.exit_code == 0 and "INCOMPLETE" in res.output, res.output
         n_live = _check_prefix(out, reference, complete=False)
-        time.sleep(0.3)
+        _wait_on_disk(proc, n_live + 1)  # it recorded on after the live read
         proc.send_signal(signal.SIGTERM)
         stdout, stderr = proc.communicate(timeout=30)
     finally:

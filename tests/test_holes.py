@@ -3,8 +3,10 @@ checked from the run file alone (imustation.runfile.holes) and against the simul
 
 from __future__ import annotations
 
+import itertools
 import shutil
 import tomllib
+import warnings
 from pathlib import Path
 
 import h5py
@@ -20,12 +22,11 @@ from imustation.acquisition.station import Station
 from imustation.acquisition.timeline import SamplingPhase, Timeline
 from imustation.analysis.pipeline.loaders import load_run
 from imustation.cli import cli
-from imustation.clock import MonotonicClock
 from imustation.configs import config_path
 from imustation.drivers.base import Block
 from imustation.drivers.sim import station_device_seed
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter, open_run
-from imustation.runfile.holes import check_run, check_thermometer, check_thermometers, find_holes
+from imustation.runfile.holes import check_run, check_thermometer, check_thermometers, find_holes, match_losses
 
 #: a 2 s stall of the BMX055 gyro's bus 3 s after its simulator starts: on the virtual clock it holds the
 #: whole station (one thread), on the host clock its I2C bus (the BMX055 accelerometer shares it)
@@ -41,7 +42,7 @@ def lab(stall: bool = True) -> dict:
     return raw
 
 
-def _capture(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
+def capture_lab(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
     """Record ``raw`` through the station, logging when each device was read.
 
     Returns the run file and, per device, the samples its simulator made between the read that emptied it
@@ -91,7 +92,7 @@ def _capture(tmp_path, raw: dict, seconds: float, monkeypatch, **station_kw):
     return path, produced
 
 
-def _assert_the_file_accounts_for_every_sample(path) -> dict:
+def assert_the_file_accounts_for_every_sample(path) -> dict:
     """Every device: every hole its data show is logged, every logged loss is in a hole or at an edge."""
     with open_run(path) as run:
         checks = check_run(run)
@@ -109,21 +110,64 @@ def _assert_the_file_accounts_for_every_sample(path) -> dict:
 def test_a_stall_on_one_device_virtual_clock_every_device_accounts_exactly(tmp_path, monkeypatch):
     """The stall holds the one-thread station 2 s: every FIFO overruns, the serial buffers fill, the ADIS16448
     (no FIFO) is not read. Every loss is logged where it is, and written + logged = what each simulator made."""
-    path, produced = _capture(tmp_path, lab(), 10.0, monkeypatch)
-    checks = _assert_the_file_accounts_for_every_sample(path)
+    path, produced = capture_lab(tmp_path, lab(), 10.0, monkeypatch)
+    checks = assert_the_file_accounts_for_every_sample(path)
     for name, c in checks.items():
         assert c.samples + c.logged == produced[name], name
         assert len(c.holes) == 1 and c.holes.samples > 0, name  # the stall, in every record
     assert checks["adis"].holes.samples == 819  # 2 s at 409.6 Hz, less the sample read after it
 
 
-def test_a_stall_on_one_device_host_clock_the_file_accounts_for_every_sample(tmp_path, monkeypatch):
-    """Chips simulated on the host clock, one reader thread per bus: the stall holds the BMX055 bus; the
-    others lose what a busy host makes them lose. Whatever was lost, the file states all of it."""
-    path, _ = _capture(tmp_path, lab(), 5.0, monkeypatch, clock=MonotonicClock())
-    _assert_the_file_accounts_for_every_sample(path)
-    out = CliRunner().invoke(cli, ["inspect", str(path)])
-    assert out.exit_code == 0 and "holes found: 0 not logged" in out.output
+def _stamped_late(monkeypatch, every: int, late_s: float) -> None:
+    """Every ``every``-th ADIS16448 burst is stamped ``late_s`` after its transfer returned (the virtual
+    clock moves on meanwhile): a reader preempted between a transfer and its time stamp, as on a loaded
+    host, made deterministic."""
+    open_ = Station.open
+
+    def opened(self):
+        specs = open_(self)
+        clock, n = self.clock, itertools.count(1)
+
+        def stamp() -> int:
+            if next(n) % every == 0:
+                clock.sleep(late_s)
+            return clock.now_ns()
+
+        self.devices["adis"].driver.clock_ns = stamp
+        return specs
+
+    monkeypatch.setattr(Station, "open", opened)
+
+
+def test_reads_stamped_late_every_hole_is_logged_with_its_count(tmp_path, monkeypatch):
+    """What failed the former host-clock version of the stall test (once in a few runs under load, a
+    hole of 224 samples logged 223): a chip without a FIFO is dated at its reads, and a read stamped
+    late moves its sample. Every 7th ADIS16448 burst stamped 8 ms late here: at the configured rate
+    every hole the stamps show is logged with its count, written + logged = produced."""
+    _stamped_late(monkeypatch, 7, 0.008)
+    path, _ = capture_lab(tmp_path, lab(stall=False), 6.0, monkeypatch)
+    with open_run(path) as run:
+        t = run.read("adis", "t")
+        events = [e for e in run.events() if e.source == "adis"]
+    holes = find_holes(t, 1e9 / 409.6)
+    logged, edge, unlocated, unlogged = match_losses(holes, events, int(t[0]), int(t[-1]))
+    assert not unlogged and not unlocated and edge == 0
+    assert logged == holes.samples > 500
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="the run file's reader fits the rate of read-dated stamps (409.6 -> ~391 Hz) and counts every "
+    "hole with it: runfile rate correction, outside the station (reported with issue 36)",
+)
+def test_reads_stamped_late_the_file_reader_counts_holes_at_the_configured_rate(tmp_path, monkeypatch):
+    _stamped_late(monkeypatch, 7, 0.008)
+    path, _ = capture_lab(tmp_path, lab(stall=False), 6.0, monkeypatch)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the RateCorrected warning is the fault this test shows
+        with open_run(path) as run:
+            assert check_run(run)["adis"].consistent
 
 
 def test_a_paced_capture_from_the_command_line_accounts_for_every_sample(tmp_path):
@@ -138,7 +182,7 @@ def test_a_paced_capture_from_the_command_line_accounts_for_every_sample(tmp_pat
     args = ["capture", str(cfg), "--simulate", "--duration", "6s", "--sim-speed", "40", "-o", str(out), "--quiet"]
     res = CliRunner().invoke(cli, args)
     assert res.exit_code == 0, res.output
-    checks = _assert_the_file_accounts_for_every_sample(out)
+    checks = assert_the_file_accounts_for_every_sample(out)
     assert checks["adis"].holes.samples > 500
     assert "holes found: 0 not logged" in CliRunner().invoke(cli, ["inspect", str(out)]).output
 

@@ -8,6 +8,7 @@ that depends on timing.
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing as mp
 import os
 import pickle
@@ -18,10 +19,10 @@ from multiprocessing.connection import Connection
 import numpy as np
 import pytest
 
-from imustation.acquisition import capture, readers, realtime
+from imustation.acquisition import capture, readers, realtime, restarts
 from imustation.acquisition.config import parse_config
 from imustation.acquisition.readers import HostOutbox
-from imustation.acquisition.scheduler import Poller, run_deadline
+from imustation.acquisition.scheduler import DeadlineStats, Poller, run_deadline
 from imustation.acquisition.sinks import APPEND, EVENT, MessageSink, shifted
 from imustation.clock import VirtualClock
 from imustation.errors import InputError
@@ -118,6 +119,76 @@ def test_the_last_poll_is_at_the_end_wherever_a_late_poll_moved_the_others():
         sleep=clock.sleep,
     )
     assert [t // 1_000_000 for _, t in log] == [100, 350, 450, 500]
+
+
+def _oversleeping(clock, late_s: float, late_at: dict[int, float] | None = None):
+    """A sleep that returns ``late_s`` late (and ``late_at[k]`` late at its k-th call): a loaded host."""
+    calls = itertools.count()
+
+    def sleep(s: float) -> None:
+        k = next(calls)
+        clock.sleep(s + (late_at or {}).get(k, late_s))
+
+    return sleep
+
+
+def test_hybrid_sleep_starts_the_polls_of_a_chip_without_fifo_on_time_despite_late_sleeps():
+    """Every sleep returns 0.3 ms late. Without spinning each ADIS16448 poll starts 0.3 ms after due; with
+    0.5 ms of hybrid sleep the reader wakes 0.2 ms early and reads the clock until due (each turn 1 us
+    here): on time. The FIFO device's polls are slept for as before (no spinning for a long hold)."""
+    starts = {}
+    for spin_ns in (0, 500_000):
+        clock = VirtualClock()
+        log: list[tuple[str, int]] = []
+        turns = []
+        stats = DeadlineStats()
+        pollers = [_poller(clock, log, "fifo", 100, 250), _poller(clock, log, "adis", 2.5, 2.5)]
+        run_deadline(
+            clock,
+            pollers,
+            MessageSink(lambda m: None),
+            t0=0,
+            end=200_000_000,
+            between=lambda t: None,
+            should_stop=lambda: False,
+            sleep=_oversleeping(clock, 0.0003),
+            spin_ns=spin_ns,
+            spin=lambda turns=turns, clock=clock: (turns.append(1), clock.sleep(1e-6)),
+            stats=stats,
+        )
+        adis = np.array([t for n, t in log if n == "adis"])
+        starts[spin_ns] = adis % 1_250_000, turns, stats  # how long after its due (the 1.25 ms grid)
+    late, _, stats0 = starts[0]
+    on_time, turns, stats = starts[500_000]
+    assert np.median(late) == 300_000 and stats0.late == 0 and stats0.worst_ns >= 300_000
+    assert on_time.max() <= 1_000 and 150 <= len(turns) / stats.polls <= 250 and stats.spun_ns > 0
+    assert stats.hold_ns == 2_500_000 and stats.worst_ns <= 1_000
+
+
+def test_polls_started_late_are_counted_and_noted_with_the_hosts_steal():
+    """One sleep returns 20 ms late (the reader not run, as a virtual machine's throttled vCPU): the
+    polls after it started over half a hold late are counted, the latest kept, and the reader's note
+    names them and the hypervisor's steal time."""
+    clock = VirtualClock()
+    log: list[tuple[str, int]] = []
+    stats = DeadlineStats()
+    run_deadline(
+        clock,
+        [_poller(clock, log, "adis", 2.5, 2.5)],
+        MessageSink(lambda m: None),
+        t0=0,
+        end=100_000_000,
+        between=lambda t: None,
+        should_stop=lambda: False,
+        sleep=_oversleeping(clock, 0.0, {10: 0.020}),
+        stats=stats,
+    )
+    assert stats.late == 1 and 20_000_000 <= stats.worst_ns < 21_250_000 and stats.polls == len(log)
+    cfg = _config([{"name": "adis", "driver": "adis16448", "bus": "cp2130:?cs=0&hz=1000000"}])
+    note = readers.lateness_note(cfg, stats, 0, 1.5)
+    assert note.startswith(f"reader process for cp2130:?cs=0&hz=1000000: 1 of {stats.polls} polls started over 1.25 ms")
+    assert "(the latest 20." in note and "1.50 s of CPU meanwhile (steal)" in note
+    assert readers.lateness_note(cfg, DeadlineStats(hold_ns=2_500_000), 0, 0.0) == ""
 
 
 # -- the hand-off ---------------------------------------------------------------------------------
@@ -249,7 +320,7 @@ def test_a_reader_process_that_dies_is_a_logged_fault_not_a_lost_capture(tmp_pat
     (SIGKILL); restarts are off (a cap of 0 an hour). The capture goes on with i2c:1 and finishes the
     file: the dead reader's device has a fault event naming it, and a gap counting what it did not read
     to the end; the status says failed."""
-    monkeypatch.setattr(readers, "RESTARTS_PER_HOUR", 0)
+    monkeypatch.setattr(restarts, "RESTARTS_PER_HOUR", 0)
     cfg = _config([{"name": "a", "bus": "i2c:1", **GYRO}, {"name": "b", "bus": "i2c:2", **GYRO}])
     out = tmp_path / "dead.h5"
     killed = []
@@ -380,22 +451,39 @@ def test_a_successor_killed_too_is_another_attempt_and_the_devices_still_come_ba
     assert final["state"] == "ok" and final["faults"] == len(faults)
 
 
+def test_the_restart_state_of_a_lost_reader(monkeypatch):
+    """restarts.Restarts on explicit times: lost -> backed off 1 s -> due -> started (opening) -> reopened
+    after 1 attempt; lost again -> 2 s; a successor that takes longer than the open timeout is too long;
+    a cap of 0 never starts it again."""
+    r = restarts.Restarts(open_timeout_s=120.0)
+    assert not r.pending and r.lost(100.0) == 1.0 and r.pending
+    assert not r.due(100.5) and r.due(101.0)
+    r.started(101.0)
+    assert r.reopening and not r.due(200.0) and not r.opening_too_long(221.0) and r.opening_too_long(221.5)
+    assert r.reopened() == 1 and not r.pending
+    assert r.lost(300.0) == 2.0  # one restart within the hour before
+    r.cancel()
+    assert not r.pending
+    monkeypatch.setattr(restarts, "RESTARTS_PER_HOUR", 0)
+    assert r.lost(400.0) is None and not r.pending
+
+
 def test_restarts_back_off_and_are_capped_per_hour(monkeypatch):
     """A reader that dies at once is started again after 1, 2, 4 ... s, at most 60 s; the eleventh restart
     within an hour waits for the first to be an hour old; a cap of 0 never starts it again."""
-    restarts: list[float] = []
+    started: list[float] = []
     delays = []
     now = 1000.0
     for _ in range(10):
-        delays.append(readers.restart_delay(restarts, now))
+        delays.append(restarts.restart_delay(started, now))
         now += delays[-1]
-        restarts.append(now)
+        started.append(now)
     assert delays == [1, 2, 4, 8, 16, 32, 60, 60, 60, 60]
-    assert readers.restart_delay(restarts, now) == pytest.approx(1001.0 + 3600.0 - now)
-    assert readers.restart_delay(restarts, 1001.0 + 3600.0 + 1.0) == 60.0  # the first has aged out
-    assert readers.restart_delay([], 5000.0 + 3 * 3600) == 1.0
-    monkeypatch.setattr(readers, "RESTARTS_PER_HOUR", 0)
-    assert readers.restart_delay([], now) is None
+    assert restarts.restart_delay(started, now) == pytest.approx(1001.0 + 3600.0 - now)
+    assert restarts.restart_delay(started, 1001.0 + 3600.0 + 1.0) == 60.0  # the first has aged out
+    assert restarts.restart_delay([], 5000.0 + 3 * 3600) == 1.0
+    monkeypatch.setattr(restarts, "RESTARTS_PER_HOUR", 0)
+    assert restarts.restart_delay([], now) is None
 
 
 def test_reader_messages_pickle_as_the_main_side_expects():

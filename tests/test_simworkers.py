@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from procs import wait_for_file
+from procs import wait_for_file, wait_for_rows
 
 from imustation.acquisition import capture, load_config
 from imustation.acquisition.config import parse_config
@@ -188,7 +188,7 @@ def test_a_stop_signal_to_the_whole_process_group_finishes_the_file(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         wait_for_file(out, proc)
-        time.sleep(1.0)
+        wait_for_rows(out, proc, ("adis", "gyro"))  # both processes' devices are recording
         os.killpg(proc.pid, signal.SIGTERM)
         outp, err = proc.communicate(timeout=60)
     finally:

@@ -17,11 +17,11 @@ from __future__ import annotations
 import array
 import errno
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Protocol
 
 from imustation.drivers.bus.url import BusURL, USBTarget, parse_bus_url, parse_usb_target
-from imustation.errors import BusClosed, BusError, BusTimeout, DeviceError
+from imustation.errors import BusClosed, BusError, BusTimeout, DeviceError, SettingError
 
 
 class SPIDevice(Protocol):
@@ -45,6 +45,15 @@ class SPIDevice(Protocol):
 
     def ensure_open(self) -> None:
         """(Re)open the bridge if it was closed or lost (cable re-plugged)."""
+        ...
+
+    def start_event_counter(self, pin: str) -> int:
+        """Count the rising edges on the bridge's input ``pin`` from 0 (a chip's data-ready line wired to it);
+        return the counter's modulus. Only the USB bridges have one (``docs/reference/bridge-counters.md``)."""
+        ...
+
+    def read_event_counter(self) -> int:
+        """The edges counted since :meth:`start_event_counter`, modulo its modulus."""
         ...
 
     def close(self) -> None: ...
@@ -78,6 +87,10 @@ class USBSPIBridge:
     MAX_HZ: ClassVar[float] = 12e6
     #: URL query keys the bridge accepts
     PARAMS: ClassVar[tuple[str, ...]] = ("cs", "hz", "retries", "timeout_ms")
+    #: the one input pin whose edges the bridge counts (docs/reference/bridge-counters.md)
+    COUNTER_PIN: ClassVar[str] = ""
+    #: the event counter is 16 bits wide on both bridges
+    COUNTER_MODULUS: ClassVar[int] = 1 << 16
 
     def __init__(self, url: str | BusURL, *, mode: int, sleep=time.sleep, backend: Any = None):
         parsed = url if isinstance(url, BusURL) else parse_bus_url(url, (self.SCHEME,))
@@ -100,6 +113,8 @@ class USBSPIBridge:
         self.retried = 0
         #: IN buffers by size, reused (see :meth:`_data_in`)
         self._in_buffers: dict[int, array.array] = {}
+        #: the counter input in use ("" none): configured again whenever the bridge is re-opened
+        self.counter_pin = ""
 
     # -- device lookup ------------------------------------------------------------
     def _find(self) -> Any:
@@ -144,6 +159,8 @@ class USBSPIBridge:
             usb.util.claim_interface(dev, 0)
             self.dev = dev
             self._setup()
+            if self.counter_pin:
+                self._start_counter()  # a re-plugged bridge counts from 0 again: the driver's reader resyncs
         except usb.core.USBError as exc:
             self.dev = None
             usb.util.dispose_resources(dev)
@@ -193,23 +210,43 @@ class USBSPIBridge:
         return BusError(f"{self.where}: USB error during {what}: {exc}")
 
     def transfer(self, tx: bytes) -> bytes:
+        tx = bytes(tx)
+        return self._retrying(lambda: self._transfer(tx), f"SPI transfer of {len(tx)} bytes")
+
+    def _retrying(self, op: Callable[[], Any], what: str) -> Any:
+        """Run ``op`` on the open bridge, retrying USB errors up to ``retries`` times; a gone device is dropped."""
         import usb.core
 
-        tx = bytes(tx)
         self.ensure_open()
         last: Exception | None = None
         for _attempt in range(self.retries):
             try:
-                return self._transfer(tx)
+                return op()
             except usb.core.USBError as exc:
                 last = exc
                 if exc.errno in _GONE:
                     self._drop()
-                    raise self._error(exc, f"SPI transfer of {len(tx)} bytes") from exc
+                    raise self._error(exc, what) from exc
                 self.retried += 1
                 self._recover()
         assert last is not None
-        raise self._error(last, f"SPI transfer of {len(tx)} bytes") from last
+        raise self._error(last, what) from last
+
+    # -- data-ready counter ------------------------------------------------------------
+    def start_event_counter(self, pin: str) -> int:
+        """Count rising edges on ``pin`` (the bridge's counter input) from 0; return the modulus (2**16)."""
+        if not self.COUNTER_PIN or pin != self.COUNTER_PIN:
+            where = f"only on {self.COUNTER_PIN}" if self.COUNTER_PIN else "on no pin"
+            raise SettingError(f"{self.where}: data_ready = {pin!r}: the {self.NAME} counts edges {where}")
+        self.counter_pin = pin
+        self._retrying(self._start_counter, f"starting the event counter on {pin}")
+        return self.COUNTER_MODULUS
+
+    def read_event_counter(self) -> int:
+        """The rising edges counted on the counter input, modulo :attr:`COUNTER_MODULUS` (one USB transaction)."""
+        if not self.counter_pin:
+            raise DeviceError(f"{self.where}: event counter read before start_event_counter")
+        return int(self._retrying(self._read_counter, "reading the event counter"))
 
     def transfer_frames(self, frames: Sequence[bytes], gap_s: float) -> list[bytes]:
         out = []
@@ -240,6 +277,13 @@ class USBSPIBridge:
         raise NotImplementedError
 
     def _transfer(self, tx: bytes) -> bytes:
+        raise NotImplementedError
+
+    def _start_counter(self) -> None:
+        """Configure :attr:`COUNTER_PIN` as a rising-edge counter input and zero the count."""
+        raise NotImplementedError
+
+    def _read_counter(self) -> int:
         raise NotImplementedError
 
     def _recover(self) -> None:

@@ -31,6 +31,20 @@ SPI_WORD_PUSH_PULL = 0x08  # bit3: CS push-pull
 #: SPI clock codes bits2:0 -> Hz
 CLOCKS_HZ = (12e6, 6e6, 3e6, 1.5e6, 750e3, 375e3, 187.5e3, 93.75e3)
 
+# --- GPIO.4 event counter, docs/reference/bridge-counters.md (AN792 Get/Set_Event_Counter) ----
+REQ_GET_EVENT_COUNTER = 0x44  # IN, 3 bytes
+REQ_SET_EVENT_COUNTER = 0x45  # OUT, 3 bytes
+#: byte 0 mode/flags, bytes 1-2 count (u16 big-endian)
+EVENT_COUNTER = struct.Struct(">BH")
+EVTCNTR_OVERFLOW = 0x80  # byte 0 bit 7: the count passed 0xFFFF
+EVTCNTR_MODE_MASK = 0x07  # byte 0 bits 2:0: GPIO.4 pin mode
+EVTCNTR_RISING_EDGE = 0x04
+EVTCNTR_FALLING_EDGE = 0x05
+EVTCNTR_NEGATIVE_PULSE = 0x06
+EVTCNTR_POSITIVE_PULSE = 0x07
+#: the pin modes in which GPIO.4 counts
+EVTCNTR_COUNTING = frozenset(range(EVTCNTR_RISING_EDGE, EVTCNTR_POSITIVE_PULSE + 1))
+
 # --- bulk commands ----------------------------------------------------------------
 CMD_WRITE_READ = 0x02  # full duplex
 HEADER = struct.Struct("<HBBI")  # 00 00 | cmd | 00 | length (u32 LE)
@@ -43,6 +57,17 @@ def spi_word(mode: int, clock_code: int) -> int:
     """SPI word of Set_SPI_Word: CPOL/CPHA from the mode, push-pull CS, clock code."""
     cpol, cpha = mode >> 1 & 1, mode & 1
     return (SPI_WORD_CPHA if cpha else 0) | (SPI_WORD_CPOL if cpol else 0) | SPI_WORD_PUSH_PULL | clock_code
+
+
+def pack_event_counter(mode: int, count: int) -> bytes:
+    """Data stage of Set_Event_Counter: GPIO.4 mode and the count to start from."""
+    return EVENT_COUNTER.pack(mode & EVTCNTR_MODE_MASK, count & 0xFFFF)
+
+
+def unpack_event_counter(data: bytes) -> tuple[bool, int, int]:
+    """Data stage of Get_Event_Counter -> (overflowed, GPIO.4 mode, count)."""
+    flags, count = EVENT_COUNTER.unpack(bytes(data))
+    return bool(flags & EVTCNTR_OVERFLOW), flags & EVTCNTR_MODE_MASK, count
 
 
 def clock_code(hz: float) -> int:
@@ -61,6 +86,7 @@ class CP2130(USBSPIBridge):
     DEFAULT_VID: ClassVar[int] = 0x10C4  # docs/reference/sensors.md §4.7 [CP-B][CP-R]
     DEFAULT_PID: ClassVar[int] = 0x87A0
     N_CS: ClassVar[int] = 11
+    COUNTER_PIN: ClassVar[str] = "gpio4"
 
     def _setup(self) -> None:
         try:
@@ -87,3 +113,23 @@ class CP2130(USBSPIBridge):
         if len(rx) != len(tx):
             raise BusError(f"{self.where}: WriteRead of {len(tx)} bytes returned {len(rx)}")
         return rx
+
+    def _start_counter(self) -> None:
+        t = self.timeout_ms
+        self.dev.ctrl_transfer(REQTYPE_OUT, REQ_SET_EVENT_COUNTER, 0, 0, pack_event_counter(EVTCNTR_RISING_EDGE, 0), t)
+        back = bytes(self.dev.ctrl_transfer(REQTYPE_IN, REQ_GET_EVENT_COUNTER, 0, 0, EVENT_COUNTER.size, t))
+        if len(back) != EVENT_COUNTER.size:
+            raise BusError(f"{self.where}: Get_Event_Counter returned {len(back)} bytes, not {EVENT_COUNTER.size}")
+        _overflow, mode, _count = unpack_event_counter(back)
+        if mode != EVTCNTR_RISING_EDGE:
+            raise DeviceError(
+                f"{self.where}: GPIO.4 reads back event counter mode {mode} after setting {EVTCNTR_RISING_EDGE} "
+                "(rising edges): its OTP pin configuration does not make it the event counter input"
+            )
+
+    def _read_counter(self) -> int:
+        t = self.timeout_ms
+        back = bytes(self.dev.ctrl_transfer(REQTYPE_IN, REQ_GET_EVENT_COUNTER, 0, 0, EVENT_COUNTER.size, t))
+        if len(back) != EVENT_COUNTER.size:
+            raise BusError(f"{self.where}: Get_Event_Counter returned {len(back)} bytes, not {EVENT_COUNTER.size}")
+        return unpack_event_counter(back)[2]

@@ -18,7 +18,7 @@ import struct
 from typing import ClassVar
 
 from imustation.drivers.bus.spi import USBSPIBridge
-from imustation.errors import BusError, BusTimeout, DeviceError
+from imustation.errors import BusError, BusTimeout, DeviceError, SettingError
 
 REPORT_LEN = 64  # every command and reply is one 64-byte report [MCP-B] COMMAND_SIZE
 ENDPOINT_TYPE_INTR = 0x03
@@ -29,12 +29,30 @@ CMD_GET_CHIP_SETTINGS = 0x20
 CMD_SET_CHIP_SETTINGS = 0x21
 CMD_SET_SPI_SETTINGS = 0x40
 CMD_TRANSFER = 0x42
+CMD_GET_INTERRUPT_COUNT = 0x12  # DS22288A §3.4.1: byte 1 0x00 reads then resets, else reads only
 #: chip settings reply: byte 4.. = 9 pin designations, GPIO outputs u16, directions u16,
 #: other settings u8, access control u8; the set command takes the same bytes + 8-byte password
 CHIP_SETTINGS_AT = 4
 CHIP_SETTINGS_LEN = 9 + 2 + 2 + 1 + 1
 N_PINS = 9
 PIN_CHIP_SELECT = 0x01
+PIN_DEDICATED = 0x02  # GP6's dedicated function: the external interrupt (event counter) input
+PIN_INTERRUPT = 6
+#: chip settings byte 13 (report byte 17) "other settings": bits 3:1 interrupt counting mode
+OTHER_SETTINGS_AT = 13
+INT_MODE_SHIFT = 1
+INT_MODE_MASK = 0x07 << INT_MODE_SHIFT
+INT_MODE_NONE = 0b000
+INT_MODE_FALLING_EDGES = 0b001
+INT_MODE_RISING_EDGES = 0b010
+INT_MODE_LOW_PULSES = 0b011
+INT_MODE_HIGH_PULSES = 0b100
+#: 0x12 byte 1
+INT_COUNT_RESET = 0x00
+INT_COUNT_KEEP = 0x01
+#: 0x12 reply bytes 4-5: the count, u16 little-endian
+INT_COUNT = struct.Struct("<H")
+INT_COUNT_AT = 4
 PASSWORD_LEN = 8
 
 # --- statuses (reply byte 1) ----------------------------------------------------------
@@ -67,6 +85,24 @@ MAX_TRANSFER_REPORTS = 64
 BUSY_RETRY_S = 0.0005
 
 
+def with_interrupt_counter(settings: bytes) -> bytes:
+    """Chip settings (the 15 bytes from report byte 4) with GP6 on its dedicated function, counting rising edges."""
+    out = bytearray(settings)
+    out[PIN_INTERRUPT] = PIN_DEDICATED
+    out[OTHER_SETTINGS_AT] = out[OTHER_SETTINGS_AT] & ~INT_MODE_MASK | INT_MODE_RISING_EDGES << INT_MODE_SHIFT
+    return bytes(out)
+
+
+def interrupt_count_command(reset: bool) -> bytes:
+    """The 0x12 report (64 bytes) reading the interrupt event counter, resetting it after the read or not."""
+    return bytes([CMD_GET_INTERRUPT_COUNT, INT_COUNT_RESET if reset else INT_COUNT_KEEP]).ljust(REPORT_LEN, b"\0")
+
+
+def interrupt_count(reply: bytes) -> int:
+    """The event count of a 0x12 reply."""
+    return INT_COUNT.unpack_from(reply, INT_COUNT_AT)[0]
+
+
 class MCP2210(USBSPIBridge):
     """MCP2210 bridge: chip select on GP0..GP8 (``cs=0..8``)."""
 
@@ -75,6 +111,7 @@ class MCP2210(USBSPIBridge):
     DEFAULT_VID: ClassVar[int] = 0x04D8  # docs/reference/sensors.md §4.7 [MCP-B]
     DEFAULT_PID: ClassVar[int] = 0x00DE
     N_CS: ClassVar[int] = N_PINS
+    COUNTER_PIN: ClassVar[str] = "gp6"
 
     def _command(self, payload: bytes, what: str) -> bytes:
         self._data_out(payload.ljust(REPORT_LEN, b"\0"))
@@ -101,6 +138,24 @@ class MCP2210(USBSPIBridge):
             self._check(self._command(cmd, "set chip settings"), f"designate GP{self.cs} as chip select")
         self.hz = self.requested_hz  # the MCP2210 divides its clock; the rate it picks is not read back
         self._tx_size = -1
+
+    def _start_counter(self) -> None:
+        if self.cs == PIN_INTERRUPT:
+            raise SettingError(f"{self.where}: GP6 is this chip's select: it cannot also count data-ready edges")
+        reply = self._command(bytes([CMD_GET_CHIP_SETTINGS, 0, 0, 0]), "get chip settings")
+        self._check(reply, "get chip settings")
+        settings = reply[CHIP_SETTINGS_AT : CHIP_SETTINGS_AT + CHIP_SETTINGS_LEN]
+        wanted = with_interrupt_counter(settings)
+        if wanted != settings:
+            cmd = bytes([CMD_SET_CHIP_SETTINGS, 0, 0, 0]) + wanted + bytes(PASSWORD_LEN)
+            self._check(self._command(cmd, "set chip settings"), "make GP6 the interrupt counter input")
+        reply = self._command(interrupt_count_command(reset=True), "get interrupt event count")
+        self._check(reply, "get interrupt event count")
+
+    def _read_counter(self) -> int:
+        reply = self._command(interrupt_count_command(reset=False), "get interrupt event count")
+        self._check(reply, "get interrupt event count")
+        return interrupt_count(reply)
 
     def _spi_settings(self, n: int) -> None:
         active = ALL_CS_IDLE_HIGH & ~(1 << self.cs)

@@ -20,3 +20,9 @@ def open_spi(url: str, *, mode: int, sleep=time.sleep, backend: Any = None) -> U
     parsed = parse_bus_url(url, ("cp2130", "mcp2210"))
     cls = CP2130 if parsed.scheme == "cp2130" else MCP2210
     return cls(parsed, mode=mode, sleep=sleep, backend=backend)
+
+
+def counter_pin(scheme: str) -> str:
+    """The input pin whose edges the bridge of a ``scheme:`` URL counts ("" for a bus without one)."""
+    cls = {"cp2130": CP2130, "mcp2210": MCP2210}.get(scheme)
+    return cls.COUNTER_PIN if cls is not None else ""

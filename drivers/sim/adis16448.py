@@ -112,10 +112,15 @@ class ADIS16448Sim:
         #: transfers ignored because CS was high for less than the stall time (test back door)
         self.sim_stall_violations = 0
         self.cs_high_ns = -STALL_MIN_NS  # when the last transfer ended (chip select raised)
+        #: data-ready pulses made before the current sampling run, and the run's samples before the line was on
+        self._edges_before = self._edges_from = 0
         self._power_on(0.0)  # powered up long before the station opens it
 
     # -- state ----------------------------------------------------------------------------
     def _power_on(self, busy_s: float) -> None:
+        if hasattr(self, "t_start_ns"):
+            self._fold_edges()  # the pulses made so far stay made
+            self.t_start_ns, self._edges_from = self.clock.now_ns(), 0
         self.regs = dict(POR_REGS)
         self.pending = 0  # the word the next frame returns
         self.busy_until_ns = self.clock.now_ns() + int(busy_s * 1e9)
@@ -123,7 +128,9 @@ class ADIS16448Sim:
         self._restart()
 
     def _restart(self) -> None:
-        self.t_start_ns = self.clock.now_ns()
+        if hasattr(self, "t_start_ns"):
+            self._fold_edges()
+        self.t_start_ns, self._edges_from = self.clock.now_ns(), 0
         self.produced = 0
         self._chunk_bytes = b""  # burst words of the current chunk as on MISO (big-endian), 26 bytes a sample
         self._chunk_first = 0
@@ -147,6 +154,27 @@ class ADIS16448Sim:
         code = self.regs.get(chip.REG_SENS_AVG, 0) >> chip.SENS_AVG_RANGE_SHIFT & 0x7
         row = next((r for r in chip.GYRO_RANGES if r.code == code), chip.GYRO_RANGES[-1])
         return row.dps_per_lsb * chip.DEG2RAD
+
+    def _due(self) -> int:
+        """Samples made since the last restart (on the clock; an external clock never ticks here)."""
+        if not self.internal_clock:
+            return 0
+        return max(0, int((self.clock.now_ns() - self.t_start_ns) * self._rate / 1e9))
+
+    @property
+    def data_ready_on(self) -> bool:
+        """MSC_CTRL: data ready enabled on DIO1 (bit 2 set, bit 0 clear)."""
+        msc = self.regs.get(chip.REG_MSC_CTRL, 0)
+        return bool(msc & chip.MSC_CTRL_DR_ENABLE) and not msc & chip.MSC_CTRL_DR_LINE_DIO2
+
+    def data_ready_edges(self) -> int:
+        """Pulses on DIO1 so far: one per sample made while data ready is enabled on it (what a counter
+        wired to DIO1 counts)."""
+        return self._edges_before + (self._due() - self._edges_from if self.data_ready_on else 0)
+
+    def _fold_edges(self) -> None:
+        """Keep the pulses made so far before a setting or the sampling run changes."""
+        self._edges_before, self._edges_from = self.data_ready_edges(), self._due()
 
     def _build(self, n: int) -> None:
         """Draw the next ``n`` samples and build their burst words (n, 13): diag, 11 data, CRC."""
@@ -173,9 +201,9 @@ class ADIS16448Sim:
 
     def _newest(self) -> int:
         """Row in the current chunk of the newest sample due by now (-1 before the first)."""
-        due = int((self.clock.now_ns() - self.t_start_ns) * self._rate / 1e9)
-        if due <= 0 or not self.internal_clock:
-            return -1  # nothing sampled since the last restart (an external clock never ticks here)
+        due = self._due()
+        if due <= 0:
+            return -1  # nothing sampled since the last restart
         while self.produced < due:
             self._build(max(CHUNK, due - self.produced))
         return due - 1 - self._chunk_first
@@ -235,6 +263,8 @@ class ADIS16448Sim:
             return
         old = self.regs.get(reg, 0)
         new = (old & 0xFF00) | value if addr == reg else (old & 0x00FF) | value << 8
+        if reg == chip.REG_MSC_CTRL:
+            self._fold_edges()  # from now on the line follows the new setting
         if reg == chip.REG_SENS_AVG and new >> chip.SENS_AVG_RANGE_SHIFT & 0x7 not in _RANGE_CODES and addr != reg:
             return  # a reserved range code: the high byte is not taken
         self.regs[reg] = new

@@ -8,6 +8,7 @@ simulator that answers full-duplex bytes as the chip does on the wire.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol
 
 from imustation.drivers.bus import spi_cp2130 as cp
@@ -25,6 +26,37 @@ class SPITarget(Protocol):
         ...
 
 
+class EdgeCounter:
+    """A bridge's 16-bit counter of the edges on its counter input pin.
+
+    ``edges()`` is the wired chip's data-ready line: the edges it has made so far
+    (each new sample one pulse, on the chip's clock); nothing wired counts nothing.
+    The count is kept as an offset from that total, so counting costs nothing per edge.
+    """
+
+    def __init__(self) -> None:
+        self.edges: Callable[[], int] = lambda: 0
+        self.counting = False
+        self._value = 0  # the count when not counting; the offset from edges() while counting
+
+    def wire(self, edges: Callable[[], int]) -> None:
+        count = self.count()
+        self.edges = edges
+        self.set(count)
+
+    def count(self) -> int:
+        """Edges counted, not wrapped."""
+        return self._value + self.edges() if self.counting else self._value
+
+    def set(self, count: int) -> None:
+        self._value = count - self.edges() if self.counting else count
+
+    def enable(self, counting: bool) -> None:
+        count = self.count()
+        self.counting = counting
+        self.set(count)
+
+
 def _corrupt(rx: bytes, plan: FaultPlan | None) -> bytes:
     """``corrupt`` fault: flip one bit of one byte read back (middle of the transfer)."""
     if plan is not None and len(rx) > 2 and plan.fire("corrupt"):
@@ -38,6 +70,7 @@ class CP2130Sim(SimUSBFunction):
     """CP2130 with high-priority-write endpoints (bulk OUT 0x01 / IN 0x82) [CP-B]."""
 
     ENDPOINTS = ((0x01, 0x02), (0x82, 0x02))
+    COUNTER_PIN = cp.CP2130.COUNTER_PIN
 
     def __init__(self, serial: str = "0001", plan: FaultPlan | None = None):
         super().__init__(cp.CP2130.DEFAULT_VID, cp.CP2130.DEFAULT_PID, serial, plan)
@@ -46,11 +79,33 @@ class CP2130Sim(SimUSBFunction):
         self.spi_words = bytearray(cp.SPI_WORD_LEN)
         self.cs_enabled: set[int] = set()
         self._in = bytearray()
+        #: the OTP ROM makes GPIO.4 the event counter input (a board prepared for the data-ready wire);
+        #: False: GPIO.4 is a plain GPIO and Set_Event_Counter's mode does not take
+        self.gpio4_counter_input = True
+        self.evt_mode = 0
+        self.evt = EdgeCounter()
 
     def attach(self, cs: int, target: SPITarget) -> None:
         self.targets[cs] = target
 
+    def wire_counter(self, pin: str, edges: Callable[[], int]) -> None:
+        """Connect a chip's data-ready line (``edges()``: the pulses it made so far) to ``pin``."""
+        if pin != self.COUNTER_PIN:
+            raise ValueError(f"the CP2130 counts edges on {self.COUNTER_PIN} only, not {pin!r}")
+        self.evt.wire(edges)
+
     def control(self, request_type, request, value, index, data):
+        if request_type == cp.REQTYPE_OUT and request == cp.REQ_SET_EVENT_COUNTER and len(data) == 3:
+            _overflow, mode, count = cp.unpack_event_counter(data)
+            if self.gpio4_counter_input:
+                self.evt_mode = mode
+            self.evt.enable(self.evt_mode in cp.EVTCNTR_COUNTING)
+            self.evt.set(count)
+            return 3
+        if request_type == cp.REQTYPE_IN and request == cp.REQ_GET_EVENT_COUNTER:
+            n = self.evt.count()
+            flags = self.evt_mode | (cp.EVTCNTR_OVERFLOW if n > 0xFFFF else 0)
+            return cp.EVENT_COUNTER.pack(flags, n & 0xFFFF)
         if request_type == cp.REQTYPE_OUT and request == cp.REQ_SET_SPI_WORD and len(data) == 2:
             self.spi_words[data[0]] = data[1]
             return 2
@@ -105,6 +160,7 @@ class MCP2210Sim(SimUSBFunction):
 
     INTERFACE_CLASS = 0x03
     ENDPOINTS = ((0x01, 0x03), (0x81, 0x03))
+    COUNTER_PIN = mcp.MCP2210.COUNTER_PIN
 
     def __init__(self, serial: str = "0001", plan: FaultPlan | None = None):
         super().__init__(mcp.MCP2210.DEFAULT_VID, mcp.MCP2210.DEFAULT_PID, serial, plan, kernel_driver=True)
@@ -114,9 +170,20 @@ class MCP2210Sim(SimUSBFunction):
         self._acc = bytearray()  # bytes of the transaction in progress
         self._rx = bytearray()  # received bytes not yet handed to the host
         self._replies: list[bytes] = []
+        self.interrupts = EdgeCounter()  # GP6's external interrupt event counter
 
     def attach(self, cs: int, target: SPITarget) -> None:
         self.targets[cs] = target
+
+    def wire_counter(self, pin: str, edges: Callable[[], int]) -> None:
+        """Connect a chip's data-ready line (``edges()``: the pulses it made so far) to ``pin``."""
+        if pin != self.COUNTER_PIN:
+            raise ValueError(f"the MCP2210 counts edges on {self.COUNTER_PIN} only, not {pin!r}")
+        self.interrupts.wire(edges)
+
+    def _interrupt_counting(self) -> bool:
+        mode = self.chip_settings[mcp.OTHER_SETTINGS_AT] >> mcp.INT_MODE_SHIFT & 0x07
+        return self.chip_settings[mcp.PIN_INTERRUPT] == mcp.PIN_DEDICATED and mode != mcp.INT_MODE_NONE
 
     def _reply(self, *head: int, data: bytes = b"") -> None:
         self._replies.append((bytes(head) + data).ljust(mcp.REPORT_LEN, b"\0"))
@@ -130,7 +197,13 @@ class MCP2210Sim(SimUSBFunction):
         elif cmd == mcp.CMD_SET_CHIP_SETTINGS:
             at = mcp.CHIP_SETTINGS_AT
             self.chip_settings[:] = data[at : at + mcp.CHIP_SETTINGS_LEN]
+            self.interrupts.enable(self._interrupt_counting())
             self._reply(cmd, mcp.STATUS_OK, 0, 0)
+        elif cmd == mcp.CMD_GET_INTERRUPT_COUNT:
+            n = self.interrupts.count() & 0xFFFF
+            if data[1] == mcp.INT_COUNT_RESET:
+                self.interrupts.set(0)
+            self._reply(cmd, mcp.STATUS_OK, 0, 0, data=mcp.INT_COUNT.pack(n))
         elif cmd == mcp.CMD_SET_SPI_SETTINGS:
             if self._acc:
                 self._reply(cmd, mcp.STATUS_IN_PROGRESS, 0, 0)
