@@ -25,6 +25,7 @@ from imustation.cli import cli
 from imustation.configs import config_path
 from imustation.drivers.base import Block
 from imustation.drivers.sim import station_device_seed
+from imustation.errors import RateCorrected
 from imustation.runfile import ChannelSpec, DeviceSpec, RunWriter, open_run
 from imustation.runfile.holes import check_run, check_thermometer, check_thermometers, find_holes, match_losses
 
@@ -155,18 +156,15 @@ def test_reads_stamped_late_every_hole_is_logged_with_its_count(tmp_path, monkey
     assert logged == holes.samples > 500
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="the run file's reader fits the rate of read-dated stamps (409.6 -> ~391 Hz) and counts every "
-    "hole with it: runfile rate correction, outside the station (reported with issue 36)",
-)
 def test_reads_stamped_late_the_file_reader_counts_holes_at_the_configured_rate(tmp_path, monkeypatch):
+    """Read-dated stamps (every 7th burst 8 ms late) are not a rate: the reader's whole-span rule keeps
+    409.6 Hz (the old first-4,097 fit read ~391 Hz and recounted every hole with it)."""
     _stamped_late(monkeypatch, 7, 0.008)
     path, _ = capture_lab(tmp_path, lab(stall=False), 6.0, monkeypatch)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the RateCorrected warning is the fault this test shows
+        warnings.simplefilter("error", RateCorrected)
         with open_run(path) as run:
+            assert run.devices["adis"].rate_hz == 409.6
             assert check_run(run)["adis"].consistent
 
 
