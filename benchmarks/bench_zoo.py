@@ -16,7 +16,11 @@ has them (K also by its upper bound when it is not detected, ``K_upper90``; ``<`
 detected: its interval starts at 0 or it has none, the point is no measurement); the classic
 IEEE-952 fit's N and whether it is usable; whether the chosen model fits; the analysis time.
 
-    python benchmarks/bench_zoo.py [--hours 2] [--workers 2] [--repeats 1] [--only independent|project]
+The resonance channels (``independent_noise.resonance_zoo``: a second-order Gauss-Markov process, a
+zero-DC mode at Q 5, an ADIS16405-like hump) are a block of their own (``--only resonances``; with
+``independent`` too); a row counts the resonances the analysis found.
+
+    python benchmarks/bench_zoo.py [--hours 2] [--workers 2] [--repeats 1] [--only independent|project|resonances]
 """
 
 from __future__ import annotations
