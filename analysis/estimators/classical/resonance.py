@@ -42,7 +42,7 @@ from scipy import ndimage, signal
 #: Welch segment length, s (resolution ~1.5 / SEGMENT_S Hz with the Hann window)
 SEGMENT_S = 8.0
 #: samples the test reads
-MAX_SAMPLES = 1 << 21
+MAX_SAMPLES = 1 << 20
 #: lowest frequency tested, Hz (below, the slow terms and sinusoids the peak test cannot resolve)
 FIRST_HZ = 1.0
 #: highest frequency tested, as a fraction of the Nyquist frequency (filter edges and folding above)
