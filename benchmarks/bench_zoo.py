@@ -16,7 +16,11 @@ has them (K also by its upper bound when it is not detected, ``K_upper90``; ``<`
 detected: its interval starts at 0 or it has none, the point is no measurement); the classic
 IEEE-952 fit's N and whether it is usable; whether the chosen model fits; the analysis time.
 
-    python benchmarks/bench_zoo.py [--hours 2] [--workers 2] [--repeats 1] [--only independent|bands|project]
+The resonance channels (``independent_noise.resonance_zoo``: a second-order Gauss-Markov process, a
+zero-DC mode at Q 5, an ADIS16405-like hump) are a block of their own (``--only resonances``; with
+``independent`` too); a row counts the resonances the analysis found.
+
+    python benchmarks/bench_zoo.py [--hours 2] [--workers 2] [--repeats 1] [--only independent|bands|project|resonances]
 """
 
 from __future__ import annotations
@@ -43,13 +47,14 @@ PROJECT = (
 )
 
 
-def independent_channel(index: int, hours: float, seed: int):
-    """(Channel, truth N, B, K, name) of the zoo's ``index``-th independent spec."""
+def independent_channel(index: int, hours: float, seed: int, specs: str = "zoo"):
+    """(Channel, truth N, B, K, name) of the ``index``-th independent spec of ``specs`` (``"zoo"`` or
+    ``"resonances"``: :func:`independent_noise.resonance_zoo`)."""
     import independent_noise as gen
 
     from imustation.analysis.pipeline.loaders import Channel
 
-    spec = gen.zoo()[index]
+    spec = (gen.zoo() if specs == "zoo" else gen.resonance_zoo())[index]
     data = gen.generate(spec, hours, seed)
     t = gen.truth(spec)
     scale = spec.lsb if spec.lsb > 0 else 1.0
@@ -156,6 +161,8 @@ def run_one(job: tuple) -> dict:
         ch, n_true, b_true, k_true = independent_channel(index, hours, seed)
     elif kind == "bands":
         ch, n_true, b_true, k_true = bands_channel(index, hours, seed)
+    elif kind == "resonances":
+        ch, n_true, b_true, k_true = independent_channel(index, hours, seed, "resonances")
     else:
         ch, n_true, b_true, k_true = project_channel(index, axis, hours, seed)
     t0 = time.perf_counter()
@@ -163,6 +170,7 @@ def run_one(job: tuple) -> dict:
     t_an = time.perf_counter() - t0
     s = res.ieee952(res.noise_model)
     row = {"id": ch.id, "t": t_an, "model": res.noise_model.model, "fits": bool(res.choice.fits)}
+    row["resonances"] = len(res.resonances)
     row["n_err"] = s["N"] / n_true - 1.0
     row["n_in"], row["n_out"] = _inside(s["N_ci90"], n_true)
     row["n_ci"] = [v / n_true - 1.0 for v in s["N_ci90"]] if s["N_ci90"] else None
@@ -206,11 +214,21 @@ def jobs(args) -> list[tuple]:
             out += [("independent", i, 0, args.hours, 1000 + 31 * rep + i) for i in range(len(gen.zoo()))]
         if args.only in ("", "bands"):
             out += [("bands", i, 0, args.hours, 3000 + 31 * rep + i) for i in range(len(bands_specs()))]
+        out += resonance_jobs(args, rep)
         if args.only in ("", "project"):
             for i, (_, kind, _) in enumerate(PROJECT):
                 axes = range(3) if kind == "gyro" else range(1)
                 out += [("project", i, a, args.hours, 2000 + 17 * rep + i) for a in axes]
     return out
+
+
+def resonance_jobs(args, rep: int) -> list[tuple]:
+    """The resonance channels (:func:`independent_noise.resonance_zoo`; issue 32), a block of their own."""
+    import independent_noise as gen
+
+    if args.only not in ("", "independent", "resonances"):
+        return []
+    return [("resonances", i, 0, args.hours, 3000 + 31 * rep + i) for i in range(len(gen.resonance_zoo()))]
 
 
 def _median(v: list) -> float:
@@ -226,7 +244,7 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=2.0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--only", choices=("", "independent", "bands", "project"), default="")
+    ap.add_argument("--only", choices=("", "independent", "bands", "project", "resonances"), default="")
     args = ap.parse_args()
     todo = jobs(args)
     t0 = time.perf_counter()
@@ -251,7 +269,8 @@ def main() -> None:
     worst = max(rows, key=lambda r: abs(r["n_err"]))
     out_worst = max(rows, key=lambda r: r["n_out"])
     print()
-    print(f"channels: {n}; chosen model fits: {sum(r['fits'] for r in rows)} of {n}")
+    print(f"channels: {n}; chosen model fits: {sum(r['fits'] for r in rows)} of {n}; "
+          f"a resonance found on {sum(r['resonances'] > 0 for r in rows)}")  # fmt: skip
     print(
         f"sigma_w (N): inside its 90 % interval {n_in} of {n} ({100 * n_in / n:.0f} %); "
         f"worst error {100 * worst['n_err']:+.1f} % ({worst['id']}); "

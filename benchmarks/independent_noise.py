@@ -21,7 +21,9 @@ IEEE Std 952-1997's two-sided conventions (Annex C: the Allan variance of each t
 * a second-order resonance (a structural mode seen by the gyro): white noise differenced (its angle
   stays bounded, so its rate PSD is 0 at 0 Hz) through the resonator ``1 / (1 - 2 r cos w z^-1 +
   r^2 z^-2)``, centre ``f_r``, quality ``Q`` (``r = exp(-pi f_r / (Q f))``), scaled to a stated peak
-  PSD relative to the white noise's;
+  PSD relative to the white noise's; or, ``resonance_dc``, not differenced: a second-order Gauss-Markov
+  process (IEEE 952's exponentially correlated noise of second order), whose power at 0 Hz is white
+  rate noise over long times and belongs to the channel's N (``N^2 (1 + peak |H(0)|^2 / |H(f_r)|^2)``);
 * a device filter: the white rate noise drawn at an internal rate ``f_i``, through a Butterworth
   low-pass (order 1..4, bilinear transform), a moving average of ``taps`` samples, or both, then
   **decimated by picking every r-th sample** (no averaging: the band above the output Nyquist
@@ -108,6 +110,7 @@ class Spec:
     sigma_a: float = 0.0
     sines: tuple[tuple[float, float], ...] = ()  # (amplitude, frequency)
     resonance: tuple[float, float, float] = ()  # (centre Hz, Q, peak PSD / white PSD)
+    resonance_dc: bool = False  # a second-order Gauss-Markov process (power at 0 Hz) instead of a zero-DC mode
     filt: DeviceFilter | None = None
     lsb: float = 0.0
     settings: dict = field(default_factory=dict)  # what a run file would store about the filter
@@ -123,16 +126,25 @@ class Truth:
 def truth(spec: Spec) -> Truth:
     """N, B, K an estimator should return for ``spec`` (module docstring)."""
     n = output_density(spec.N, spec.filt)
+    if spec.resonance and spec.resonance_dc:  # its power at 0 Hz is white noise over long times
+        b, a = _resonator(spec.fs_hz, spec.resonance[0], spec.resonance[1], True)
+        _, h = signal.freqz(b, a, worN=[0.0, spec.resonance[0]], fs=spec.fs_hz)
+        n = math.sqrt(n * n + spec.N**2 * spec.resonance[2] * abs(h[0]) ** 2 / abs(h[1]) ** 2)
     if spec.lsb > 0:
         n = math.hypot(n, spec.lsb / math.sqrt(12.0 * spec.fs_hz))
     return Truth(n, spec.B, spec.K)
 
 
-def _resonance(n: int, fs: float, centre: float, q: float, peak: float, n_density: float, rng) -> np.ndarray:
+def _resonator(fs: float, centre: float, q: float, dc: bool) -> tuple[list[float], list[float]]:
     r = math.exp(-math.pi * centre / (q * fs))
     w = 2.0 * math.pi * centre / fs
-    a = [1.0, -2.0 * r * math.cos(w), r * r]
-    b = [1.0, -1.0]
+    return ([1.0] if dc else [1.0, -1.0]), [1.0, -2.0 * r * math.cos(w), r * r]
+
+
+def _resonance(
+    n: int, fs: float, centre: float, q: float, peak: float, n_density: float, rng, dc: bool = False
+) -> np.ndarray:
+    b, a = _resonator(fs, centre, q, dc)
     _, H = signal.freqz(b, a, worN=[centre], fs=fs)
     # white samples of variance v give one-sided PSD 2 v |H|^2 / fs; the white noise's is 2 N^2
     v = peak * n_density**2 * fs / abs(H[0]) ** 2
@@ -168,7 +180,7 @@ def generate(spec: Spec, hours: float, seed: int) -> np.ndarray:
     for amp, f0 in spec.sines:
         x += amp * np.sin(2.0 * math.pi * f0 * t + rng.uniform(0, 2 * math.pi))
     if spec.resonance:
-        x += _resonance(n, fs, *spec.resonance, spec.N, rng)
+        x += _resonance(n, fs, *spec.resonance, spec.N, rng, spec.resonance_dc)
     if spec.lsb > 0:
         return np.clip(np.rint(x / spec.lsb), -32768, 32767).astype(np.int16)
     return x
@@ -245,3 +257,17 @@ def zoo() -> list[Spec]:
         Spec("white angle+white+flicker", 400.0, n1, B=10 * DPH, sigma_a=2 * n1 / math.sqrt(400.0)),
         Spec("fog 100Hz white+tiny flicker", 100.0, 0.0667 / 60 * DEG, B=0.05 * DPH, K=0.005 * DPH / 60),
     ]
+
+
+def resonance_zoo() -> list[Spec]:
+    """Resonances beside the zoo's two (issue 32): IEEE 952's second-order exponentially correlated noise
+    with its power at 0 Hz, a zero-DC mode at another Q, and a broad hump like the ADIS16405 z gyro's
+    (10 .. 30 Hz at 2.3 x the white PSD) at its 819.2 Hz rate with its noise density."""
+    n1 = 0.3 * ARW
+    return [
+        Spec("2nd-order GM 35Hz Q20 x30 (DC kept)+flicker", 400.0, n1, B=10 * DPH, resonance=(35.0, 20.0, 30.0),
+             resonance_dc=True),
+        Spec("resonance 60Hz Q5 x8+flicker+walk", 400.0, n1, B=5 * DPH, K=1 * DPH / 60, resonance=(60.0, 5.0, 8.0)),
+        Spec("ADIS16405-like hump 18Hz Q1 x2.3+flicker+walk", 819.2, 0.05 * DEG, B=25 * DPH, K=3 * DPH / 60,
+             resonance=(18.0, 1.0, 2.3)),
+    ]  # fmt: skip

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -11,9 +11,11 @@ from imustation.analysis.estimators.classical.allan import AllanResult, oadev
 from imustation.analysis.estimators.classical.allan_bounds import ieee_usability, with_bounds
 from imustation.analysis.estimators.classical.ieee import IEEECoefficients, ieee_coefficients
 from imustation.analysis.estimators.classical.periodic import Component, find_sinusoids, remove_sinusoids
+from imustation.analysis.estimators.classical.resonance import Resonance, find_resonances
 from imustation.analysis.estimators.engine.fitting import MLiResult
 from imustation.analysis.estimators.engine.pattern import integrate
 from imustation.analysis.estimators.ml.composite import fit_composite
+from imustation.analysis.estimators.ml.finescale import FilterHint
 from imustation.analysis.estimators.ml.gmwm import fit_gmwm
 from imustation.analysis.estimators.ml.mli import compare_models, fit_integrated
 from imustation.analysis.estimators.selection.adequacy import Adequacy
@@ -59,6 +61,8 @@ class ChannelAnalysis:
     choice: ModelChoice | None = None
     #: spectral peaks found (:mod:`.periodic`): sinusoids were removed before every fit, resonances named
     periodic: tuple[Component, ...] = ()
+    #: resonances (:mod:`.resonance`): with ``--model auto`` the white noise is read beyond them
+    resonances: tuple[Resonance, ...] = ()
 
     def adequacy_of(self, fit: MLiResult | None) -> Adequacy | None:
         """The adequacy of one of this channel's fits (None for a fit without one)."""
@@ -129,6 +133,26 @@ def without_sinusoids(ch: Channel) -> tuple[tuple[Component, ...], Channel]:
     return found, work
 
 
+def beyond_resonances(hint: FilterHint | None, resonances: tuple[Resonance, ...]) -> FilterHint | None:
+    """``hint`` (the device's filter settings, or None) with the fine scales starting beyond the
+    resonances' bands (:attr:`.Resonance.start_s`); ``hint`` itself without resonances."""
+    start = max((r.start_s for r in resonances), default=0.0)
+    if start <= 0:
+        return hint
+    return replace(hint, start_s=start) if hint is not None else FilterHint(False, 0.0, "", start_s=start)
+
+
+def _reported(resonances: tuple[Resonance, ...], why: str) -> tuple[Resonance, ...]:
+    """``resonances`` as reported only (the white noise not read beyond them), with ``why``."""
+    return tuple(replace(r, start_s=0.0, reason=f"{r.reason.split(': the white')[0]}: reported only ({why}); "
+                         "sigma_w's interval takes in the later scales' reading") for r in resonances)  # fmt: skip
+
+
+def _within(c: Component, resonances: tuple[Resonance, ...]) -> bool:
+    """Whether the peak test's narrow-band ``c`` is one of ``resonances`` (a sinusoid never is)."""
+    return c.kind == "resonance" and any(r.band_hz[0] <= c.frequency_hz <= r.band_hz[1] for r in resonances)
+
+
 def analyze_channel(
     ch: Channel,
     *,
@@ -188,13 +212,22 @@ def _analyze_checked(ch, pattern, m, model, compare, method, estimator, need) ->
     original = ch
     # sinusoids are not noise: measured, removed and named before anything is fitted (issue 32)
     periodic, ch = without_sinusoids(ch)
+    # resonances are no term of the family: the model choice reads the white noise beyond them
+    resonances = tuple(find_resonances(ch.data, ch.fs_hz, ch.scale))
+    periodic = tuple(c for c in periodic if not _within(c, resonances))
     allan = oadev(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments)
     choice, tau_min = None, 0.0
     if model == MODEL_AUTO:
-        hint = filter_hint(ch.meta, ch.fs_hz)
+        hint = beyond_resonances(filter_hint(ch.meta, ch.fs_hz), resonances)
         choice = choose_model(ch.data, ch.fs_hz, scale=ch.scale, segments=ch.segments, hint=hint, allan=allan)
         model = choice.chosen.model
-        tau_min = choice.fine.memory_s if choice.fine.term else 0.0
+        tau_min = choice.fine.memory_s if choice.fine.term or choice.fine.excluded_s > 0 else 0.0
+        if resonances and choice.fine.excluded_s <= 0:  # the fine statistic found the slow terms beyond it
+            resonances = _reported(resonances, choice.fine.source.rsplit("; a resonance: ", 1)[-1])
+    else:  # a model the user named is fitted as named: the resonance is reported, nothing moved
+        resonances = _reported(
+            resonances, "a named model is fitted as named; --model auto reads the white noise beyond it"
+        )
     ieee = ieee_coefficients(allan, tau_min=tau_min)
     mli, models, gmwm = None, (), None
     if method in ("mli", "both") or estimator == "mli":
@@ -226,7 +259,7 @@ def _analyze_checked(ch, pattern, m, model, compare, method, estimator, need) ->
         summary = with_bounds(ieee952_summary(best, ch.n / ch.fs_hz, choice.close), allan, choice.fits)
     verdict = channel_verdict(ch, allan, best, need, summary)
     res = ChannelAnalysis(original, allan, ieee, mli_block, models, gmwm_block, verdict, best, estimator,
-                          choice=choice, periodic=periodic)  # fmt: skip
+                          choice=choice, periodic=periodic, resonances=resonances)  # fmt: skip
     done: dict[int, Adequacy | None] = {}  # a fit shared by two blocks is tested once
     if choice is not None:  # the choice tested its candidates against this Allan variance already
         tested = {id(c.result.noise_model): c.check for c in choice.candidates if c.tested}
@@ -296,6 +329,7 @@ def channel_document(res: ChannelAnalysis) -> dict:
             },
             "ieee": res.ieee.as_dict(),
             "periodic": [c.as_dict() for c in res.periodic],
+            "resonances": [r.as_dict() for r in res.resonances],
             **({"verdict": res.verdict.as_dict()} if res.verdict is not None else {}),
         }
     )

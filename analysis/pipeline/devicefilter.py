@@ -16,10 +16,11 @@ the data decide alone.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
-from imustation.analysis.estimators.ml.finescale import FilterHint
+from imustation.analysis.estimators.ml.finescale import TAU_LP_MARGIN, FilterHint
 
 #: drivers whose settings carry the -3 dB bandwidth of the chip's digital low-pass (Hz)
 BANDWIDTH_DRIVERS = ("bmx055", "bmx055_accel", "mpu9150", "mpu6500")
@@ -37,7 +38,8 @@ def filter_hint(meta: Mapping[str, Any], fs_hz: float) -> FilterHint | None:
         if bw is None or not (float(bw) > 0):
             return None
         bw = float(bw)
-        return FilterHint(True, 0.5 / bw, f"{driver} bandwidth_hz = {bw:g}")
+        tau_lp_max = TAU_LP_MARGIN / (2.0 * math.pi * bw)  # no filter of that bandwidth has a larger deficit
+        return FilterHint(True, 0.5 / bw, f"{driver} bandwidth_hz = {bw:g}", tau_lp_max=tau_lp_max)
     if driver == "adis16448":
         taps = int(settings.get("filter_taps", 1) or 1)
         dec = int(settings.get("decimation", 0) or 0)

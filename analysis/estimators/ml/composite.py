@@ -200,7 +200,8 @@ def fit_composite_data(
     if len(inc.y) < 4 + 2 * spec.d:
         raise InputError(f"only {len(inc.y)} pattern intervals: too few for model {spec.name!r}")
     multi = isinstance(fine, FineStatistic)
-    memory = fine.memory_s if multi and fine.term else 0.0
+    # the model holds from the statistic's first scale on: a filter's memory, or beyond a resonance
+    memory = fine.memory_s if multi and (fine.term or fine.excluded_s > 0) else 0.0
     if "lp" in spec.codes:
         if not (multi and len(fine.taus) > 1):
             raise InputError(
