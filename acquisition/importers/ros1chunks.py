@@ -68,7 +68,7 @@ class ChunkTable:
 
 
 def _u64(b: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return b[np.asarray(at, np.int64)[:, None] + np.arange(8)].view("<u8")[:, 0].astype(np.int64)
+    return sliding_window_view(b, 8)[np.asarray(at, np.int64)].view("<u8")[:, 0].astype(np.int64)
 
 
 def chunk_positions(fh, at: np.ndarray, value_offset: int) -> np.ndarray:
@@ -121,7 +121,7 @@ def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, m
     which = np.zeros(len(pos), np.int8)
     kinds: list[str] = []
     size = np.zeros(len(pos), np.int64)
-    for k in np.unique(hn).tolist():
+    for k in [int(hn[0])] if (hn == hn[0]).all() else np.unique(hn).tolist():
         g = np.flatnonzero(hn == k)
         # chunk headers differ in their size value only (same compression, same fields): all compared with
         # the first's at once, and a header unlike it looked at on its own
@@ -249,11 +249,10 @@ def _in_order(pool: ThreadPoolExecutor | None, spans: list[tuple[int, int]], wor
                 break
         while pending:
             sp, fut = pending.popleft()
-            got = fut.result()
-            nxt = next(todo, None)
+            yield sp, fut.result()
+            nxt = next(todo, None)  # once the batch handed out is done with
             if nxt is not None:
                 pending.append((nxt, pool.submit(work, *nxt)))
-            yield sp, got
     finally:
         for _, fut in pending:
             fut.cancel()
