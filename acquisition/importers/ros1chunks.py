@@ -195,24 +195,16 @@ def _blocks(fh, table: ChunkTable, nxt: np.ndarray, conns, counts, pool) -> Iter
             return
         lay = replace(lay, base=base)
         yield from _batches(data, lay, conns, counts, pool)
+        del data, buf, lay  # not held while the next block is read
         i = j
         counts[2] = int(nxt[i - 1])
     counts[2] = None
 
 
 def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor | None) -> Iterator[ChunkMessages]:
+    """The chunks of a block in batches of about BATCH_BYTES decompressed (the messages of a batch are
+    split and decoded together: bounded temporaries)."""
     n = len(lay.start)
-    if all(k == "none" for k in lay.kind):
-        # uncompressed chunks are split where they lie in the block read, all at once (no copy)
-        if (lay.length != lay.size).any():
-            k = int(np.argmax(lay.length != lay.size))
-            at = lay.base + int(lay.pos[k])
-            raise BagFormatError(f"chunk at byte {at} holds {lay.length[k]} bytes, its header says {lay.size[k]}")
-        msgs = split_chunk(data, conns, starts=lay.start, ends=lay.start + lay.length)
-        counts[0] += n
-        counts[1] += len(msgs.conn)
-        yield msgs
-        return
     cum = np.cumsum(lay.size)
     spans = []
     i = 0
@@ -220,6 +212,19 @@ def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor |
         j = int(np.searchsorted(cum, (cum[i - 1] if i else 0) + BATCH_BYTES, side="left")) + 1
         spans.append((i, min(max(j, i + 1), n)))
         i = spans[-1][1]
+    if all(k == "none" for k in lay.kind):
+        # uncompressed chunks are split where they lie in the block read (no copy)
+        if (lay.length != lay.size).any():
+            k = int(np.argmax(lay.length != lay.size))
+            at = lay.base + int(lay.pos[k])
+            raise BagFormatError(f"chunk at byte {at} holds {lay.length[k]} bytes, its header says {lay.size[k]}")
+        for i, j in spans:
+            start = lay.start[i:j]
+            msgs = split_chunk(data, conns, starts=start, ends=start + lay.length[i:j])
+            counts[0] += j - i
+            counts[1] += len(msgs.conn)
+            yield msgs
+        return
     view = memoryview(data)
     if not THREADED.intersection(lay.kind):
         pool = None
