@@ -29,7 +29,6 @@ from imustation.acquisition.importers.messages import gather_u32
 from imustation.acquisition.importers.ros1records import (
     OP_CHUNK,
     OP_IDXDATA,
-    BagCutError,
     BagFormatError,
     ChunkMessages,
     Connection,
@@ -65,24 +64,6 @@ class ChunkTable:
     pos: np.ndarray
     conns: np.ndarray
     messages: np.ndarray
-
-
-def _u64(b: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return sliding_window_view(b, 8)[np.asarray(at, np.int64)].view("<u8")[:, 0].astype(np.int64)
-
-
-def chunk_positions(fh, at: np.ndarray, value_offset: int) -> np.ndarray:
-    """The ``chunk_pos`` of the chunk-info records at offsets ``at`` (sorted) of the open file ``fh`` whose
-    value sits ``value_offset`` bytes into their header (the same field layout in each)."""
-    at = np.asarray(at, np.int64) + 4 + value_offset
-    if not len(at):
-        return np.empty(0, np.int64)
-    lo = int(at[0])
-    buf = np.empty(int(at[-1]) + 8 - lo, np.uint8)
-    fh.seek(lo)
-    if fh.readinto(buf) != len(buf):
-        raise BagCutError("truncated chunk info record")
-    return _u64(buf, at - lo)
 
 
 @dataclass(frozen=True)

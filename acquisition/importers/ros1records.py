@@ -370,6 +370,7 @@ class Run:
     shape: Shape
     at: np.ndarray
     data: np.ndarray  # (k, data_len) uint8, a view of the walk's buffer
+    head: np.ndarray  # (k, header length) uint8, the records' headers, a view of it too
 
 
 #: a run is looked for only when this many cycles of records fit in the buffer
@@ -406,7 +407,7 @@ def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tu
         if s.kept:
             hn = len(s.key)
             data = block[:k, at + 8 + hn : at + 8 + hn + s.data_len]
-            run = Run(s, at + stride * np.arange(k, dtype=np.int64), data)
+            run = Run(s, at + stride * np.arange(k, dtype=np.int64), data, block[:k, at + 4 : at + 4 + hn])
         at += s.total
     return k, run
 
