@@ -189,6 +189,7 @@ def _decode(path, bag, topics, block, limit, temp_topics, notes, note_of) -> Ite
                 yield from _full_blocks(t, pend, have, block)
         if limit is not None and seen >= limit:
             break
+        ch = None  # its buffer (a block of the file) is not held while the next is read
     if notes is not None and (limit is None or seen < limit):
         note = note_of(bag)
         if note:

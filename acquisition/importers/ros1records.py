@@ -14,6 +14,7 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from imustation.acquisition.importers.messages import gather_u32
 
@@ -149,15 +150,20 @@ def decompress(kind: str, data: bytes, size: int) -> bytes:
 
 
 def split_chunk(
-    raw: bytes, conns: dict[int, Connection], partial: bool = False, starts: np.ndarray | None = None
+    raw: bytes,
+    conns: dict[int, Connection],
+    partial: bool = False,
+    starts: np.ndarray | None = None,
+    ends: np.ndarray | None = None,
 ) -> ChunkMessages:
     """The records of a decompressed chunk: message data (vectorised header parse) and connection records.
 
     ``partial``: ``raw`` is the start of a chunk cut short; its complete records only. ``starts``: ``raw``
-    is several chunks joined, each starting at these offsets (:func:`chunk_record_starts`).
+    is several chunks joined, each starting at these offsets (:func:`chunk_record_starts`); ``ends``: they
+    lie apart in ``raw`` (uncompressed chunks in the file's bytes), each ending there.
     """
     b = np.frombuffer(raw, np.uint8)
-    rec = record_starts(raw, b, partial) if starts is None else chunk_record_starts(raw, b, starts)
+    rec = record_starts(raw, b, partial) if starts is None else chunk_record_starts(raw, b, starts, ends)
     hl_a = gather_u32(b, rec)
     hs_a = rec + 4
     dl_a = gather_u32(b, hs_a + hl_a)
@@ -168,7 +174,7 @@ def split_chunk(
     done = np.zeros(len(hs_a), bool)
     for n in np.unique(hl_a).tolist():
         idx = np.flatnonzero(hl_a == n)
-        hdr = b[hs_a[idx][:, None] + np.arange(n)]  # (k, n)
+        hdr = sliding_window_view(b, n)[hs_a[idx]]  # (k, n), gathered by row
         # the first message header of this length is the template; a connection record of the same length
         # (topic name and message header alike long) is passed over, left to the loop below
         is_op2 = _op_is(hdr, raw, int(hs_a[idx[0]]), n, OP_MSGDATA)
@@ -309,15 +315,16 @@ def _cycles(b: np.ndarray, recent: list[tuple[int, int, int]], size: int, out: l
 FRONTIER_STEPS = 4
 
 
-def chunk_record_starts(raw: bytes, b: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Offsets of the records of several chunks joined in ``raw``, chunk k starting at ``starts[k]``.
+def chunk_record_starts(raw: bytes, b: np.ndarray, starts: np.ndarray, ends: np.ndarray | None = None) -> np.ndarray:
+    """Offsets of the records of several chunks joined in ``raw``, chunk k starting at ``starts[k]`` (and
+    ending at ``ends[k]``: by default where the next starts).
 
     A chunk per message (or per message of each topic, interleaved) holds one or two records: the
     next record of every chunk is found at once from the one before, a few steps; a chunk that holds
     more is walked by :func:`record_starts`."""
     size = len(raw)
     front = np.asarray(starts, np.int64)
-    ends = np.append(front[1:], size)
+    ends = np.append(front[1:], size) if ends is None else np.asarray(ends, np.int64)
     keep = front < ends  # an empty chunk holds no record
     front, ends = front[keep], ends[keep]
     out = []
@@ -363,6 +370,7 @@ class Run:
     shape: Shape
     at: np.ndarray
     data: np.ndarray  # (k, data_len) uint8, a view of the walk's buffer
+    head: np.ndarray  # (k, header length) uint8, the records' headers, a view of it too
 
 
 #: a run is looked for only when this many cycles of records fit in the buffer
@@ -399,7 +407,7 @@ def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tu
         if s.kept:
             hn = len(s.key)
             data = block[:k, at + 8 + hn : at + 8 + hn + s.data_len]
-            run = Run(s, at + stride * np.arange(k, dtype=np.int64), data)
+            run = Run(s, at + stride * np.arange(k, dtype=np.int64), data, block[:k, at + 4 : at + 4 + hn])
         at += s.total
     return k, run
 

@@ -23,7 +23,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from imustation.acquisition.importers.chunked import ChunkedFile
-from imustation.acquisition.importers.ros1chunks import ChunkTable, chunk_positions, read_chunks
+from imustation.acquisition.importers.ros1chunks import ChunkTable, read_chunks
 from imustation.acquisition.importers.ros1records import (
     MAGIC,
     OP_BAGHEADER,
@@ -148,8 +148,8 @@ class Ros1Bag(ChunkedFile):
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
                 infos.append(item.data.tobytes())
                 vo = layout(item.shape.key, 0, len(item.shape.key)).get("chunk_pos", (0, 0))
-                # the headers (the walk hands out the data only) hold each chunk's position
-                pos = chunk_positions(self.fh, item.at, vo[0]) if vo[1] == 8 else None
+                # each chunk's position, from the headers (the index is not read a second time for them)
+                pos = item.head[:, vo[0] : vo[0] + 8].copy().view("<u8")[:, 0].astype(np.int64) if vo[1] == 8 else None
                 k, m = len(item.at), item.shape.data_len // 8
                 per = item.data.reshape(k, -1).copy().view("<u4").reshape(k, m, 2)[:, :, 1].sum(axis=1)
                 table.append((pos, np.full(k, m, np.int32), per.astype(np.int32)))
