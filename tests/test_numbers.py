@@ -62,3 +62,13 @@ def test_analyze_and_fleet_of_a_short_lab_record_leak_no_warnings(tmp_path):
         rows = flag_outliers(fleet_rows(done))
         fleet_markdown(rows, repeatability(rows))
     assert done and "e+17" not in text and "e-3" not in text.split("details:")[0]
+
+
+def test_an_interval_end_equal_to_its_value_is_not_printed_to_six_digits():
+    # analyze printed mti/accel/z's B as '0.582311 [0.582311, 8.61742]': the loop that adds digits until
+    # value and ends differ could never separate an end equal to the value (second newcomer run)
+    from imustation.analysis.reports.analyzetable import cell
+    from imustation.analysis.reports.tables import Estimate
+
+    assert cell(Estimate(0.5823114, 0.5823114, 8.617421)) == "0.582 [0.582, 8.62]"
+    assert cell(Estimate(41.04, 41.0, 41.08)) == "41.04 [41, 41.08]"  # a narrow interval still gets its digits

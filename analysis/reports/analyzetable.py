@@ -58,8 +58,11 @@ def cell(e: Estimate, factor: float = 1.0) -> str:
         return fmt_number(v)
     if not (lo > v / EXTREME_FACTOR and hi < v * EXTREME_FACTOR):
         return f"{fmt_number(v)} {interval(v, lo, hi)}"
-    digits = 3  # enough digits that a narrow interval does not print as [x, x]
-    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+    # enough digits that a narrow interval does not print as [x, x]; an end equal to the value (a
+    # degenerate interval) stays equal at any precision, so it does not ask for more digits
+    distinct = len({lo, v, hi})
+    digits = 3
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < distinct:
         digits += 1
     return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
 
