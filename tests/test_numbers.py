@@ -72,3 +72,18 @@ def test_an_interval_end_equal_to_its_value_is_not_printed_to_six_digits():
 
     assert cell(Estimate(0.5823114, 0.5823114, 8.617421)) == "0.582 [0.582, 8.62]"
     assert cell(Estimate(41.04, 41.0, 41.08)) == "41.04 [41, 41.08]"  # a narrow interval still gets its digits
+
+
+def test_channels_with_the_same_attention_text_share_one_line():
+    # a 12 s record of the whole lab printed 31 'needs attention' lines of the same reason (second newcomer run)
+    from imustation.analysis.reports.analyzetable import attention_lines
+
+    short = ["not enough data: record of 12 s is shorter than 60 s: too short for any bias term"]
+    todo = [(f"dev{i}/gyro/x", short) for i in range(31)] + [("fog/gyro/z", ["tau_b at the search bound"])]
+    lines = attention_lines(todo)
+    assert lines == [
+        f"  31 channels (dev0/gyro/x, dev1/gyro/x and 29 more): {short[0]}",
+        "  fog/gyro/z: tau_b at the search bound",
+    ]
+    two = [("a/gyro/x", short), ("b/gyro/x", short)]  # a pair keeps its own lines
+    assert attention_lines(two) == [f"  a/gyro/x: {short[0]}", f"  b/gyro/x: {short[0]}"]

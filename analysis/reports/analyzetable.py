@@ -34,6 +34,8 @@ from imustation.units import display_units, sensor_kind
 _KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "plain arrays, in their own unit"}
 #: reasons shown per channel in the attention list (the rest: --verbose, --json)
 ATTENTION_REASONS = 1
+#: channels with the same attention text from this many on share one line
+SHARED_ATTENTION = 3
 #: what the columns are, printed under the table
 KEY = (
     "N: the noise model's sigma_w; B, K: the model's IEEE-952 terms (< x: 90 % upper bound, not detected); "
@@ -99,6 +101,25 @@ def attention(r) -> list[str]:
     return out
 
 
+def attention_lines(todo: list[tuple[str, list[str]]]) -> list[str]:
+    """The "needs attention" list: one line per channel, except that channels with the very same
+    text share one line (:data:`SHARED_ATTENTION` or more): a 12 s record of the whole lab printed
+    31 lines of the same "record of 12 s is shorter than 60 s", the table's rows hidden above them."""
+    texts: dict[str, list[str]] = {}
+    for lab, items in todo:
+        texts.setdefault("; ".join(items), []).append(lab)
+    out = []
+    for lab, items in todo:
+        text = "; ".join(items)
+        labs = texts[text]
+        if len(labs) < SHARED_ATTENTION:
+            out.append(f"  {lab}: {text}")
+        elif lab == labs[0]:
+            named = ", ".join(labs[:2]) + (f" and {len(labs) - 2} more" if len(labs) > 2 else "")
+            out.append(f"  {len(labs)} channels ({named}): {text}")
+    return out
+
+
 def _details(r, label: str) -> list[str]:
     """--verbose: every fitted block, the automatic choice, each adequacy and every verdict reason."""
     lines = [f"{label}:"]
@@ -161,7 +182,7 @@ def results_table(results, verbose: bool = False) -> str:
     if todo:
         head = f"needs attention ({len(todo)} of {len(results)} channels; --verbose or --json for every reason):"
         lines += ["", head]
-        lines += [f"  {lab}: " + "; ".join(items) for lab, items in todo]
+        lines += attention_lines(todo)
     if verbose:
         lines += ["", "details:"]
         for r in results:
