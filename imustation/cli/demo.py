@@ -146,6 +146,19 @@ def demo(
         channels = load_inputs([path], globs)
         for cut in cut_channels(channels, warmup).values():  # the cut analyze/report/export/fleet make
             click.echo(f"  warm-up {cut.describe()}")
+        paper = sorted({dev.name for dev in cfg.devices if dev.sim.get("profile") != "datasheet"})
+        if paper:
+            # analyze's default (--model auto) may choose another model for the same file: say which
+            # command gives these numbers, so the two are not read as disagreeing
+            again = (
+                f"imustation analyze {output} --model {choices.PAPER_MODEL}"
+                if output
+                else (f"analyze --model {choices.PAPER_MODEL}")
+            )
+            click.echo(
+                f"  fitted model {', '.join(paper)}: {choices.PAPER_MODEL}, the simulated one ({again} gives these "
+                "numbers; analyze's default --model auto may choose a simpler one)"
+            )
         head = (
             f"{'channel':<22} {'param':<8} {'simulated':>11} {'identified':>11} {'90% interval':>25} {'error':>8}"
             "  unit (SI)"
