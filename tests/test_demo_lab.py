@@ -94,6 +94,11 @@ def test_demo_lab_datasheet_compares_n_b_k_like_for_like(tmp_path):
     # minutes pin the white noise (the slow terms are what such a short record cannot see)
     held = sum(float(row["ci90_lo"]) <= float(row["simulated"]) <= float(row["ci90_hi"]) for row in n_rows)
     assert held >= 7, [row for row in n_rows if row["note"]]
+    # a term not detected has no estimate: its CSV value is NaN, the printed table shows a dash, not "nan"
+    # (second newcomer run)
+    assert any(row["identified"] == "nan" for row in rows)
+    printed = [ln for ln in r.output.splitlines() if ln.split()[1:2] in (["N"], ["B"], ["K"])]
+    assert len(printed) == len(rows) and not any(" nan " in ln for ln in printed)
 
 
 def test_demo_marks_a_value_at_its_bound_or_unidentified(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import os
 import sys
 import tempfile
@@ -188,7 +189,7 @@ def demo(
                                                         row["note"]), strict=True)))  # fmt: skip
                     err_s = f"{err:>7.1f}%" if err == err else f"{'':>8}"
                     click.echo(
-                        f"{ch.id:<22} {row['param']:<8} {sim_v:>11.4g} {fit_v:>11.4g} {f'[{lo:.3g}, {hi:.3g}]':>25} "
+                        f"{ch.id:<22} {row['param']:<8} {sim_v:>11.4g} {_shown(fit_v)} {f'[{lo:.3g}, {hi:.3g}]':>25} "
                         f"{err_s}  {unit}" + (f"  ({row['note']})" if row["note"] else "")
                     )
                 continue
@@ -206,7 +207,7 @@ def demo(
                 rows.append(dict(zip(TABLE_FIELDS, (ch.id, name, sim_v, fit_v, lo, hi, err, unit, note), strict=True)))
                 shown, err_s = (f"{sim_v:>11.4g}", f"{err:>7.1f}%") if compared else (f"{'-':>11}", f"{'':>8}")
                 click.echo(
-                    f"{ch.id:<22} {name:<8} {shown} {fit_v:>11.4g} {f'[{lo:.3g}, {hi:.3g}]':>25} {err_s}  {unit}"
+                    f"{ch.id:<22} {name:<8} {shown} {_shown(fit_v)} {f'[{lo:.3g}, {hi:.3g}]':>25} {err_s}  {unit}"
                     + (f"  ({note}: no estimate from this record)" if note else "")
                 )
         click.echo(f"  analysed {len(channels)} channels in {time.perf_counter() - t0:.1f} s")
@@ -216,6 +217,12 @@ def demo(
             w.writeheader()
             w.writerows(rows)
         click.echo(f"wrote {table_path}")
+
+
+def _shown(value: float) -> str:
+    """The identified column: a term not detected has no estimate (NaN; its note gives the 90 % upper
+    bound): a dash, not "nan"."""
+    return f"{'—':>11}" if math.isnan(value) else f"{value:>11.4g}"
 
 
 def _drift_note(cfg) -> str:
