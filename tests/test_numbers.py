@@ -87,3 +87,16 @@ def test_channels_with_the_same_attention_text_share_one_line():
     ]
     two = [("a/gyro/x", short), ("b/gyro/x", short)]  # a pair keeps its own lines
     assert attention_lines(two) == [f"  a/gyro/x: {short[0]}", f"  b/gyro/x: {short[0]}"]
+
+
+def test_the_report_tables_print_an_interval_reaching_its_search_range_as_analyze_does():
+    # report's summary.md and noise.md printed an imported white-noise log's B as '0.797 [5.25e-26, 1.12e+25]'
+    # (analyze: '0.797 [~0, unbounded]'), and an end equal to the value at six digits (second newcomer run)
+    from imustation.analysis.reports.analyzetable import cell
+    from imustation.analysis.reports.tables import Estimate, fmt_estimate
+
+    wide = Estimate(0.797, 5.25e-26, 1.12e25)
+    assert fmt_estimate(wide) == cell(wide) == "0.797 [~0, unbounded]"
+    assert fmt_estimate(Estimate(0.5823114, 0.5823114, 8.617421)) == "0.582 [0.582, 8.62]"
+    assert fmt_estimate(Estimate(41.04, 41.0, 41.08)) == "41.04 [41, 41.08]"
+    assert fmt_estimate(Estimate(3.0, float("nan"), float("nan"))) == "3"
