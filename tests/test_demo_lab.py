@@ -134,3 +134,15 @@ def test_demo_names_the_model_it_fits_and_analyze_gives_its_numbers(tmp_path):
     assert len(rows) == 3
     for row in rows:
         assert float(row["identified"]) == sigma_w[row["channel"]]
+
+
+def test_a_paper_row_whose_interval_misses_the_simulated_value_says_so():
+    """The README's 6 h demo printed x's sigma_b 1.65e-06 beside [1.81e-06, 2.51e-06] and tau_b 537 beside
+    [227, 530] with no note, while the datasheet rows name every miss (second newcomer run)."""
+    from imustation.cli.demo import MISSED, paper_note
+
+    assert paper_note("", 1.65e-6, 1.81e-6, 2.51e-6) == (MISSED, MISSED)
+    assert paper_note("", 537.0, 227.0, 530.0) == (MISSED, MISSED)
+    assert paper_note("", 1.65e-6, 1.6e-6, 2.5e-6) == ("", "")
+    assert paper_note("", float("nan"), 1.0, 2.0) == ("", "")  # nothing simulated to compare with
+    assert paper_note("at bound", 537.0, 0.005, 0.01) == ("at bound", "at bound: no estimate from this record")
