@@ -288,3 +288,29 @@ def test_a_sigma_b_column_never_holds_a_random_walk(wn_rw_analysis):
     assert cells[4:7] == ["—", "—", "—"] and cells[11] not in ("—", "")  # sigma_b SI, display, tau_b; K shown
     (summary,) = summary_rows([res])
     assert summary.values["sigma_b"].flag == NOT_FITTED and summary.values["tau_b"].flag == NOT_FITTED
+
+
+def test_a_random_walk_converted_from_b_says_so_beside_the_axis():
+    """lab-realistic 1 h, --device mpu9150: the Kalibr file wrote gyroscope_random_walk 1.16e-4 from the z
+    axis's wn+fl+lp fit (its bias instability converted) while analyze printed that axis's K as '< 397 °/h/√h'
+    (3.2e-5): the file now names what the random walk is made of (second newcomer run, issue 34)."""
+    from imustation.analysis.reports.export import walk_terms
+
+    assert walk_terms({"sigma_w": 8.2e-5, "B": 1.1e-4}) == "bias instability B"
+    assert walk_terms({"sigma_w": 1e-4, "sigma_k": 2e-6}) == "rate random walk K"
+    assert walk_terms({"sigma_w": 1e-4, "sigma_b": 2e-6, "tau_b": 300.0, "sigma_k": 1e-7}) == (
+        "rate random walk K, Gauss-Markov sigma_b"
+    )
+    gyro = SensorNoise(
+        "gyro",
+        200.0,
+        (
+            AxisNoise("d/gyro/x", 8.2e-5, 1.16e-4, walk_terms="bias instability B"),
+            AxisNoise("d/gyro/y", 8.0e-5, 2.0e-5, walk_terms="rate random walk K"),
+        ),
+        "model",
+        "diffusion",
+    )
+    text = export_text(gyro, None, "kalibr")
+    assert "#   d/gyro/x: random walk from bias instability B (analyze's K: the rate random walk alone)\n" in text
+    assert "#   d/gyro/y: 8.0000e-05, 2.0000e-05\n" in text and "d/gyro/y: random walk from" not in text

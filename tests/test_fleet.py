@@ -500,3 +500,35 @@ def test_run_to_run_scatter_against_the_per_run_intervals():
     short = replace(runs(0.003)[0], n=2400)
     (s,) = [s for s in run_scatter(flag_outliers([*runs(0.003), short])) if s.quantity == "N"]
     assert s.runs == 6
+
+
+def test_a_row_whose_model_is_the_fleets_and_not_the_runs_own_says_so():
+    """demo.toml 1.5 h alone: analyze and report give x gyro wn+gm, B 2.82 [1.94, 5.51]; in a fleet with three
+    other runs the common model wn+rw gave that run B < 6.57 and K 22.5 with nothing saying why the numbers
+    differ from analyze's (second newcomer run, issue 34)."""
+    from imustation.analysis.reports.fleettable import fleet_markdown
+
+    own = replace(_nbk_row("alone.h5", 1e-5, 0.3), model="wn+rw", own_model="wn+gm")
+    same = replace(_nbk_row("same.h5", 1e-5, 0.3), model="wn+rw", own_model="wn+rw")
+    md = fleet_markdown([own, same], [])
+    line = next(ln for ln in md.splitlines() if ln.startswith("| alone.h5 "))
+    assert "| wn+rw (fleet's; the run alone: wn+gm) |" in line
+    line = next(ln for ln in md.splitlines() if ln.startswith("| same.h5 "))
+    assert "| wn+rw |" in line and "the run alone" not in line
+
+
+def test_a_short_run_of_many_devices_is_one_left_out_line():
+    """A 12 s run of the whole lab in a fleet printed 31 'left out' lines on stderr; more than one device's
+    six axes of one run and reason now share one line (fleet.md and the CSV list every axis)."""
+    from imustation.analysis.reports.fleetreport import FleetReport
+
+    why = "too short (12 s < 60 s)"
+    many = [
+        replace(_row("lab12.h5", 25.6, 0.01, key=f"dev{i // 3}"), axis="xyz"[i % 3], excluded=why) for i in range(9)
+    ]
+    few = [replace(_row("one.h5", 25.6, 0.01), axis=a, excluded=why) for a in "xyz"]
+    rep = FleetReport("o", (*many, *few, _row("ok.h5", 25.6, 0.01)), (), "", ())
+    assert rep.left_out_lines() == [
+        f"left out: lab12.h5: 9 axes of 3 devices: {why}",
+        *(f"left out: one.h5 k gyro/{a}: {why}" for a in "xyz"),
+    ]

@@ -134,3 +134,14 @@ def test_fleet_shows_a_short_identity(tmp_path):
     assert "gx" in line["identity"]  # the whole mapping stays in the machine-readable outputs
     doc = json.loads((out / "fleet.json").read_text())
     assert doc["rows"][0]["identity_short"] == "text: log.csv" and "gx" in doc["rows"][0]["identity"]
+
+
+def test_analyze_help_says_where_the_comparison_fits_are_shown():
+    # --method promised 'rows below it' and --estimator 'the table's first row per channel', but the table has
+    # one row per channel and the comparison fits appear only under --verbose (second newcomer run)
+    import re
+
+    out = re.sub(r"\s+", " ", CliRunner().invoke(cli, ["analyze", "--help"]).output)
+    assert "rows below it" not in out and "first row per channel" not in out
+    assert "shown under 'details:' with --verbose" in out
+    assert "lp on samples that show no filter" in out

@@ -62,3 +62,41 @@ def test_analyze_and_fleet_of_a_short_lab_record_leak_no_warnings(tmp_path):
         rows = flag_outliers(fleet_rows(done))
         fleet_markdown(rows, repeatability(rows))
     assert done and "e+17" not in text and "e-3" not in text.split("details:")[0]
+
+
+def test_an_interval_end_equal_to_its_value_is_not_printed_to_six_digits():
+    # analyze printed mti/accel/z's B as '0.582311 [0.582311, 8.61742]': the loop that adds digits until
+    # value and ends differ could never separate an end equal to the value (second newcomer run)
+    from imustation.analysis.reports.analyzetable import cell
+    from imustation.analysis.reports.tables import Estimate
+
+    assert cell(Estimate(0.5823114, 0.5823114, 8.617421)) == "0.582 [0.582, 8.62]"
+    assert cell(Estimate(41.04, 41.0, 41.08)) == "41.04 [41, 41.08]"  # a narrow interval still gets its digits
+
+
+def test_channels_with_the_same_attention_text_share_one_line():
+    # a 12 s record of the whole lab printed 31 'needs attention' lines of the same reason (second newcomer run)
+    from imustation.analysis.reports.analyzetable import attention_lines
+
+    short = ["not enough data: record of 12 s is shorter than 60 s: too short for any bias term"]
+    todo = [(f"dev{i}/gyro/x", short) for i in range(31)] + [("fog/gyro/z", ["tau_b at the search bound"])]
+    lines = attention_lines(todo)
+    assert lines == [
+        f"  31 channels (dev0/gyro/x, dev1/gyro/x and 29 more): {short[0]}",
+        "  fog/gyro/z: tau_b at the search bound",
+    ]
+    two = [("a/gyro/x", short), ("b/gyro/x", short)]  # a pair keeps its own lines
+    assert attention_lines(two) == [f"  a/gyro/x: {short[0]}", f"  b/gyro/x: {short[0]}"]
+
+
+def test_the_report_tables_print_an_interval_reaching_its_search_range_as_analyze_does():
+    # report's summary.md and noise.md printed an imported white-noise log's B as '0.797 [5.25e-26, 1.12e+25]'
+    # (analyze: '0.797 [~0, unbounded]'), and an end equal to the value at six digits (second newcomer run)
+    from imustation.analysis.reports.analyzetable import cell
+    from imustation.analysis.reports.tables import Estimate, fmt_estimate
+
+    wide = Estimate(0.797, 5.25e-26, 1.12e25)
+    assert fmt_estimate(wide) == cell(wide) == "0.797 [~0, unbounded]"
+    assert fmt_estimate(Estimate(0.5823114, 0.5823114, 8.617421)) == "0.582 [0.582, 8.62]"
+    assert fmt_estimate(Estimate(41.04, 41.0, 41.08)) == "41.04 [41, 41.08]"
+    assert fmt_estimate(Estimate(3.0, float("nan"), float("nan"))) == "3"

@@ -100,3 +100,21 @@ def test_a_term_at_its_search_bound_says_so_in_the_legend():
     labels = [ln.get_label() for ln in plots.allan_figure(res).axes[0].get_lines()]
     gm = next(lb for lb in labels if lb.startswith("GaussMarkov"))
     assert "tau_b at bound (" in gm and "sigma_b at bound" not in gm
+
+
+def test_a_device_filter_term_is_not_drawn_and_leaks_no_warning():
+    # a lab-realistic report ended with numpy's 'RuntimeWarning: invalid value encountered in sqrt' from the
+    # dashed curve of a wn+fl+lp model's lp term, a variance deficit (second newcomer run, issue 34)
+    import warnings
+
+    from imustation.analysis.estimators.models.noise_models import WhiteRate
+    from imustation.analysis.estimators.models.sensor_terms import LowPass
+    from imustation.analysis.reports.plots import term_adev
+
+    tau = np.logspace(-2, 3, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lp = term_adev(LowPass(1e-4, 0.005), tau)
+        wn = term_adev(WhiteRate(1e-4), tau)
+    assert np.isnan(lp).all()
+    np.testing.assert_allclose(wn, 1e-4 / np.sqrt(tau))

@@ -40,14 +40,14 @@ METHODS = ("mli", "gmwm", "both")
 DEFAULT_METHOD = "mli"
 #: help of ``analyze --estimator`` and ``--method``: how they differ from ``--model``
 ESTIMATOR_HELP = (
-    "HOW the reported noise model is fitted (the table's first row per channel, the JSON 'noise_model' block, "
+    "HOW the reported noise model is fitted (the table's row per channel, the JSON 'noise_model' block, "
     "what report/export/fleet use): mli-f (default: ML_i's integrated likelihood + the fine-scale Allan "
     "variance, docs/noise-model.md), mli (the paper's ML_i) or gmwm. Works with every --model."
 )
 METHOD_HELP = (
-    "Comparison fits shown BESIDE the reported one (rows below it, JSON 'mli'/'gmwm'): mli (the paper's ML_i; "
-    "with --model auto it fits the paper's wn+gm), gmwm (docs/gmwm.md) or both. They never change the reported "
-    "numbers."
+    "Comparison fits made BESIDE the reported one (shown under 'details:' with --verbose, JSON 'mli'/'gmwm'): "
+    "mli (the paper's ML_i; with --model auto it fits the paper's wn+gm), gmwm (docs/gmwm.md) or both. They "
+    "never change the reported numbers."
 )
 #: estimators that can fill the ``noise_model`` block (``analyze --estimator``)
 ESTIMATORS = ("mli-f", "mli", "gmwm")

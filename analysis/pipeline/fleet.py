@@ -122,6 +122,9 @@ class FleetRow:
     warmup: str = ""
     #: the identity as a table shows it (the part-naming fields, an import's source file; "" = ``identity``)
     short_identity: str = ""
+    #: the model ``--model auto`` chose for this run alone ("" without a choice); differs from ``model``
+    #: where :func:`common_models` gave the group another one, so analyze of this run alone shows other numbers
+    own_model: str = ""
 
     @property
     def group(self) -> tuple[str, str, str]:

@@ -34,6 +34,8 @@ from imustation.units import display_units, sensor_kind
 _KIND_TITLES = {"gyro": "gyroscopes", "accel": "accelerometers", None: "plain arrays, in their own unit"}
 #: reasons shown per channel in the attention list (the rest: --verbose, --json)
 ATTENTION_REASONS = 1
+#: channels with the same attention text from this many on share one line
+SHARED_ATTENTION = 3
 #: what the columns are, printed under the table
 KEY = (
     "N: the noise model's sigma_w; B, K: the model's IEEE-952 terms (< x: 90 % upper bound, not detected); "
@@ -58,8 +60,11 @@ def cell(e: Estimate, factor: float = 1.0) -> str:
         return fmt_number(v)
     if not (lo > v / EXTREME_FACTOR and hi < v * EXTREME_FACTOR):
         return f"{fmt_number(v)} {interval(v, lo, hi)}"
-    digits = 3  # enough digits that a narrow interval does not print as [x, x]
-    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+    # enough digits that a narrow interval does not print as [x, x]; an end equal to the value (a
+    # degenerate interval) stays equal at any precision, so it does not ask for more digits
+    distinct = len({lo, v, hi})
+    digits = 3
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < distinct:
         digits += 1
     return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
 
@@ -93,6 +98,25 @@ def attention(r) -> list[str]:
         more = len(v.problems) - ATTENTION_REASONS
         first = "; ".join(v.problems[:ATTENTION_REASONS])
         out.append(f"{v.verdict} data: {first}" + (f" (+{more} more)" if more > 0 else ""))
+    return out
+
+
+def attention_lines(todo: list[tuple[str, list[str]]]) -> list[str]:
+    """The "needs attention" list: one line per channel, except that channels with the very same
+    text share one line (:data:`SHARED_ATTENTION` or more): a 12 s record of the whole lab printed
+    31 lines of the same "record of 12 s is shorter than 60 s", the table's rows hidden above them."""
+    texts: dict[str, list[str]] = {}
+    for lab, items in todo:
+        texts.setdefault("; ".join(items), []).append(lab)
+    out = []
+    for lab, items in todo:
+        text = "; ".join(items)
+        labs = texts[text]
+        if len(labs) < SHARED_ATTENTION:
+            out.append(f"  {lab}: {text}")
+        elif lab == labs[0]:
+            named = ", ".join(labs[:2]) + (f" and {len(labs) - 2} more" if len(labs) > 2 else "")
+            out.append(f"  {len(labs)} channels ({named}): {text}")
     return out
 
 
@@ -158,7 +182,7 @@ def results_table(results, verbose: bool = False) -> str:
     if todo:
         head = f"needs attention ({len(todo)} of {len(results)} channels; --verbose or --json for every reason):"
         lines += ["", head]
-        lines += [f"  {lab}: " + "; ".join(items) for lab, items in todo]
+        lines += attention_lines(todo)
     if verbose:
         lines += ["", "details:"]
         for r in results:

@@ -100,6 +100,19 @@ def gm_to_rw_at_tau_b(sigma_b: float, tau_b: float) -> float:
     return math.sqrt(3.0 * float(GaussMarkov(sigma_b, tau_b).avar(tau_b)) / tau_b)
 
 
+def walk_terms(params: dict[str, float]) -> str:
+    """Which terms of an ML_i parameter dict make :func:`random_walk_from_params`, as the export's comment
+    names them: "rate random walk K", "bias instability B", "Gauss-Markov sigma_b" (comma-joined)."""
+    terms = []
+    if params.get("sigma_k", 0.0) > 0:
+        terms.append("rate random walk K")
+    if params.get("B", 0.0) > 0 and params.get("sigma_w", 0.0) > 0:
+        terms.append("bias instability B")
+    if any(k.startswith("sigma_b") and math.isfinite(v) and v > 0 for k, v in params.items()):
+        terms.append("Gauss-Markov sigma_b")
+    return ", ".join(terms)
+
+
 def random_walk_from_params(params: dict[str, float], rw: str = "diffusion") -> float:
     """Random-walk figure (unit/s/sqrt(Hz)) from an ML_i parameter dict (see module docstring).
 
@@ -145,6 +158,9 @@ class AxisNoise:
     noise_warning: str = ""
     noise_untrusted: str = ""
     walk_untrusted: str = ""
+    #: the model terms the random walk is made of ("" when it is the Allan fit's K): a bias instability
+    #: or a Gauss-Markov bias converted is not the rate random walk K that analyze's table shows
+    walk_terms: str = ""
 
     @property
     def axis(self) -> str:
@@ -289,6 +305,7 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
             raise InputError(f"channel {cid}: no {source} fit in the analysis (source {source!r})")
         nd = fit.sigma_w
         rwv = random_walk_from_params(fit.params, rw)
+        terms = walk_terms(fit.params)
         noise_warning = _noise_doubts(res, fit)
         taus = [v for k, v in fit.params.items() if k.startswith("tau_b") and math.isfinite(v)]
         if fit.at_bound or not fit.converged:
@@ -307,6 +324,7 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
         noise_untrusted = misfit or _noise_unidentified(fit)
     elif source == "ieee":
         nd, rwv = res.ieee.N, res.ieee.K
+        terms = ""
     else:
         raise InputError(f"source {source!r}: use one of {', '.join(SOURCES)}")
     if not (math.isfinite(nd) and nd > 0):
@@ -314,7 +332,7 @@ def axis_noise(res: ChannelAnalysis, source: str = "model", rw: str = "diffusion
     if not (math.isfinite(rwv) and rwv > 0):
         hint = " (the Allan fit needs no rate-random-walk term; try --source model)" if source == "ieee" else ""
         raise InputError(f"channel {cid}: random-walk density {rwv} from {source} is not positive{hint}")
-    return AxisNoise(cid, float(nd), float(rwv), warning, noise_warning, noise_untrusted, walk_untrusted)
+    return AxisNoise(cid, float(nd), float(rwv), warning, noise_warning, noise_untrusted, walk_untrusted, terms)
 
 
 def sensor_noise(
@@ -530,7 +548,12 @@ def export_text(
         if s is None:
             continue
         for a in s.axes:
+            # a walk converted from B or a Gauss-Markov bias is not the K analyze prints ("< x" when the
+            # record shows no rate random walk): name what it is made of, so the two can be compared
             comments.append(f"  {a.channel}: {a.noise_density:.4e}, {a.random_walk:.4e}")
+            if a.walk_terms not in ("", "rate random walk K"):
+                made_of = f"random walk from {a.walk_terms} (analyze's K: the rate random walk alone)"
+                comments.append(f"  {a.channel}: {made_of}")
             if a.noise_warning:
                 comments.append(f"  WARNING {a.channel}: noise density doubtful: {a.noise_warning}")
             if a.warning:

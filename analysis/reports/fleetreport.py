@@ -38,6 +38,10 @@ from imustation.errors import InputError
 FLEET_FILES = ("fleet.csv", "fleet.md", "fleet.json", "fleet.html", "fleet_allan.png")
 
 
+#: left-out axes of one run and reason listed one by one on stderr up to this many (one device's six)
+LEFT_OUT_AXES = 6
+
+
 @dataclass(frozen=True)
 class FleetReport:
     """What :func:`write_fleet_report` wrote: the folder, the table rows, the failures (in run
@@ -72,8 +76,20 @@ class FleetReport:
         ]
 
     def left_out_lines(self) -> list[str]:
-        """One line per run axis left out of the statistics (too short), with why."""
-        return [f"left out: {r.run} {r.key} {r.sensor}/{r.axis}: {r.excluded}" for r in self.rows if r.excluded]
+        """One line per run axis left out of the statistics (too short), with why; a run with more than
+        :data:`LEFT_OUT_AXES` such axes of one reason gets one line for them (a 12 s run of the whole lab
+        printed 31 lines; fleet.md and the CSV list every axis)."""
+        groups: dict[tuple[str, str], list[FleetRow]] = {}
+        for r in self.rows:
+            if r.excluded:
+                groups.setdefault((r.run, r.excluded), []).append(r)
+        out = []
+        for (run, why), rows in groups.items():
+            if len(rows) > LEFT_OUT_AXES:
+                out.append(f"left out: {run}: {len(rows)} axes of {len({r.key for r in rows})} devices: {why}")
+            else:
+                out += [f"left out: {run} {r.key} {r.sensor}/{r.axis}: {why}" for r in rows]
+        return out
 
     def summary_line(self) -> str:
         """The summary and where the files are."""

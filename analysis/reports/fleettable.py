@@ -111,6 +111,7 @@ def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
                 flags=dict(nr.flags),
                 warmup=meta["warmup"].describe() if "warmup" in meta else "",
                 short_identity=short_identity(driver, identity, meta.get("settings")),
+                own_model=res.choice.chosen.model if res.choice is not None else "",
             )
         )
     return rows
@@ -189,7 +190,9 @@ def fleet_markdown(
         ]
         lines.append("|" + "---|" * len(head))
         for r in (r for r in rows if r.sensor == sensor):
-            cells = [r.run, r.key, r.short_identity or r.identity or "–", f"{r.axis}-{sensor}", r.model]
+            # the group's common model: say so where the run alone (analyze, report) chose another
+            model = r.model if r.own_model in ("", r.model) else f"{r.model} (fleet's; the run alone: {r.own_model})"
+            cells = [r.run, r.key, r.short_identity or r.identity or "–", f"{r.axis}-{sensor}", model]
             cells += [_value_cell(r, q, _sensor_units(sensor, q)[1]) for q in FLEET_QUANTITIES]
             flags = [f"outlier {TITLES[q][0]} (z {r.z[q]:+.1f})" for q in r.outliers]
             flags += [f"left out: {r.excluded}"] if r.excluded else []

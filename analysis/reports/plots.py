@@ -125,6 +125,14 @@ def _term_label(t, sensor: str | None, bound: dict[str, float] | None = None) ->
     return f"{type(t).__name__} ({', '.join(parts)})"
 
 
+def term_adev(term, tau: np.ndarray) -> np.ndarray:
+    """One model term's Allan deviation at ``tau`` (s), NaN where its Allan variance is not positive: a
+    device filter's term (lp) is a variance deficit, negative everywhere, and its square root leaked
+    numpy's 'invalid value encountered in sqrt' at the end of a lab-realistic report."""
+    avar = np.asarray(term.avar(tau), dtype=float)
+    return np.sqrt(np.where(avar > 0, avar, np.nan))
+
+
 def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = True) -> Figure:
     """Fig. 6: ADEV with its 68 % band, the identified model's ADEV and terms; earth rate for gyros."""
     ch, al = res.channel, res.allan
@@ -139,7 +147,9 @@ def allan_figure(res: ChannelAnalysis, settings: str = "", earth_rate: bool = Tr
         ax.loglog(tau, model.adev(tau, ch.fs_hz), "C3-", lw=1.5, label=f"identified {fit.model} ({fit.estimator})")
         for i, t in enumerate(model.terms):  # continuous forms: the sampled GM form cancels badly for tau_b >> tau
             bound = {k: fit.params[k] for k in fit.at_bound if k in fit.params}
-            ax.loglog(tau, t.adev(tau), "--", color=f"C{i}", lw=0.9, label=_term_label(t, _sensor(ch), bound))
+            adev = term_adev(t, tau)
+            if np.isfinite(adev).any():
+                ax.loglog(tau, adev, "--", color=f"C{i}", lw=0.9, label=_term_label(t, _sensor(ch), bound))
     sensor = _sensor(ch)
     if earth_rate and sensor == "gyro":
         ax.axhline(EARTH_RATE, color="C2", ls=":", lw=1, label=f"earth rate {EARTH_RATE:.3g} rad/s")

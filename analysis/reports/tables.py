@@ -47,6 +47,7 @@ import math
 from dataclasses import dataclass, field
 
 from imustation.analysis.pipeline.channel import ChannelAnalysis, split_channel_id
+from imustation.analysis.reports.numbers import EXTREME_FACTOR, interval
 from imustation.units import MPS2_TO_UG, RADPS_TO_DPH, SQRT_S_PER_SQRT_H, display_units
 
 __all__ = [
@@ -300,10 +301,15 @@ def fmt_estimate(e: Estimate, factor: float = 1.0, digits: int = 3) -> str:
     if e.flag or not math.isfinite(e.value):
         return fmt_flagged(e.value * factor, e.flag, digits)
     v, lo, hi = e.value * factor, e.lo * factor, e.hi * factor
-    if not (math.isfinite(lo) and math.isfinite(hi)):
+    if math.isnan(lo) and math.isnan(hi):
         return fmt_number(v, digits)
-    # enough digits that a narrow interval does not print as [x, x]
-    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < 3:
+    if not (lo > v / EXTREME_FACTOR and hi < v * EXTREME_FACTOR):
+        # an interval reaching its search range: '[~0, unbounded]', as analyze prints it (the summary and
+        # the noise table printed '0.797 [5.25e-26, 1.12e+25]' for a B the record does not pin down)
+        return f"{fmt_number(v, digits)} {interval(v, lo, hi, f'.{digits}g')}"
+    # enough digits that a narrow interval does not print as [x, x]; an end equal to the value stays equal
+    distinct = len({lo, v, hi})
+    while digits < 6 and len({fmt_number(lo, digits), fmt_number(v, digits), fmt_number(hi, digits)}) < distinct:
         digits += 1
     return f"{fmt_number(v, digits)} [{fmt_number(lo, digits)}, {fmt_number(hi, digits)}]"
 

@@ -149,7 +149,9 @@ def analyze(
       --estimator  HOW the reported fit is made: mli-f (default), mli, gmwm
       --method     which comparison fits are shown beside it: mli (default), gmwm, both
     Every combination works; a model with a device filter (lp) is fitted by
-    ML_i on the uniform pattern (--pattern log is refused for it).
+    ML_i on the uniform pattern (--pattern log is refused for it), and a
+    model term the data cannot carry (lp on samples that show no filter, as
+    the demo's paper-profile chips) is refused naming the reason.
     """
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"--rate {rate_hz}: must be a positive rate in Hz")
