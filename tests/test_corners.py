@@ -186,3 +186,27 @@ def test_the_choice_says_when_it_cannot_tell_two_structures_apart():
     other = dc_replace(choice.chosen, model="wn+gm" if "gm" not in choice.chosen.model else "wn+fl+rw")
     told = dc_replace(choice, close=(other,))
     assert "cannot tell" in told.indistinct() and told.selection_dict()["indistinct"] == told.indistinct()
+
+
+def test_a_flicker_whose_interval_reaches_zero_is_not_detected_and_prints_as_its_bound():
+    """Pure white noise fitted as wn+fl (auto picked it on a CSV log's accel x): B 4.9e-6 m/s² with [9e-34, 2e22]
+    was 'detected' and printed '0.495 [~0, unbounded]' in analyze, the summary and the noise table."""
+    from imustation.analysis.estimators.classical.allan_bounds import with_bounds
+    from imustation.analysis.reports.summary import channel_estimates
+    from imustation.analysis.reports.tables import UPPER_BOUND, Estimate, fmt_estimate, nbk_estimate
+
+    n = int(0.25 * 3600 * FS)
+    res = analyze_channel(Channel("d/accel/x", FS, "m/s^2", _white(n, 2e-3, 11)), model="wn+fl")
+    block = res.ieee952(res.noise_model)
+    assert block["B_from"] == "fitted" and not block["B_detected"]
+    b = channel_estimates(res)["B"]
+    assert b.flag == UPPER_BOUND and b.value == pytest.approx(block["B_upper90"])
+    assert fmt_estimate(b).startswith("< ")
+    allan = oadev(_white(n, 2e-3, 11), FS)
+    summary = {"B": 4.9e-6, "B_from": "fitted", "B_ci90": [9e-34, 2e22], "gauss_markov": [], "K": None}
+    assert with_bounds(summary, allan)["B_detected"] is False
+    # a B the model detects but whose upper end the fit left open: the Allan curve's bound ends the interval
+    open_top = {"B": 4.9e-6, "B_ci90": [2e-6, 2e22], "B_detected": True, "B_upper90": 3e-5}
+    e = nbk_estimate(open_top, "B")
+    assert e.hi == 3e-5 and "unbounded" not in fmt_estimate(e)
+    assert fmt_estimate(Estimate(4.9e-6, 2e-6, 3e-5)) == fmt_estimate(e)

@@ -26,7 +26,15 @@ import os
 from imustation.analysis.estimators.selection.adequacy import NO_FIT
 from imustation.analysis.reports.numbers import EXTREME_FACTOR, interval
 from imustation.analysis.reports.summary import SUMMARY_QUANTITIES, Estimate, channel_estimates
-from imustation.analysis.reports.tables import AT_BOUND, NOT_IDENTIFIED, fmt_flagged, fmt_number, param_flag
+from imustation.analysis.reports.tables import (
+    AT_BOUND,
+    NOT_IDENTIFIED,
+    fmt_estimate,
+    fmt_flagged,
+    fmt_number,
+    nbk_estimate,
+    param_flag,
+)
 from imustation.analysis.reports.wording import user_text
 from imustation.units import display_units, sensor_kind
 
@@ -127,8 +135,11 @@ def _details(r, label: str) -> list[str]:
         flag = "converged" if fit.converged else user_text(fit.message)
         adq = r.adequacy_of(fit)
         s = r.ieee952(fit)
+        # B and K as every other output gives them: "< x" where the record does not show the term
+        shown = [q for q in ("B", "K") if s[q] is not None or s.get(f"{q}_upper90") is not None]
         nbk = "  ".join(
-            f"{q} {fmt_number(s[q])} {interval(s[q], *s[f'{q}_ci90'])}" for q in ("N", "B", "K") if s[q] is not None
+            [f"N {fmt_number(s['N'])} {interval(s['N'], *s['N_ci90'])}"] * (s["N"] is not None)
+            + [f"{q} {fmt_estimate(nbk_estimate(s, q))}" for q in shown]
         )
         lines.append(f"  {key}: {fit.estimator} {fit.model}  {nbk}  ({flag}; {adq.summary() if adq else 'not tested'})")
     if r.choice is not None:

@@ -212,12 +212,17 @@ class Estimate:
 
 def nbk_estimate(block: dict, q: str) -> Estimate:
     """B or K of a fit's ``ieee952`` block: the value and its interval where the model carries the term
-    (``<q>_detected``), its 90 % upper bound from the Allan deviation where it does not (flag
-    :data:`UPPER_BOUND`; "not identified" without one)."""
+    (``<q>_detected``; an upper end the fit left open is the Allan deviation's bound ``<q>_upper90``), its 90 %
+    upper bound from the Allan deviation where it does not (flag :data:`UPPER_BOUND`; "not identified" without
+    one)."""
+    upper = block.get(f"{q}_upper90")
     if block.get(f"{q}_detected"):
         ci = block.get(f"{q}_ci90") or (math.nan, math.nan)
-        return Estimate(float(block[q]), *(math.nan if v is None else float(v) for v in ci))
-    upper = block.get(f"{q}_upper90")
+        value, (lo, hi) = float(block[q]), (math.nan if v is None else float(v) for v in ci)
+        if upper is not None and math.isfinite(upper) and not hi < value * EXTREME_FACTOR:
+            # the Allan curve bounds every term: its bound, not "unbounded", ends an interval the fit left open
+            hi = max(float(upper), value)
+        return Estimate(value, lo, hi)
     if upper is not None and math.isfinite(upper):
         return Estimate(float(upper), flag=UPPER_BOUND)
     return Estimate(math.nan, flag=NOT_IDENTIFIED)

@@ -156,26 +156,42 @@ def k_band(allan: AllanResult, n_hi: float, b_hi: float, alpha: float = 1.0 - BO
 WALK_MIN_EDF = 20.0
 
 
+#: an interval end below the value over this factor is the edge of the fit's search range, 0 in effect (the
+#: reports print it "~0": ``reports.numbers.EXTREME_FACTOR``)
+ZERO_END_FACTOR = 1e6
+
+
+def excludes_zero(value: float, ci) -> bool:
+    """Whether the 90 % interval ``ci`` (``[lo, hi]``, unit of ``value``) of a term ``value`` excludes 0: its
+    lower end is above ``value`` / :data:`ZERO_END_FACTOR`."""
+    if not ci or len(ci) != 2 or not _finite(ci[0]) or not _finite(value):
+        return False
+    return ci[0] > 0 and ci[0] > value / ZERO_END_FACTOR
+
+
 def with_bounds(summary: dict, allan: AllanResult, model_fits: bool = True) -> dict:
     """An ``ieee952`` summary (:func:`~.coefficients.ieee952_summary`) with ``K_upper90`` and
     ``B_upper90`` (and the tau, s, that gives each), ``K_detected``: whether the model carries a
-    random walk with an interval that excludes 0, and ``B_detected``: whether it carries a bias instability or a
-    Gauss-Markov term (otherwise its ``B`` is the floor where its white noise meets its walk, an
-    upper bound). ``B_band90``: B read from the curve as a flicker floor (:func:`b_band`); B's
+    random walk with an interval that excludes 0 (:func:`excludes_zero`), and ``B_detected``: whether it
+    carries a bias instability or a Gauss-Markov term and B's interval excludes 0 (otherwise its ``B`` is the
+    floor where its white noise meets its walk, or a flicker the record does not show: an upper bound).
+    ``B_band90``: B read from the curve as a flicker floor (:func:`b_band`); B's
     interval takes it in (``B_widened`` says why) where the model does not fit (``model_fits`` false);
     K's likewise (``K_widened``, :func:`_with_k_band`). Keys documented
     in docs/analysis-json.md."""
     out = dict(summary)
     kb, bb = k_upper(allan), b_upper(allan)
     out = _with_k_band(out, allan, model_fits)
-    ci = out.get("K_ci90")
-    # an interval from 0 (a model without a walk fits nearly as well) is a bound, not a detection
+    # an interval from 0 (a model without the term fits nearly as well) is a bound, not a detection
+    k_ci = out.get("K_ci90")
     out["K_detected"] = bool(
-        out.get("K") is not None and ci and all(v is not None and math.isfinite(v) for v in ci) and ci[0] > 0
+        out.get("K") is not None and k_ci and all(_finite(v) for v in k_ci) and excludes_zero(out["K"], k_ci)
     )
     # a model without a bias instability or a Gauss-Markov term has no B of its own: its "model floor" is
-    # where its white noise meets its random walk, an upper bound on B rather than a measurement
-    out["B_detected"] = out.get("B_from") == "fitted" or bool(out.get("gauss_markov"))
+    # where its white noise meets its random walk, an upper bound on B rather than a measurement; a fitted
+    # flicker whose interval reaches 0 (white noise read as wn+fl: B 4.9e-6 m/s^2 with [9e-34, 2e22]) is one too
+    has_b = out.get("B_from") == "fitted" or bool(out.get("gauss_markov"))
+    out["B_detected"] = has_b and out.get("B") is not None and excludes_zero(out["B"], out.get("B_ci90"))
     out["K_upper90"] = kb.value if kb else None
     out["K_upper90_tau_s"] = kb.tau_s if kb else None
     out["B_upper90"] = bb.value if bb else None
