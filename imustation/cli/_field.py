@@ -108,7 +108,9 @@ def print_summary(source: str, res) -> None:
     if res.mapping:
         click.echo(f"{source}: columns: {res.mapping}", err=True)
     for name, rep in res.reports.items():
-        click.echo(f"{source}: {res.devices[name]} -> {name}: {rep.summary()}", err=True)
+        # a text log's device is described by its column mapping, printed just above: not twice
+        src = res.devices[name]
+        click.echo(f"{source}: {name if src == res.mapping else f'{src} -> {name}'}: {rep.summary()}", err=True)
     for note in res.notes:
         click.echo(f"{source}: {note}", err=True)
 
