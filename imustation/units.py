@@ -96,6 +96,14 @@ def parse_duration(text: str | float | int, what: str = "duration") -> float:
         s = "".join(text.split())
         if not s:
             raise InputError(f"{what} is empty: use a number with a unit ({DURATION_UNITS}), e.g. 2h, 90m, 45s")
+        if s.startswith("-"):
+            try:
+                parse_duration(s[1:], what)
+            except InputError:
+                raise InputError(
+                    f"{what} {text!r}: use a positive number with a unit ({DURATION_UNITS}), e.g. 2h, 90m, 45s"
+                ) from None
+            raise InputError(f"{what} {text!r} must be positive")
         pos, seconds = 0, 0.0
         while pos < len(s):
             match = _DURATION_RE.match(s, pos)
