@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from imustation.analysis.estimators.classical.temperature import MIN_WARMUP_RECORD_S, fit_warmup
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.units import parse_duration
@@ -29,3 +32,13 @@ def test_a_negative_duration_is_refused_as_not_positive(text):
         parse_duration(text, "--duration")
     with pytest.raises(InputError, match="use a positive number with a unit"):
         parse_duration("-5x", "--duration")
+
+
+def test_a_short_record_s_warm_up_state_says_whose_span_it_reads_and_what_it_needs():
+    """A 12 s record whose thermometer read from 1 s to 11 s said 'record too short (10 s)'."""
+    t = np.arange(1.0, 11.5, 1.0)
+    w = fit_warmup(t, np.full(len(t), 30.5))
+    assert w.state == "unknown" and math.isclose(w.duration_s, 10.0)
+    text = w.describe()
+    assert "temperature readings span 10 s" in text and f"needs {MIN_WARMUP_RECORD_S:.0f} s" in text
+    assert "record too short" not in text

@@ -214,7 +214,16 @@ class WarmupFit:
         if self.state == "unsettled":
             return f"temperature still changing at the end ({self.change_c:+.2g} K over the record): no settled data"
         if self.state == "unknown":
-            return f"record too short ({self.duration_s:.0f} s) to tell a warm-up"
+            # duration_s is the thermometer's span (its first to its last reading), not the record's length
+            if self.duration_s < MIN_WARMUP_RECORD_S:
+                return (
+                    f"temperature readings span {self.duration_s:.0f} s: too short to tell a warm-up "
+                    f"(needs {MIN_WARMUP_RECORD_S:.0f} s)"
+                )
+            return (
+                f"temperature readings too few to tell a warm-up (needs {MIN_WARMUP_RECORD_S / WARMUP_BLOCK_S:.0f} "
+                f"blocks of {WARMUP_BLOCK_S:.0f} s over {2 * MIN_WARMUP_TAU_S:.0f} s)"
+            )
         return "no warm-up"
 
 
