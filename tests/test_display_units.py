@@ -59,9 +59,12 @@ def analysed():
 def test_analyze_table_gives_each_kind_its_units(analysed):
     text = results_table(analysed)
     acc_block, gyro_block = text.split("\n\n")[:2]
-    assert acc_block.startswith("accelerometers (m/s²)") and "N [µg/√Hz]" in acc_block and "K [µg/√s]" in acc_block
+    # the block titles name the units the columns are in, not SI (issue 34: "(m/s²)" over µg columns)
+    assert acc_block.startswith("accelerometers (in µg units; --json in SI, m/s²)")
+    assert "N [µg/√Hz]" in acc_block and "K [µg/√s]" in acc_block
     assert "°/h" not in acc_block and "deg/h" not in acc_block
-    assert gyro_block.startswith("gyroscopes (rad/s)") and "N [°/h/√Hz]" in gyro_block and "B [°/h]" in gyro_block
+    assert gyro_block.startswith("gyroscopes (in °/h units; --json in SI, rad/s)")
+    assert "N [°/h/√Hz]" in gyro_block and "B [°/h]" in gyro_block
     # the accelerometer's N (the model's sigma_w) in micro-g/sqrt(Hz): 7e-4 m/s^2/sqrt(Hz) = 71.4 ug/sqrt(Hz)
     acc_row = next(ln for ln in acc_block.splitlines() if ln.startswith("imu/accel/x"))
     assert float(acc_row.split()[2]) == pytest.approx(7e-4 / G0 * 1e6, rel=0.05)

@@ -180,7 +180,9 @@ def results_table(results, verbose: bool = False) -> str:
         widths = [max(len(row[i]) for row in [head, *body]) for i in range(len(head))]
         if lines:
             lines.append("")
-        lines.append(f"{_KIND_TITLES[kind]} ({display_units(kind, 'rate')[0]})")
+        # the columns are in display units (°/h..., µg...): the title names those, and where SI is given
+        si, shown, _ = display_units(kind, "rate")
+        lines.append(_KIND_TITLES[kind] + (f" (in {shown} units; --json in SI, {si})" if kind else ""))
         for row in [head, *body]:
             lines.append("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
             if row is head:
