@@ -42,3 +42,16 @@ def test_a_short_record_s_warm_up_state_says_whose_span_it_reads_and_what_it_nee
     text = w.describe()
     assert "temperature readings span 10 s" in text and f"needs {MIN_WARMUP_RECORD_S:.0f} s" in text
     assert "record too short" not in text
+
+
+def test_export_counts_the_samples_it_fits_after_the_warm_up_cut():
+    """export printed 'fitting … (719983 samples)': the count before the warm-up cut."""
+    from imustation.analysis.pipeline.loaders import Channel
+    from imustation.analysis.pipeline.warmup import WarmupCut, apply_warmup
+    from imustation.analysis.reports.export import fit_axes
+
+    ch = Channel("d/gyro/x", 100.0, "rad/s", np.random.default_rng(5).normal(0, 1e-2, 60_000), meta={"device": "d"})
+    apply_warmup(ch, WarmupCut("d", "60s", 60.0))
+    lines: list[str] = []
+    fit_axes([ch], "gyroscope", "run.h5", "wn+rw", [], lines.append)
+    assert lines[0] == "fitting d/gyro/x (54000 samples; the warm-up cut left out 6000 of 60000) ..."

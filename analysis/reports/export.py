@@ -81,6 +81,7 @@ from imustation.analysis.pipeline.choices import EXPORT_FORMATS as FORMATS
 from imustation.analysis.pipeline.choices import EXPORT_SOURCES as SOURCES
 from imustation.analysis.pipeline.choices import RW_CONVERSIONS
 from imustation.analysis.pipeline.loaders import Channel
+from imustation.analysis.pipeline.warmup import META_KEY as WARMUP_META_KEY
 from imustation.analysis.reports.numbers import interval
 from imustation.analysis.reports.tables import UNIDENTIFIED_RATIO, density_flag
 from imustation.analysis.reports.wording import user_text
@@ -481,6 +482,17 @@ def export_channels(
     return gyros, accels
 
 
+def analysed_samples(ch: Channel) -> str:
+    """How many of ``ch``'s samples the fit reads, e.g. ``"705583 samples; the warm-up cut left out 14400 of
+    719983"``: its segments after :func:`~.warmup.apply_warmup`, not the recorded count."""
+    used = sum(b - a for a, b in ch.segments)
+    if used == ch.n:
+        return f"{used} samples"
+    cut = ch.meta.get(WARMUP_META_KEY)
+    why = "the warm-up cut left out" if cut is not None and cut.cut_s > 0 else "left out"
+    return f"{used} samples; {why} {ch.n - used} of {ch.n}"
+
+
 def fit_axes(
     chs: Sequence[Channel],
     kind: str,
@@ -497,7 +509,7 @@ def fit_axes(
     """
     out = []
     for ch in chs:
-        note(f"fitting {ch.id} ({ch.n} samples) ...")
+        note(f"fitting {ch.id} ({analysed_samples(ch)}) ...")
         try:
             out.append(analyze_channel(ch, model=model))
         except DegenerateChannel as exc:  # the sensor's other axes are exported
