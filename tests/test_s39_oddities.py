@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,8 @@ from imustation.analysis.estimators.classical.temperature import MIN_WARMUP_RECO
 from imustation.cli import cli
 from imustation.errors import InputError
 from imustation.units import parse_duration
+
+DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
 
 def test_analyze_of_a_text_log_prints_its_column_mapping_once(tmp_path):
@@ -55,3 +58,19 @@ def test_export_counts_the_samples_it_fits_after_the_warm_up_cut():
     lines: list[str] = []
     fit_axes([ch], "gyroscope", "run.h5", "wn+rw", [], lines.append)
     assert lines[0] == "fitting d/gyro/x (54000 samples; the warm-up cut left out 6000 of 60000) ..."
+
+
+def test_inspect_of_a_simulated_run_ends_it_at_its_virtual_duration(tmp_path):
+    """inspect printed ended_utc, the wall clock at the close (seconds after the start for a 2 h simulation)."""
+    import datetime as dt
+
+    out = tmp_path / "sim.h5"
+    r = CliRunner().invoke(cli, ["capture", str(DEMO), "--simulate", "--duration", "10m", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["inspect", str(out)])
+    assert r.exit_code == 0, r.output
+    line = next(ln for ln in r.stdout.splitlines() if ln.strip().startswith("started"))
+    started, ended = line.split()[1], line.split()[3]
+    span = (dt.datetime.fromisoformat(ended) - dt.datetime.fromisoformat(started)).total_seconds()
+    assert 599.0 <= span <= 600.0
+    assert "end of the simulated data" in line and "wall clock" in line

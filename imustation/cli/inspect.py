@@ -25,16 +25,22 @@ def _clock(a) -> str:
 
 def _ended(rf) -> str:
     """``ended_utc``: the end of the data. Imports made before it was (issue 23) hold the time of the
-    conversion there: then the end of the data is derived from the last sample and said so."""
+    conversion there, and a simulated run the wall clock at its close: then the end of the data is
+    derived from the last sample and said so."""
     a = rf.attrs
     ended = a.get("ended_utc", "-")
-    if "source_format" not in a or "imported_utc" in a:
+    simulated = bool(a.get("simulated", False)) and "ended_utc" in a
+    if not simulated and ("source_format" not in a or "imported_utc" in a):
         return str(ended)
     import datetime as dt
 
     last_ns = max((int(rf.dataset(d.name, "t")[d.n - 1]) for d in rf.devices.values() if d.n), default=0)
     start = dt.datetime.fromisoformat(str(a["started_utc"]))
     end = (start + dt.timedelta(microseconds=last_ns // 1000)).isoformat(timespec="milliseconds")
+    if simulated:
+        # ended_utc is the host's wall clock at the clean close (docs/runfile.md); a simulation runs its
+        # virtual time faster than that, so the end of the data is the virtual one
+        return f"{end} (end of the simulated data; the file's ended_utc {ended} is the wall clock at its close)"
     return f"{end} (end of the data; the file says {ended}, when it was converted)"
 
 
