@@ -198,7 +198,10 @@ def demo(
             res = analyze_channel(ch, model=choices.PAPER_MODEL)  # the simulated truth is the paper's model
             ch.release()
             for name in PARAMS:
-                sim_v, fit_v = getattr(truth, name), getattr(res.noise_model, name)
+                sim_v, fit_v = (
+                    stored_truth(name, getattr(truth, name), ch.scale, ch.fs_hz),
+                    getattr(res.noise_model, name),
+                )
                 lo, hi = res.noise_model.ci90[name]
                 # no Gauss-Markov term simulated (datasheet profile): nothing to compare with
                 compared = 0 < sim_v < float("inf")
@@ -219,6 +222,19 @@ def demo(
             w.writeheader()
             w.writerows(rows)
         click.echo(f"wrote {table_path}")
+
+
+def stored_truth(name: str, value: float, scale: float, fs_hz: float) -> float:
+    """What the stored record truly has of the simulated parameter ``name`` (SI): the white-noise density
+    of a channel stored as counts (``scale`` units per count, ``fs_hz`` Hz) is the model's ``sigma_w`` and
+    the rounding's in quadrature, an error uniform over one count (variance scale^2 / 12 per sample,
+    Widrow & Kollar, Quantization Noise, 2008, ch. 4), as the datasheet rows count it
+    (analysis/pipeline/truth.py). The slow terms are the model's."""
+    from imustation.analysis.pipeline.truth import rounding_density
+
+    if name != "sigma_w" or scale == 1.0:
+        return value
+    return math.hypot(value, rounding_density(scale, fs_hz))
 
 
 def paper_note(flag: str, simulated: float, lo: float, hi: float) -> tuple[str, str]:

@@ -425,6 +425,23 @@ def white_bound(
     return (U, math.sqrt(var))
 
 
+def fine_white(fine: FineStatistic) -> tuple[float, float]:
+    """sigma_w^2 ((rate unit)^2 s) the fine-scale statistic alone reads, and its standard error: the GLS
+    white-noise level of ``fine.avar`` (covariance ``fine.cov``, block inflation included) with the angle
+    term and the free floor and rise the statistic carries. It needs no model of the slow terms beyond the
+    fine scales; the model family's sigma_w also draws on the coarse scales through the slow terms' model
+    (:mod:`.white_guard`)."""
+    t = np.asarray(fine.taus, dtype=float)
+    cols = [1.0 / t] + ([-1.0 / t**2] if fine.term else []) + list(fine.nuisance.T)
+    X = np.column_stack(cols)
+    if X.shape[1] > len(t):
+        return (math.nan, math.nan)
+    Ci = np.linalg.inv(fine.cov)
+    g = np.linalg.solve(X.T @ Ci @ X, X.T @ Ci)[0]  # GLS weights of the white-noise level
+    var = float(g @ fine.cov @ g)
+    return (float(g @ fine.avar), math.sqrt(var) if var > 0 else math.nan)
+
+
 def _block_inflation(
     rate: np.ndarray,
     fs_hz: float,
