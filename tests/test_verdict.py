@@ -66,3 +66,18 @@ def test_a_needed_parameter_the_model_lacks_is_not_enough(name):
     iv = fit_intervals(res.noise_model, ("sigma_w", name))
     v = data_verdict(4000.0, 100.0, 100.0, intervals=iv, need=("sigma_w", name))
     assert v.verdict == "not enough" and any(f"{name} is not a parameter" in r for r in v.reasons)
+
+
+def test_a_random_walk_standing_for_sigma_b_is_judged_with_its_label_not_a_crash():
+    """``sigma_b`` of a random-walk model is its ``sigma_k``: the label once landed in the interval's
+    ``upper`` field (positional), and the verdict of ``--need sigma_b`` on a ``wn+fl+rw+lp`` fit raised
+    'TypeError: must be real number, not str'."""
+    from types import SimpleNamespace
+
+    from imustation.analysis.pipeline.verdict import data_verdict, fit_intervals
+
+    fit = SimpleNamespace(model="wn+rw", ci90={"sigma_k": (1e-6, 2e-6)}, params={"sigma_k": 1.5e-6}, at_bound=())
+    iv = fit_intervals(fit, ["sigma_b"])["sigma_b"]
+    assert iv.label.startswith("sigma_k") and np.isnan(iv.upper)
+    verdict = data_verdict(7200.0, np.inf, 100.0, intervals={"sigma_b": iv})
+    assert any("sigma_k" in r for r in verdict.reasons)

@@ -173,7 +173,7 @@ def fit_intervals(fit, need: Sequence[str]) -> dict[str, Interval]:
         bound = [b for b in fit.at_bound if b == key or b.rstrip("0123456789") == key]
         label = "sigma_k (the rate random walk, for sigma_b)" if key != name else ""
         why = f"{label or name} at its search bound: not identified" if bound else ""
-        out[name] = Interval(value, float(lo), float(hi), why, label)
+        out[name] = Interval(value, float(lo), float(hi), why, label=label)
     return out
 
 
