@@ -119,6 +119,8 @@ def test_local_workers_identical_to_serial(fleet_runs):
     assert dist.stdout == serial.stdout
 
 
+# slow (10 s): the scheduler and local-worker tests above check the cluster path in the default suite
+@pytest.mark.slow
 def test_run_tasks_client_matches_serial_and_orders_results(fleet_runs, cluster):
     from distributed import Client
 

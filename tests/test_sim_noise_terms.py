@@ -162,6 +162,8 @@ def _toml(v) -> str:
     return str(v).lower() if isinstance(v, bool) else str(v)
 
 
+# slow (15 s): test_demo_lab.py checks the datasheet demo like for like on a small lab in the default suite
+@pytest.mark.slow
 def test_demo_runs_the_realistic_lab(tmp_path):
     table = tmp_path / "real.csv"
     res = CliRunner().invoke(
