@@ -225,12 +225,20 @@ def robust_z(x: np.ndarray, se: np.ndarray | None = None, own_se: np.ndarray | N
     return z
 
 
+def interval_ln_se(lo: float, hi: float) -> float:
+    """Standard error of the natural log of a quantity from its 90 % interval ``lo``..``hi`` (any one unit),
+    taken as symmetric in the logarithm: ``ln(hi / lo) / (2 x 1.645)``; NaN without a usable interval."""
+    if lo > 0 and hi > lo and math.isfinite(hi):
+        return math.log(hi / lo) / (2.0 * Z90)
+    return math.nan
+
+
 def log10_se(row: FleetRow, q: str) -> float:
     """Standard error of log10 of quantity ``q`` of ``row``: from its own 90 % interval (symmetric in
     the logarithm), else from its standard error (delta method); NaN when neither is usable."""
-    lo, hi = row.lo.get(q, math.nan), row.hi.get(q, math.nan)
-    if lo > 0 and hi > lo and math.isfinite(hi):
-        return (math.log10(hi) - math.log10(lo)) / (2.0 * Z90)
+    se = interval_ln_se(row.lo.get(q, math.nan), row.hi.get(q, math.nan))
+    if math.isfinite(se):
+        return se / math.log(10.0)
     v, se = row.values.get(q, math.nan), row.stderr.get(q, math.nan)
     if v > 0 and math.isfinite(se) and se > 0:
         return se / (v * math.log(10.0))

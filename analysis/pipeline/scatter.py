@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from imustation.analysis.pipeline.fleet import ANY_MODEL, Z90, FleetRow
+from imustation.analysis.pipeline.fleet import ANY_MODEL, Z90, FleetRow, interval_ln_se
 
 #: quantities whose scatter is stated (N is sigma_w; sigma_b, tau_b per model)
 SCATTER_QUANTITIES = ("N", "B", "K", "sigma_b", "tau_b")
@@ -75,10 +75,7 @@ class Scatter:
 
 def _log_se(r: FleetRow, q: str) -> float:
     """Standard error of ln of ``q`` from the run's 90 % interval (NaN without a usable one)."""
-    lo, hi = r.lo.get(q, math.nan), r.hi.get(q, math.nan)
-    if lo > 0 and hi > lo and math.isfinite(hi):
-        return math.log(hi / lo) / (2.0 * Z90)
-    return math.nan
+    return interval_ln_se(r.lo.get(q, math.nan), r.hi.get(q, math.nan))
 
 
 def _one(key, rows: list[FleetRow], q: str, model: str) -> Scatter:

@@ -26,11 +26,11 @@ from imustation.analysis.pipeline.fleet import (
     JUDGED,
     MODEL_QUANTITIES,
     UNIQUE_FIELDS,
-    Z90,
     Z_LIMIT,
     FleetRow,
     RepeatRow,
     device_key,
+    interval_ln_se,
 )
 from imustation.analysis.pipeline.parallel import TaskFailure
 from imustation.analysis.pipeline.scatter import ALPHA, Scatter
@@ -67,9 +67,7 @@ def short_identity(driver: str, identity: str, settings: dict | None = None) -> 
 
 def _stderr_from(value: float, lo: float, hi: float) -> float:
     """A standard error (SI) from a 90 % interval symmetric in the logarithm (delta method), NaN without one."""
-    if value > 0 and lo > 0 and hi > lo and math.isfinite(hi):
-        return value * math.log(hi / lo) / (2.0 * Z90)
-    return math.nan
+    return value * interval_ln_se(lo, hi) if value > 0 else math.nan
 
 
 def fleet_rows(results: Sequence[ChannelAnalysis]) -> list[FleetRow]:
