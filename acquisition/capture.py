@@ -102,6 +102,7 @@ def capture(
     reader_priority: int = READER_PRIORITY,
     reader_cpus: Sequence[int] | None = None,
     reader_spin_us: int = 0,
+    reader_phase: bool = True,
     on_note: Callable[[str], None] | None = None,
 ) -> CaptureSummary:
     """Record every device and thermometer of ``config`` for ``duration_s`` into ``output``.
@@ -127,7 +128,9 @@ def capture(
         they run on (None: the kernel places them); ``reader_spin_us``: hybrid sleep, the last this
         many us before a poll of a device without a FIFO spent reading the clock instead of sleeping
         (:func:`~imustation.acquisition.scheduler.run_deadline`; 0: off; ``benchmarks/bench_hostclock.py
-        --spin-us``).
+        --spin-us``); ``reader_phase``: poll a device without a FIFO just after it makes each sample once
+        its reads show when (:mod:`~imustation.acquisition.pollphase`; False: blind, twice per sample - the
+        benchmark's reference, ``--blind``).
     on_note : called with each line the operator should read (e.g. scheduling the OS refused).
     early_stop : SIGINT/SIGTERM received before this call (the CLI records them from its
         start, read once the capture's own handlers are in place): the capture opens its
@@ -183,7 +186,9 @@ def capture(
     if real_time or (not simulate and clock is None and trace is None and replay is None):
         # the host clock: every bus in a reader process of its own (a trace is recorded in one process)
         cpus = tuple(reader_cpus) if reader_cpus is not None else None
-        readers = ReaderOptions(simulate=simulate, priority=reader_priority, cpus=cpus, spin_us=reader_spin_us)
+        readers = ReaderOptions(
+            simulate=simulate, priority=reader_priority, cpus=cpus, spin_us=reader_spin_us, phase=reader_phase
+        )
         clock = MonotonicClock()
     replayed = Trace(replay) if replay is not None else None
     recorder.reserve()

@@ -78,6 +78,8 @@ class ReaderOptions:
     priority: int = READER_PRIORITY
     #: hybrid sleep before polls of a device without a FIFO, us (0: off; scheduler.run_deadline)
     spin_us: int = 0
+    #: poll a device without a FIFO just after it makes each sample (acquisition/pollphase.py); False: blind
+    phase: bool = True
 
 
 class HostOutbox(MessageSink):
@@ -185,6 +187,7 @@ def reader_main(
         station.start(out)
         out.send("started", 0, station.t0)
         station.spin_ns, station.deadline_stats = options.spin_us * 1000, DeadlineStats()
+        station.phase_lock = options.phase
         steal0 = steal_s()
         cpu0 = time.process_time()
         # the run ends when the main process's does: its origin plus the duration

@@ -17,7 +17,10 @@
   due the one whose hold runs out first goes first (earliest deadline first).
   Optionally (``spin_ns``) the last moments before a poll of a device without a
   FIFO are waited for by reading the clock instead of sleeping (hybrid sleep), and
-  how late its polls started is kept (:class:`DeadlineStats`).
+  how late its polls started is kept (:class:`DeadlineStats`). A chip without a FIFO
+  is polled just after it makes each sample once its reads show when
+  (:mod:`~imustation.acquisition.pollphase`): a poll may then be held up for most of a
+  period, not half of one, and it is read once a sample instead of twice.
 
 A :class:`Poller` is one device or thermometer: ``poll(sink)`` reads it once and
 returns the interval to its next poll. Times are ns on the station clock.
@@ -32,6 +35,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from imustation.acquisition.pollphase import PollPhase
 from imustation.acquisition.sinks import MessageSink, Sink, deliver
 from imustation.clock import Clock
 
@@ -60,6 +64,9 @@ class Poller:
     #: how long a sample waits in the device before it is overwritten or dropped, ns (0: unknown,
     #: nothing is lost by a late poll - a thermometer); only :func:`run_deadline` uses it
     hold_ns: int = 0
+    #: a chip without a FIFO: when it makes its samples (the poll updates it); only :func:`run_deadline`
+    #: uses it, to poll just after each sample is made once it is known
+    phase: PollPhase | None = None
 
 
 @dataclass
@@ -240,7 +247,10 @@ def run_deadline(
     Each poller is polled at its own interval, or every ``hold_ns / POLLS_PER_HOLD`` if
     that is shorter; of those due, the one whose hold time runs out first is polled
     first. A poll late by more than its interval is not made up for: the next one is
-    an interval after it; each poller's last poll is at ``end``. ``between(t_ns)`` (the
+    an interval after it; each poller's last poll is at ``end``. A poller with a ``phase``
+    (a chip without a FIFO, :mod:`~imustation.acquisition.pollphase`) is polled just after
+    each sample is made once its reads have shown when, within a hold of its last poll,
+    instead of blind. ``between(t_ns)`` (the
     reader's hand-over to the writer) runs whenever nothing is due, and at least every
     ``BETWEEN_NS`` while polls are due.
     ``sleep(seconds)`` waits for the next due poll (tests pass a virtual clock's).
@@ -299,6 +309,9 @@ def run_deadline(
         step[i] = _step(p, interval)
         nxt = due[i] + step[i]
         nxt = nxt if nxt > t else t + step[i]
+        phased = p.phase.next_poll_ns(t) if p.phase is not None else None
+        if phased is not None:
+            nxt = min(phased, t + p.hold_ns)  # just after its next sample is made, within a hold
         # the last poll is at the end, wherever late polls moved the others: what was made until then is read
         due[i] = end if nxt > end > t else nxt
         deadline[i] = t + (p.hold_ns or step[i])

@@ -38,6 +38,7 @@ import numpy as np
 from imustation.acquisition.buses import BusFactory
 from imustation.acquisition.config import DeviceConfig, StationConfig, ThermometerConfig
 from imustation.acquisition.modes import check_options
+from imustation.acquisition.pollphase import PollPhase
 from imustation.acquisition.readers import ReaderOptions
 from imustation.acquisition.scheduler import DeadlineStats, Poller, run_deadline, run_threaded, run_virtual
 from imustation.acquisition.sinks import Sink, tick_of
@@ -91,6 +92,8 @@ class DeviceState:
     last_poll_ns: int = 0
     #: polled by a reader process: its samples as last reported at a status (for the recent rate)
     reported_samples: int = 0
+    #: a chip without a FIFO: when it makes its samples, learnt from its reads (None for the others)
+    phase: PollPhase | None = None
 
     @property
     def samples(self) -> int:
@@ -130,7 +133,8 @@ def _device_state(config: DeviceConfig, driver: Any, info: DriverInfo) -> Device
     timeline = Timeline(
         1e9 / info.rate_hz, info.settings.get("counter_modulus"), overflow=info.overflow, buffer_s=info.buffer_s
     )
-    return DeviceState(config, driver, info, int(info.poll_interval_s * 1e9), timeline)
+    phase = PollPhase(round(1e9 / info.rate_hz)) if info.overflow == "newest" else None
+    return DeviceState(config, driver, info, int(info.poll_interval_s * 1e9), timeline, phase=phase)
 
 
 @dataclass
@@ -232,6 +236,8 @@ class Station:
         #: those polls started (scheduler.run_deadline)
         self.spin_ns = 0
         self.deadline_stats: DeadlineStats | None = None
+        #: run_deadline polls a device without a FIFO just after each sample once its phase is known
+        self.phase_lock = True
         self._pool: WorkerPool | None = None
         self.buses = BusFactory(simulate=simulate, clock=self.clock, seed=config.seed, trace=trace, replay=replay)
         self.devices: dict[str, DeviceState] = {}
@@ -470,7 +476,14 @@ class Station:
     def _pollers(self) -> list[Poller]:
         """This process's devices and thermometers (not those a worker process polls), in config order."""
         return [
-            Poller(n, st.config.bus, st.poll_ns, partial(self._poll_device, st=st), _hold_ns(st))
+            Poller(
+                n,
+                st.config.bus,
+                st.poll_ns,
+                partial(self._poll_device, st=st),
+                _hold_ns(st),
+                st.phase if self.phase_lock else None,
+            )
             for n, st in self.devices.items()
             if st.driver is not None
         ] + [
@@ -524,9 +537,13 @@ class Station:
         try:
             block = st.driver.read_block()
         except (BusError, DeviceError) as exc:
+            if st.phase is not None:
+                st.phase.reset()
             self._fault(sink, st, str(exc))
             return st.poll_ns
         t_read = st.last_poll_ns = clock.now_ns() - self.t0
+        if st.phase is not None:
+            st.phase.observe(started + self.t0, t_read + self.t0, getattr(st.driver, "new_sample", None))
         self._store(sink, st, block, t_read, started=started)
         return st.poll_ns
 

@@ -6,6 +6,8 @@ simulators' own cost inside each poll - for ``--duration`` seconds in each of:
 
 * ``readers``: every bus in a reader process of its own (``capture --simulate
   --real-time``, acquisition/readers.py), scheduled as the OS permits;
+* ``blind``: the same reader processes polling a device without a FIFO blind, twice
+  a sample (before phase-locked polls, acquisition/pollphase.py);
 * ``threads``: the same-run reference, one process with a reader thread per bus
   (the station before reader processes; ``capture(..., clock=MonotonicClock())``);
 
@@ -23,6 +25,7 @@ Targets (issue 36): readers, idle: 0 lost; beside two busy loops: at most 1 in
     python benchmarks/bench_hostclock.py                   # 60 s per case, 4 cases
     python benchmarks/bench_hostclock.py --duration 600 --only readers
     python benchmarks/bench_hostclock.py --duration 600 --only readers --spin-us 500   # hybrid sleep
+    python benchmarks/bench_hostclock.py --duration 300 --modes readers,blind          # phase-locked vs blind
 """
 
 from __future__ import annotations
@@ -50,14 +53,22 @@ def busy_loops(n: int) -> list[subprocess.Popen]:
 
 
 def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str, spin_us: int = 0) -> dict:
+    """One capture: ``mode`` readers (phase-locked polls), blind (readers polling twice a sample) or threads."""
     loops = busy_loops(busy)
     try:
         out = os.path.join(folder, f"{mode}-{busy}.h5")
         self0 = resource.getrusage(resource.RUSAGE_SELF)
         wall0 = time.monotonic()
-        if mode == "readers":
+        if mode in ("readers", "blind"):
             summary = capture(
-                cfg, out, duration_s, simulate=True, real_time=True, overwrite=True, reader_spin_us=spin_us
+                cfg,
+                out,
+                duration_s,
+                simulate=True,
+                real_time=True,
+                overwrite=True,
+                reader_spin_us=spin_us,
+                reader_phase=mode == "readers",
             )
         else:
             summary = capture(cfg, out, duration_s, simulate=True, clock=MonotonicClock(), overwrite=True)
@@ -67,7 +78,7 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str, spin_us:
         for p in loops:
             p.kill()
             p.wait()
-    accounting, late = file_accounting(out), late_polls(out)
+    accounting, late, holes = file_accounting(out), late_polls(out), hole_details(out)
     os.unlink(out)
     main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
     return {
@@ -78,6 +89,7 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str, spin_us:
         "config": cfg,
         "accounting": accounting,
         "late": late,
+        "holes": holes,
     }
 
 
@@ -105,6 +117,14 @@ def late_polls(path: str) -> list[str]:
     """The readers' notes of polls started late (acquisition/readers.py lateness_note)."""
     with open_run(path) as run:
         return [e.detail for e in run.events() if e.kind == "note" and "polls started over" in e.detail]
+
+
+def hole_details(path: str, most: int = 12) -> list[str]:
+    """The first logged losses, per device: when, how many, why (how long the device went unread)."""
+    with open_run(path) as run:
+        return [f"{e.source} at {e.t_ns / 1e9:.3f} s: {e.lost} lost ({e.detail})" for e in run.events() if e.lost][
+            :most
+        ]
 
 
 def report(mode: str, busy: int, res: dict) -> bool:
@@ -135,6 +155,8 @@ def report(mode: str, busy: int, res: dict) -> bool:
         print(f"    {line}")
     for line in res["late"]:
         print(f"  {line}")
+    for line in res["holes"]:
+        print(f"  hole: {line}")
     return ok
 
 
@@ -143,7 +165,15 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0, help="seconds per case (default 60)")
     ap.add_argument("--busy", type=int, default=2, help="busy-loop processes in the loaded cases (default 2)")
     ap.add_argument("--config", default="lab-example.toml")
-    ap.add_argument("--only", choices=["readers", "threads"], default=None, help="run one mode only")
+    ap.add_argument(
+        "--modes",
+        default="readers,threads",
+        help="comma-separated: readers (reader processes, phase-locked polls), blind (reader processes polling "
+        "a device without a FIFO twice a sample: the reference for phase locking), threads (default "
+        "readers,threads)",
+    )
+    ap.add_argument("--only", choices=["readers", "blind", "threads"], default=None, help="run one mode only")
+    ap.add_argument("--cases", default="idle,busy", help="comma-separated: idle, busy (default both)")
     ap.add_argument(
         "--spin-us",
         type=int,
@@ -155,18 +185,20 @@ def main() -> None:
     cfg = load_config(config_path(args.config))
     print(f"{args.config}: {len(cfg.devices)} devices, {os.cpu_count()} CPUs; uptime: ", end="", flush=True)
     subprocess.run(["uptime"], check=False)
-    modes = [args.only] if args.only else ["readers", "threads"]
+    modes = [args.only] if args.only else args.modes.split(",")
+    cases = {"idle": 0, "busy": args.busy}
+    loads = [cases[c] for c in args.cases.split(",")]
     verdicts = {}
     with tempfile.TemporaryDirectory() as folder:
-        for mode in modes:
-            for busy in (0, args.busy):
+        for busy in loads:
+            for mode in modes:  # modes side by side in each case: the same host conditions
                 res = run_case(cfg, mode, busy, args.duration, folder, args.spin_us)
                 verdicts[(mode, busy)] = report(mode, busy, res)
     if "readers" in modes:
-        idle, loaded = verdicts[("readers", 0)], verdicts[("readers", args.busy)]
+        said = {0: "idle 0 lost", args.busy: f"{args.busy} busy loops <= {TARGET_BUSY_PER_10K:g} in 10,000 per device"}
         print(
-            f"\ntargets (readers): idle 0 lost: {'met' if idle else 'NOT met'}; "
-            f"{args.busy} busy loops <= {TARGET_BUSY_PER_10K:g} in 10,000 per device: {'met' if loaded else 'NOT met'}"
+            "\ntargets (readers): "
+            + "; ".join(f"{said[b]}: {'met' if verdicts[('readers', b)] else 'NOT met'}" for b in loads)
         )
 
 

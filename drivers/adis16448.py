@@ -254,6 +254,9 @@ class ADIS16448:
         self._check_every = max(1, round(CONFIG_CHECK_S * self._rate))
         #: bursts dropped for a CRC mismatch (a health figure)
         self.crc_errors = 0
+        #: whether the last read_block found a sample the read before had not (None: a failed or dropped
+        #: transfer); the station times its next poll by it (acquisition/pollphase.py)
+        self.new_sample: bool | None = None
         #: DIO1 wired to the bridge's edge counter: each sample's number is the count of data-ready pulses
         #: before the burst read it; a poll whose count has not moved reads no burst
         self._counting = self.settings["data_ready"] != "none"
@@ -413,6 +416,7 @@ class ADIS16448:
         """
         self._raise_held()
         self._polls += 1
+        self.new_sample = None
         fresh = True
         try:
             if self._polls % self._check_every == 0:
@@ -432,13 +436,16 @@ class ADIS16448:
             self._error = exc
             return self._release()
         held = self._held
+        self.new_sample = False
         if fresh:
             data = rx[2 : 2 + 2 * BURST_WORDS]
             if self._crc and burst_crc(data[2:]) != CRC_WORD.unpack_from(rx, 2 + 2 * BURST_WORDS)[0]:
+                self.new_sample = None
                 return self._crc_mismatch()
             # the same sample read twice is no new data (without the wire: no new sample yet; with it: the
             # sample after the count came during the read before, which took it under the count before)
             if data != self._last:
+                self.new_sample = True
                 self._last = data
                 if not held:
                     self._first_held = self._polls

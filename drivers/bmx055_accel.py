@@ -190,6 +190,8 @@ class BMX055Accel:
         self._range = range_row(self.settings["accel_range_g"])
         self._fifo = self.settings["read_mode"] == "fifo"
         self._stuck = False
+        #: data-ready mode: whether the last read_block found a new sample (None: not known)
+        self.new_sample: bool | None = None
 
     @classmethod
     def check_settings(cls, settings: Mapping[str, Any]) -> dict[str, Any]:
@@ -280,6 +282,7 @@ class BMX055Accel:
 
     # -- streaming --------------------------------------------------------------
     def read_block(self) -> Block:
+        self.new_sample = None
         status = self.regs.read(STATUS_FIRST, STATUS_LAST - STATUS_FIRST + 1)
         self._check_config(status, "lost")
         latest, new = decode_accel(status[: REG_TEMP - STATUS_FIRST])
@@ -287,7 +290,9 @@ class BMX055Accel:
         temp_raw = temp_byte - 256 if temp_byte >= 128 else temp_byte
         lost, note = 0, ""
         if not self._fifo:
-            accel = latest if new.any() else np.zeros((0, 3), dtype=np.int16)
+            # the station times its next poll by this (acquisition/pollphase.py)
+            self.new_sample = bool(new.any())
+            accel = latest if self.new_sample else np.zeros((0, 3), dtype=np.int16)
         else:
             fifo = status[REG_FIFO_STATUS - STATUS_FIRST]
             count = FIFO_STATUS_COUNT.decode(fifo)

@@ -26,6 +26,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -688,23 +689,40 @@ def verdict(case: Case, answer: dict | None, limit_s: float) -> str | None:
     return None
 
 
-def run_cases(cases: list[Case], limit_s: float = 120.0, log=None) -> list[tuple[Case, str]]:
-    """Run every case; returns (case, reason) of those that failed (also written to ``log`` as they come)."""
-    failures = []
-    worker = _Worker()
-    try:
-        for case in cases:
-            answer = worker.run(case, limit_s)
-            why = verdict(case, answer, limit_s)
-            if why:
-                failures.append((case, why))
-                if log is not None:
-                    print(f"FAIL {case.name}: {why}", file=log, flush=True)
-            if answer is None:
-                worker = _Worker()
-    finally:
-        worker.kill()
-    return failures
+def run_cases(cases: list[Case], limit_s: float = 120.0, log=None, workers: int = 2) -> list[tuple[Case, str]]:
+    """Run every case on ``workers`` worker processes side by side (each case is independent; the default
+    suite runs this on a 2-CPU machine); returns (case, reason) of those that failed, in corpus order (also
+    written to ``log`` as they come)."""
+    todo = list(enumerate(cases))
+    failures: list[tuple[int, Case, str]] = []
+    lock = threading.Lock()
+
+    def serve() -> None:
+        worker = _Worker()
+        try:
+            while True:
+                with lock:
+                    if not todo:
+                        return
+                    k, case = todo.pop(0)
+                answer = worker.run(case, limit_s)
+                why = verdict(case, answer, limit_s)
+                if why:
+                    with lock:
+                        failures.append((k, case, why))
+                        if log is not None:
+                            print(f"FAIL {case.name}: {why}", file=log, flush=True)
+                if answer is None:
+                    worker = _Worker()
+        finally:
+            worker.kill()
+
+    threads = [threading.Thread(target=serve) for _ in range(max(1, workers))]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    return [(case, why) for _, case, why in sorted(failures, key=lambda f: f[0])]
 
 
 def main() -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import h5py
 import numpy as np
@@ -83,9 +84,14 @@ def _metadata_offsets(path) -> list[tuple[str, int]]:
 
 
 def _check_flips(good_run, tmp_path, offsets) -> None:
-    for sig, off in offsets:
-        p = _damage(good_run, tmp_path, f"{sig}{off}.h5", lambda d, o=off: d.__setitem__(o + 6, d[o + 6] ^ 0x10))
-        res = run_reader("analyze", p, tmp_path)
+    paths = [
+        _damage(good_run, tmp_path, f"{sig}{off}.h5", lambda d, o=off: d.__setitem__(o + 6, d[o + 6] ^ 0x10))
+        for sig, off in offsets
+    ]
+    # two readers side by side: each damaged file is independent (the suite's machine has two CPUs)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(lambda p: run_reader("analyze", p, tmp_path), paths))
+    for (sig, _), res in zip(offsets, results, strict=True):
         if sig == "EAHD" and res.returncode == 0:
             continue  # the index of a channel analyze does not read (temp, counter)
         assert_one_error_line(res)
