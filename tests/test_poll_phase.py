@@ -14,7 +14,10 @@ import pytest
 from imustation.acquisition.pollphase import MARGIN, RETRY, PollPhase
 from imustation.acquisition.scheduler import Poller, run_deadline
 from imustation.acquisition.sinks import MessageSink
+from imustation.acquisition.timeline import Timeline
 from imustation.clock import VirtualClock
+from imustation.drivers import adis16448 as adis
+from tests.test_data_ready import rig
 
 PERIOD = 2_441_406  # ns: the ADIS16448 at 409.6 Hz
 
@@ -136,3 +139,50 @@ def test_the_phase_is_learnt_from_a_bracket_and_forgotten_when_a_read_fails():
     assert p.early == 1 and p.next_poll_ns(2_000_000) == 2_000_000 + int(RETRY * 1_000_000)
     p.observe(2_050_000, 2_150_000, None)  # a failed read: start again
     assert p.edge is None and p.next_poll_ns(2_150_000) is None
+
+
+@pytest.mark.parametrize("wired", [False, True])
+def test_the_adis16448_driver_polled_on_its_phase_loses_nothing_to_stalls_that_cost_blind_polls(wired):
+    """The real driver on the chip and CP2130 simulators (tests/test_data_ready.py's rig), placed by the
+    station's Timeline, a read taking 0.2 ms: stalls of 1.3-1.8 ms every ~30 sleeps cost blind polls
+    samples, and none polled on the chip's phase. Wired, the data-ready count is the truth: every pulse is
+    a sample written or lost."""
+    lost = {}
+    for phased in (False, True):
+        clock, chip, _, _, spi = rig("cp2130", wired=wired)
+        drv = adis.ADIS16448(spi, {"data_ready": "gpio4" if wired else "none"}, sleep=clock.sleep)
+        drv.clock_ns = clock.now_ns
+        info = drv.open()
+        period = round(1e9 / info.rate_hz)
+        tl = Timeline(period, info.settings.get("counter_modulus"), overflow=info.overflow, buffer_s=info.buffer_s)
+        tracker = PollPhase(period) if phased else None
+
+        def poll(sink, drv=drv, clock=clock, tl=tl, tracker=tracker, period=period) -> int:
+            start = clock.now_ns()
+            clock.sleep(100e-6)  # the USB transfer before the chip's sample is taken ...
+            block = drv.read_block()
+            clock.sleep(100e-6)  # ... and after
+            end = clock.now_ns()
+            if tracker is not None:
+                tracker.observe(start, end, drv.new_sample)
+            tl.place(block, end, started=start)
+            return period
+
+        first = chip.data_ready_edges()
+        run_deadline(
+            clock,
+            [Poller("adis", "cp2130", period, poll, period, tracker)],
+            MessageSink(lambda m: None),
+            t0=clock.now_ns(),
+            end=clock.now_ns() + 4 * 10**9,
+            between=lambda t: None,
+            should_stop=lambda: False,
+            sleep=_stalling_sleep(clock, np.random.default_rng(5), 30, (1.3, 1.8)),
+        )
+        tl.place(drv.drain(), clock.now_ns(), poll=False)
+        produced = chip.data_ready_edges() - first
+        assert tl.samples > 0.99 * produced - tl.lost
+        if wired:
+            assert tl.samples + tl.lost == produced  # the count: exact
+        lost[phased] = tl.lost
+    assert lost[False] >= 5 and lost[True] == 0
