@@ -52,6 +52,8 @@ PERIOD_BASELINE = 16
 PERIOD_GAIN = 0.5
 #: ... within this fraction of the configured period
 PERIOD_RANGE = 0.1
+#: reads that find nothing for this many periods after the estimated newest sample: the phase is lost
+LOST_AFTER = 3
 
 
 class PollPhase:
@@ -106,6 +108,11 @@ class PollPhase:
         # later or earlier only moves the polls until the reads that find nothing correct them)
         latch, self._read_ns = (start_ns + end_ns) // 2, end_ns - start_ns
         if not new:
+            if self.edge is not None and latch - self.edge > LOST_AFTER * p:
+                # no sample for periods (a chip that stopped, or a clock far off): the phase is gone, and
+                # retrying every RETRY of a period would only spin; poll blind until it is found again
+                self.reset()
+                return
             # nothing was made before this read took its sample: the next sample comes after that
             self._nothing = (latch, end_ns)
             self._found_run = 0

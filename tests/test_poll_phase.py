@@ -123,6 +123,35 @@ def test_a_chip_off_its_configured_rate_is_followed(rate_error):
     assert tracker.period_ns == pytest.approx(PERIOD * (1 - rate_error), rel=0.01)
 
 
+def test_a_chip_that_stops_making_samples_is_polled_blind_not_retried_in_a_spin():
+    """The chip freezes (every read finds the same sample): after LOST_AFTER periods the phase is given up
+    and the device polled blind (twice a period), not retried every RETRY of a period."""
+    clock = VirtualClock()
+    chip = Chip(clock, PERIOD, phase_ns=731_000)
+    tracker = PollPhase(PERIOD)
+    frozen_at = 2 * 10**9
+    polls_after = []
+
+    def poll(sink) -> int:
+        if clock.now_ns() > frozen_at:
+            chip.period = 1e18  # makes nothing more
+            polls_after.append(clock.now_ns())
+        return chip.poll(sink, tracker)
+
+    run_deadline(
+        clock,
+        [Poller("adis", "spi", PERIOD, poll, PERIOD, tracker)],
+        MessageSink(lambda m: None),
+        t0=0,
+        end=3 * 10**9,
+        between=lambda t: None,
+        should_stop=lambda: False,
+        sleep=clock.sleep,
+    )
+    assert tracker.edge is None
+    assert len(polls_after) < 1.05 * 2 * 10**9 / (PERIOD / 2) * 0.5  # ~2 a period, for the last second
+
+
 def test_the_phase_is_learnt_from_a_bracket_and_forgotten_when_a_read_fails():
     """Reads of 0.1 ms, each taken as taking its sample at its middle."""
     p = PollPhase(1_000_000)
