@@ -32,7 +32,8 @@ configured rate (within ``PERIOD_RANGE``) is followed too.
 Until a read has bracketed an edge (a read that found nothing, then one that found
 a sample, less than a period apart) there is no estimate, and the device is polled
 blind as before (:func:`~imustation.acquisition.scheduler.run_deadline`). A read
-held up for several periods finds the newest sample: the estimate jumps to it.
+held up for several periods finds the newest sample: the estimate jumps to it. Reads
+that find nothing for ``LOST_AFTER`` periods (a chip that stopped) give the phase up.
 """
 
 from __future__ import annotations
