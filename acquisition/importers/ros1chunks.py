@@ -23,9 +23,9 @@ from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
-from imustation.acquisition.importers.messages import gather_u32
+from imustation.acquisition.importers.bytegather import gather_u32, rows_match
+from imustation.acquisition.importers.chunked import file_span
 from imustation.acquisition.importers.ros1records import (
     OP_CHUNK,
     OP_IDXDATA,
@@ -105,11 +105,11 @@ def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, m
     for k in [int(hn[0])] if (hn == hn[0]).all() else np.unique(hn).tolist():
         g = np.flatnonzero(hn == k)
         # chunk headers differ in their size value only (same compression, same fields): all compared with
-        # the first's at once, and a header unlike it looked at on its own
-        rows = sliding_window_view(b, k)[pos[g] + 4]  # a row per chunk, 4x faster than an index of k per row
+        # the first's at once, a few 8-byte words per header, and a header unlike it looked at on its own
         left = np.arange(len(g))
         while len(left):
-            key = rows[left[0]].tobytes()
+            at = int(pos[g[left[0]]]) + 4
+            key = b[at : at + k].tobytes()
             try:
                 f = parse_fields(key, 0, k)
                 if op_code(f) != OP_CHUNK or len(kinds) >= 64:
@@ -118,12 +118,14 @@ def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, m
                 vo, vl = header_layout(key, 0, k)["size"]
             except (BagFormatError, UnicodeDecodeError, KeyError):
                 return None
-            sub = rows[left]
-            fixed = np.ones(k, bool)
-            fixed[vo : vo + vl] = False
-            same = (sub[:, fixed] == rows[left[0], fixed]).all(axis=1)
+            if vl != 4:
+                return None  # a u32 in every bag written (the walk reads any other)
+            free = np.zeros(k, bool)
+            free[vo : vo + 4] = True
+            heads = pos[g[left]] + 4
+            same = rows_match(b, heads, key, free)
             mine = left[same]
-            size[g[mine]] = (sub[same][:, vo : vo + vl].astype(np.int64) << (8 * np.arange(vl))).sum(axis=1)
+            size[g[mine]] = gather_u32(b, heads[same] + vo)
             which[g[mine]] = len(kinds)
             kinds.append(kind)
             left = left[~same]
@@ -166,9 +168,8 @@ def _blocks(fh, table: ChunkTable, nxt: np.ndarray, conns, counts, pool) -> Iter
         base = int(pos[i])
         j = max(int(np.searchsorted(nxt, base + BLOCK_BYTES, side="right")), i + 1)
         j = min(j, n, i + WINDOW)
-        fh.seek(base)
-        data = fh.read(int(nxt[j - 1]) - base)
-        if len(data) != int(nxt[j - 1]) - base:
+        data, base = _block(fh, base, int(nxt[j - 1]))
+        if data is None:
             return  # shorter than its index says: walked (and found cut)
         buf = np.frombuffer(data, np.uint8)
         lay = layout(buf, pos[i:j] - base, nxt[i:j] - base, table.conns[i:j], table.messages[i:j])
@@ -180,6 +181,13 @@ def _blocks(fh, table: ChunkTable, nxt: np.ndarray, conns, counts, pool) -> Iter
         i = j
         counts[2] = int(nxt[i - 1])
     counts[2] = None
+
+
+def _block(fh, start: int, stop: int) -> tuple[object, int]:
+    """The file's bytes from ``start`` (or a page before it) to ``stop`` (:func:`.chunked.file_span`) and
+    where they start; None when the file ends before ``stop``."""
+    data, at = file_span(fh, start, stop)
+    return (data if at + len(data) == stop else None), at
 
 
 def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor | None) -> Iterator[ChunkMessages]:

@@ -22,7 +22,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from imustation.acquisition.importers.chunked import ChunkedFile
+from imustation.acquisition.importers.chunked import ChunkedFile, file_span
 from imustation.acquisition.importers.ros1chunks import ChunkTable, read_chunks
 from imustation.acquisition.importers.ros1records import (
     MAGIC,
@@ -293,20 +293,19 @@ class Ros1Bag(ChunkedFile):
         calm = 0  # records to walk one by one before looking for a run again
         wait = 16  # calm after a failed look, doubled while they keep failing (a walk that is not periodic)
 
-        def fill(need: int) -> bytes:
-            self.fh.seek(pos)
-            got = self.fh.read(max(WALK_BYTES, need))
-            if len(got) < need:
-                raise BagCutError(f"truncated record ({len(got)} of {need} bytes)")
-            return got
+        def fill(need: int) -> tuple[object, int]:
+            got, at = file_span(self.fh, pos, pos + max(WALK_BYTES, need))
+            if at + len(got) < pos + need:
+                raise BagCutError(f"truncated record ({at + len(got) - pos} of {need} bytes)")
+            return got, at
 
         while pos < end:
             self._walk_at = pos
             off = pos - base
             if before is not None and not calm:
                 if off + WALK_BYTES // 4 > len(buf) and end - pos > WALK_BYTES // 4:
-                    self.fh.seek(pos)  # room for a long run
-                    base, buf, off = pos, self.fh.read(WALK_BYTES), 0
+                    buf, base = file_span(self.fh, pos, pos + WALK_BYTES)  # room for a long run
+                    off = pos - base
                     arr = np.frombuffer(buf, np.uint8)
                 found = 0
                 recent = [Shape(*r, r[0] in keep) for r in (before, last)]
@@ -326,13 +325,15 @@ class Ros1Bag(ChunkedFile):
                 calm, wait = wait, min(wait * 2, 4096)
             calm = max(calm - 1, 0)
             if off + 4 > len(buf):
-                base, buf, off = pos, fill(4), 0
+                buf, base = fill(4)
+                off = pos - base
                 arr = np.frombuffer(buf, np.uint8)
             (hn,) = u32(buf, off)
             if hn > 1 << 20:
                 raise BagFormatError(f"record header of {hn} bytes")
             if off + 8 + hn > len(buf):
-                base, buf, off = pos, fill(8 + hn), 0
+                buf, base = fill(8 + hn)
+                off = pos - base
                 arr = np.frombuffer(buf, np.uint8)
             key = buf[off + 4 : off + 4 + hn]
             hdr = self._parsed.get(key)
@@ -354,7 +355,8 @@ class Ros1Bag(ChunkedFile):
             data = b""
             if op in keep:
                 if off + total > len(buf):
-                    base, buf, off = pos, fill(total), 0
+                    buf, base = fill(total)
+                    off = pos - base
                     arr = np.frombuffer(buf, np.uint8)
                 data = buf[off + 8 + hn : off + total]
             elif pos + total > self.size:
