@@ -53,6 +53,13 @@ WORKERS = min(len(os.sched_getaffinity(0)), 4) if hasattr(os, "sched_getaffinity
 THREADED = frozenset({"bz2"})
 #: batches decompressed ahead of the one handed out
 AHEAD = 2
+#: chunks in a bag from which its lz4 chunks are decoded by the compiled decoder (:mod:`.lz4frames`), not
+#: one ``lz4.frame.decompress`` call each: importing numba and loading the kernels costs ~0.75 s of CPU
+#: once per process (numba's first use imports scipy.linalg), the kernel saves ~0.5 us per one-message
+#: chunk (docs/import.md, "Large bags")
+LZ4_KERNEL_CHUNKS = 1_500_000
+#: None: by LZ4_KERNEL_CHUNKS; True / False: always / never (benchmarks and tests)
+LZ4_KERNEL: bool | None = None
 #: chunks whose layout is gathered at once, at the most (bounds the temporaries: ~50 bytes a chunk)
 WINDOW = 1 << 16
 
@@ -163,6 +170,7 @@ def read_chunks(fh, table: ChunkTable, first_record: int, index_pos: int, conns:
 def _blocks(fh, table: ChunkTable, nxt: np.ndarray, conns, counts, pool) -> Iterator[ChunkMessages]:
     pos = table.pos
     n = len(pos)
+    kernel = LZ4_KERNEL if LZ4_KERNEL is not None else n >= LZ4_KERNEL_CHUNKS
     i = 0
     while i < n:
         base = int(pos[i])
@@ -176,7 +184,7 @@ def _blocks(fh, table: ChunkTable, nxt: np.ndarray, conns, counts, pool) -> Iter
         if lay is None:
             return
         lay = replace(lay, base=base)
-        yield from _batches(data, lay, conns, counts, pool)
+        yield from _batches(data, lay, conns, counts, pool, kernel)
         del data, buf, lay  # not held while the next block is read
         i = j
         counts[2] = int(nxt[i - 1])
@@ -190,9 +198,11 @@ def _block(fh, start: int, stop: int) -> tuple[object, int]:
     return (data if at + len(data) == stop else None), at
 
 
-def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor | None) -> Iterator[ChunkMessages]:
+def _batches(
+    data, lay: Layout, conns, counts, pool: ThreadPoolExecutor | None, kernel: bool
+) -> Iterator[ChunkMessages]:
     """The chunks of a block in batches of about BATCH_BYTES decompressed (the messages of a batch are
-    split and decoded together: bounded temporaries)."""
+    split and decoded together: bounded temporaries); lz4 chunks with :mod:`.lz4frames` if ``kernel``."""
     n = len(lay.start)
     cum = np.cumsum(lay.size)
     spans = []
@@ -210,6 +220,16 @@ def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor |
         for i, j in spans:
             start = lay.start[i:j]
             msgs = split_chunk(data, conns, starts=start, ends=start + lay.length[i:j])
+            counts[0] += j - i
+            counts[1] += len(msgs.conn)
+            yield msgs
+        return
+    if kernel and all(k == "lz4" for k in lay.kind):
+        src = np.frombuffer(data, np.uint8)
+        for i, j in spans:
+            raw = _lz4_frames(src, lay, i, j)
+            bounds = np.concatenate([[0], np.cumsum(lay.size[i:j])[:-1]])
+            msgs = split_chunk(raw, conns, starts=bounds)
             counts[0] += j - i
             counts[1] += len(msgs.conn)
             yield msgs
@@ -250,6 +270,32 @@ def _in_order(pool: ThreadPoolExecutor | None, spans: list[tuple[int, int]], wor
     finally:
         for _, fut in pending:
             fut.cancel()
+
+
+def _lz4_frames(src: np.ndarray, lay: Layout, i: int, j: int) -> np.ndarray:
+    """The lz4 chunks ``i:j`` of a block decoded together (:func:`.lz4frames.decode_frames`); a chunk that
+    fails is named by its offset in the file, as :func:`_decompress_all` names it."""
+    from imustation.acquisition.importers.lz4frames import PROBLEMS, decode_frames
+
+    start, length, size = lay.start[i:j], lay.length[i:j], lay.size[i:j]
+    # no frame of L bytes holds more than 255 L (a length byte of 255 per 255 bytes of match): a size beyond
+    # that is not believed, and not allocated
+    over = np.flatnonzero(size > 255 * length + 64)
+    if len(over):
+        k = int(over[0])
+        raise BagFormatError(f"chunk at byte {lay.base + int(lay.pos[i + k])}: its header says {size[k]} bytes, "
+                             f"more than an lz4 frame of {length[k]} bytes holds")  # fmt: skip
+    out, status, got = decode_frames(src, start, start + length, size)
+    bad = np.flatnonzero((status != 0) | (got != size))
+    if len(bad):
+        k = int(bad[0])
+        at, st = lay.base + int(lay.pos[i + k]), int(status[k])
+        if st == 0:
+            raise BagFormatError(f"chunk at byte {at} holds {got[k]} bytes, its header says {size[k]}")
+        if st == 10:
+            raise BagFormatError(f"chunk at byte {at} holds more than the {size[k]} bytes its header says")
+        raise BagFormatError(f"chunk at byte {at}: lz4 chunk does not decompress ({PROBLEMS[st]})")
+    return out
 
 
 def _decompress_all(mm: memoryview, lay: Layout, i: int, j: int) -> list[bytes]:

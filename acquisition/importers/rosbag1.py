@@ -458,7 +458,7 @@ class Ros1Bag(ChunkedFile):
                 if c is None:
                     raise BagFormatError(f"message of unknown connection {cid}")
                 if topics is None or c.topic in topics:
-                    yield c.topic, c.msgtype, t, ch.buf[s : s + n]
+                    yield c.topic, c.msgtype, t, bytes(ch.buf[s : s + n])
 
 
 def _each_chunk(batch: list[tuple[int | np.ndarray, bytes, int | None]]) -> Iterator[tuple[int, bytes]]:
