@@ -5,7 +5,7 @@ it in a fresh process per reader and prints time, messages/s and peak RSS:
 
     python benchmarks/bench_import.py [-n 2000000] [--format ros1|mcap|sqlite3] [--compression lz4]
                                       [--reader old|new|both] [--keep BAG] [--chunk-bytes 1]
-                                      [--versus-large [--topics 2] [--workers 1]]
+                                      [--versus-large [--topics 2] [--workers 1]] [--lz4-kernel auto|on|off]
 
 ``--chunk-bytes 1`` writes one message per chunk (a recorder flushing each message): the streaming
 reader finds every chunk of a closed bag from its index and gathers them together (the rates reached
@@ -14,6 +14,8 @@ messages) and prints the one-message-per-chunk rate as a ratio of the large-chun
 same run, with both rates, the load average and the ratio of messages per CPU second (steadier than
 wall-clock time on a shared host) (streaming reader only; ``--topics 2``: two Imu topics
 interleaved in both; ``--workers 1``: bz2 chunks decompressed in the reading thread, no pool).
+``--lz4-kernel on|off``: lz4 chunks through the compiled decoder (:mod:`.lz4frames`) or lz4.frame,
+whatever the bag's chunk count (auto: the reader's own choice, :data:`.ros1chunks.LZ4_KERNEL_CHUNKS`).
 """
 
 from __future__ import annotations
