@@ -48,7 +48,9 @@ def test_frames_of_every_option_decode_as_lz4_frame_decompress_does():
     blocks; empty, one-message, multi-block and incompressible (stored-block) contents; all in one call."""
     frames, want = [], []
     contents = [b"", b"x", _content(361, 1), _content(70_000, 2), _content(300_000, 3)]
-    contents.append(np.random.default_rng(4).integers(0, 256, 100_000, dtype=np.uint8).tobytes())  # stored blocks
+    noise = np.random.default_rng(4).integers(0, 256, 100_000, dtype=np.uint8).tobytes()
+    contents.append(noise)  # incompressible: stored blocks
+    contents.append(noise[:3000] + bytes(20_000) + noise[3000:3700] + b"ab" * 5000)  # literal runs of > 255 bytes
     for data in contents:
         for bs, cc, bc, cs, linked in itertools.product(BLOCKS, *[(False, True)] * 4):
             frames.append(F.compress(data, block_size=bs, content_checksum=cc, block_checksum=bc, store_size=cs,

@@ -116,7 +116,7 @@ def _block(src, s, e, out, o, lo, hi):
             return -9
         token = src[s]
         s += 1
-        n = token >> 4
+        n = np.int64(token >> 4)
         if n == 15:
             while True:
                 if s >= e:
@@ -154,13 +154,18 @@ def _block(src, s, e, out, o, lo, hi):
         n += 4
         if n > hi - o:
             return -10
+        # a match closer than its length repeats what it has just written: copied in pieces no longer than
+        # the distance (none overlaps its source), each piece doubling the run the next can copy
         f = o - dist
         if dist >= n:
             out[o : o + n] = out[f : f + n]
-        else:  # the match overlaps what it writes: a repeated pattern, byte by byte
-            for k in range(n):
-                out[o + k] = out[f + k]
-        o += n
+            o += n
+            continue
+        end = o + n
+        while o < end:
+            c = min(o - f, end - o)
+            out[o : o + c] = out[f : f + c]
+            o += c
 
 
 @nb.njit(cache=True)
