@@ -5,7 +5,7 @@ it in a fresh process per reader and prints time, messages/s and peak RSS:
 
     python benchmarks/bench_import.py [-n 2000000] [--format ros1|mcap|sqlite3] [--compression lz4]
                                       [--reader old|new|both] [--keep BAG] [--chunk-bytes 1]
-                                      [--versus-large [--topics 2] [--workers 1]]
+                                      [--versus-large [--topics 2] [--workers 1]] [--lz4-kernel auto|on|off]
 
 ``--chunk-bytes 1`` writes one message per chunk (a recorder flushing each message): the streaming
 reader finds every chunk of a closed bag from its index and gathers them together (the rates reached
@@ -14,6 +14,8 @@ messages) and prints the one-message-per-chunk rate as a ratio of the large-chun
 same run, with both rates, the load average and the ratio of messages per CPU second (steadier than
 wall-clock time on a shared host) (streaming reader only; ``--topics 2``: two Imu topics
 interleaved in both; ``--workers 1``: bz2 chunks decompressed in the reading thread, no pool).
+``--lz4-kernel on|off``: lz4 chunks through the compiled decoder (:mod:`.lz4frames`) or lz4.frame,
+whatever the bag's chunk count (auto: the reader's own choice, :data:`.ros1chunks.LZ4_KERNEL_CHUNKS`).
 """
 
 from __future__ import annotations
@@ -31,11 +33,12 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 
 
-def measure(bag: str, reader: str, workers: str = "") -> float:
+def measure(bag: str, reader: str, workers: str = "", kernel: str = "auto") -> float:
     from imustation.acquisition.importers import import_recording, loop, ros1chunks
 
     if workers:
         ros1chunks.WORKERS = int(workers)
+    ros1chunks.LZ4_KERNEL = {"auto": None, "on": True, "off": False}[kernel]
 
     if reader == "old":  # the import as it was: rosbags Reader, message-by-message decoding, 2^20-row write buffer
         loop.WRITE_ROWS = 1 << 20
@@ -79,6 +82,12 @@ def main() -> None:
         default=None,
         help="with --versus-large: decompression threads of the ROS1 reader (1: none; default: its own)",
     )
+    ap.add_argument(
+        "--lz4-kernel",
+        default="auto",
+        choices=["auto", "on", "off"],
+        help="ROS1 lz4 chunks: the compiled decoder (on), lz4.frame (off), or by the bag's chunk count (auto)",
+    )
     ap.add_argument("--measure", nargs="+", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--baseline", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -91,7 +100,7 @@ def main() -> None:
     from bagmaker import write_big_imu_bag
 
     if args.versus_large:
-        versus_large(args.n, args.compression, args.repeat, args.topics, args.workers)
+        versus_large(args.n, args.compression, args.repeat, args.topics, args.workers, args.lz4_kernel)
         return
     tmp = None
     if args.keep:
@@ -111,12 +120,14 @@ def main() -> None:
     print(f"{src}: {size / 1e6:.0f} MB")
     subprocess.run([sys.executable, __file__, "--baseline"], check=True)
     for reader in ("old", "new") if args.reader == "both" else (args.reader,):
-        subprocess.run([sys.executable, __file__, "--measure", src, reader], check=True)
+        subprocess.run([sys.executable, __file__, "--measure", src, reader, "", args.lz4_kernel], check=True)
     if tmp:
         shutil.rmtree(tmp)
 
 
-def versus_large(n: int, compression: str | None, repeat: int, topics: int = 1, workers: int | None = None) -> None:
+def versus_large(
+    n: int, compression: str | None, repeat: int, topics: int = 1, workers: int | None = None, kernel: str = "auto"
+) -> None:
     """Import rate of a one-message-per-chunk bag as a ratio of a large-chunk bag's, interleaved runs.
     ``topics`` > 1: that many Imu topics interleaved (``n`` messages in all), in both bags; ``workers``:
     the reader's decompression threads (:data:`.ros1chunks.WORKERS`), the same for both."""
@@ -133,7 +144,7 @@ def versus_large(n: int, compression: str | None, repeat: int, topics: int = 1, 
     per_cpu = dict.fromkeys(bags, 0.0)
     for _ in range(repeat):  # interleaved, so a change in the machine's load touches both
         for name, bag in bags.items():
-            cmd = [sys.executable, __file__, "--measure", bag, "new", str(workers or "")]
+            cmd = [sys.executable, __file__, "--measure", bag, "new", str(workers or ""), kernel]
             out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             rate = float(out.split("(")[1].split(" msg/s")[0].replace(",", ""))
             cpu_rate = float(out.split("[")[1].split(" msg")[0].replace(",", ""))

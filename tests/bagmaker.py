@@ -96,14 +96,16 @@ def imu_payloads(fmt: str, t_ns, gyro, accel, seq0: int = 0, frame_id: str = "im
 
 
 def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, block=65536, topics=("/imu/data",),
-                      extra_every=0, seed=0, chunk_bytes=None, temp_every=0) -> Path:  # fmt: skip
+                      extra_every=0, seed=0, chunk_bytes=None, temp_every=0, lz4_options=None) -> Path:  # fmt: skip
     """A bag of ``n`` Imu messages per topic at ``rate_hz`` (white noise), written in blocks with numpy templates.
 
     ``compression``: ROS1 chunk compression None | "bz2" | "lz4". ``extra_every``: a std_msgs/String message
     on /status every that many Imu messages (0: none). Log time = header stamp (+ 1 us per further topic,
     whose frame_id is ``imu_link<j>``: messages of another length). ``temp_every``: a sensor_msgs/Temperature
     on /imu/temperature every that many Imu messages, stamped as that Imu message + 0.2 ms, 20 + i * 1e-4 degC
-    (i: the Imu message's index). Returns the bag path.
+    (i: the Imu message's index). ``lz4_options``: keywords of ``lz4.frame.compress`` for the lz4 chunks
+    (e.g. ``{"content_checksum": True, "store_size": False}``: a content checksum and no content size, as
+    ROS's roslz4 writes; rosbags writes a content size and no checksum). Returns the bag path.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -121,6 +123,10 @@ def write_big_imu_bag(path, n, *, fmt="ros1", compression=None, rate_hz=400.0, b
         w = Writer(path)
         if compression:
             w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+        if lz4_options is not None:
+            import lz4.frame
+
+            w.compressor = lambda x: lz4.frame.compress(x, **lz4_options)
         if chunk_bytes:
             w.chunk_threshold = chunk_bytes
         ser = store.serialize_ros1

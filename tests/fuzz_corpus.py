@@ -473,6 +473,40 @@ def small_chunk_bags(folder: Path) -> list[tuple[str, Path, dict[str, str]]]:
             p = folder / "one-two-size.bag"
             p.write_bytes(bytes(big))
             out.append((p.name, p, bad))
+    out += _lz4_checksum_bags(folder)
+    return out
+
+
+def _lz4_checksum_bags(folder: Path) -> list[tuple[str, Path, dict[str, str]]]:
+    """A one-message-per-chunk lz4 bag whose frames carry a content checksum and no content size (as ROS's
+    roslz4 writes them), good, and with one chunk's frame damaged: its content checksum, its header checksum,
+    its block size beyond the chunk."""
+    from bagmaker import write_big_imu_bag
+    from rosbags.rosbag1 import Reader
+
+    ok, bad = {"import": "any", "analyze": "any"}, {"import": "invalid", "analyze": "invalid"}
+    src = write_big_imu_bag(folder / "one-lz4sum.bag", 500, compression="lz4", chunk_bytes=1,
+                            lz4_options={"content_checksum": True, "store_size": False})  # fmt: skip
+    data = src.read_bytes()
+    with Reader(src) as r:
+        at = [c.pos for c in r.chunk_infos][300]
+    hl = int.from_bytes(data[at : at + 4], "little")
+    frame = at + 8 + hl  # magic, FLG, BD, header checksum (no content size), first block's size, ...
+    dl = int.from_bytes(data[at + 4 + hl : frame], "little")
+    out = [(src.name, src, ok)]
+    for name, where, value in (
+        ("content-sum", frame + dl - 1, data[frame + dl - 1] ^ 0x5A),
+        ("header-sum", frame + 6, data[frame + 6] ^ 0x5A),
+        ("block-size", frame + 7, None),
+    ):
+        dmg = bytearray(data)
+        if value is None:  # the first block's size word: more than the chunk holds (below the 64 KB maximum)
+            dmg[where : where + 4] = (dl + 100).to_bytes(4, "little")
+        else:
+            dmg[where] = value
+        p = folder / f"one-lz4sum-{name}.bag"
+        p.write_bytes(bytes(dmg))
+        out.append((p.name, p, bad))
     return out
 
 

@@ -791,17 +791,25 @@ def test_a_chunk_table_that_does_not_tile_the_bag_is_not_used(tmp_path, monkeypa
             bag.index()  # the table as the index says
 
 
-def test_damaged_small_chunk_bags_read_or_fail_in_one_line(tmp_path):
+@pytest.mark.parametrize("kernel", [False, True])
+def test_damaged_small_chunk_bags_read_or_fail_in_one_line(tmp_path, monkeypatch, kernel):
     """The fuzz corpus's small-chunk bags (tests/fuzz_corpus.py): every one imports, or fails with one
-    line, exit 2 (a damaged lz4 chunk, a chunk whose header says another size)."""
+    line, exit 2 (a damaged lz4 chunk, a chunk whose header says another size, lz4 frames whose content
+    checksum, header checksum or block size is wrong); lz4 chunks through lz4.frame and through the
+    compiled decoder (acquisition/importers/lz4frames.py)."""
     from fuzz_corpus import small_chunk_bags
 
+    from imustation.acquisition.importers import ros1chunks
+
+    monkeypatch.setattr(ros1chunks, "LZ4_KERNEL", kernel)
     cases = small_chunk_bags(tmp_path)
-    assert len(cases) == 16
+    assert len(cases) == 20
+    why = {"one-lz4sum-content-sum.bag": "content checksum", "one-lz4sum-header-sum.bag": "header checksum",
+           "one-lz4sum-block-size.bag": "cut short"}  # fmt: skip
     for name, path, expect in cases:
         res = run("import", str(path), "-o", str(tmp_path / f"{name}.h5"))
         if expect["import"] == "invalid":
-            assert_one_line_error(res, name)
+            assert_one_line_error(res, name, *([why[name]] if kernel and name in why else []))
         else:
             assert res.exit_code == 0, (name, res.output)
             if "cut" in name:

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from imustation.acquisition.importers.bytegather import gather_u32
+
 #: the message types as ROS 2 (and rosbags) and ROS 1 bags name them
 IMU_TYPES = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
 TEMP_TYPES = ("sensor_msgs/msg/Temperature", "sensor_msgs/Temperature")
@@ -31,11 +33,6 @@ Decoded = tuple[np.ndarray, np.ndarray, np.ndarray]
 Rows = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 #: rows per block written (and held per topic while reading)
 BLOCK_ROWS = 8192
-
-
-def gather_u32(b: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """Little-endian uint32 at byte offsets ``at`` of the uint8 array ``b``, as int64."""
-    return b[np.asarray(at, np.int64)[:, None] + np.arange(4)].view("<u4")[:, 0].astype(np.int64)
 
 
 def _empty() -> Decoded:

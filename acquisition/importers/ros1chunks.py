@@ -2,7 +2,7 @@
 
 A closed bag's index holds a chunk-info record per chunk: where the chunk starts, and how many
 messages of each connection it holds (http://wiki.ros.org/Bags/Format/2.0). From those positions
-the headers and data lengths of every chunk in a block of the file (4 MB read at once) are gathered
+the headers and data lengths of every chunk in a block of the file (4 MB mapped at once) are gathered
 together, instead of walking the data section record by record (a bag written a chunk per message
 is two records per message; lz4 and bz2 chunks, and chunks of interleaved topics, differ in length
 and make no run of constant stride for the walk to find). A block is used only where the table
@@ -10,7 +10,8 @@ tiles it exactly: the first chunk right after the bag header, each chunk followe
 records (one per connection, 12 bytes per message) and then by the next chunk or the index. Where
 it does not (a message or connection record outside a chunk, an index that does not match the
 data), reading stops at the first chunk of that block, and :class:`.rosbag1.Ros1Bag` walks the bag
-from there, record by record as before.
+from there, record by record as before. The lz4 chunks of a bag of LZ4_KERNEL_CHUNKS chunks or more
+are decoded a batch at a time by :mod:`.lz4frames` (compiled), fewer by ``lz4.frame`` one call each.
 """
 
 from __future__ import annotations
@@ -23,9 +24,9 @@ from contextlib import nullcontext
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
-from imustation.acquisition.importers.messages import gather_u32
+from imustation.acquisition.importers.bytegather import gather_u32, rows_match
+from imustation.acquisition.importers.chunked import file_span
 from imustation.acquisition.importers.ros1records import (
     OP_CHUNK,
     OP_IDXDATA,
@@ -43,7 +44,7 @@ from imustation.acquisition.importers.ros1records import (
 
 #: decompressed chunk bytes split and handed out together
 BATCH_BYTES = 1 << 20
-#: file bytes read at once (chunks and their index data); a larger chunk is read alone
+#: file bytes mapped at once (chunks and their index data); a larger chunk is mapped alone
 BLOCK_BYTES = 1 << 22
 #: threads decompressing the batches ahead of the one being split (1: none, in the reading thread)
 WORKERS = min(len(os.sched_getaffinity(0)), 4) if hasattr(os, "sched_getaffinity") else min(os.cpu_count() or 1, 4)
@@ -53,6 +54,13 @@ WORKERS = min(len(os.sched_getaffinity(0)), 4) if hasattr(os, "sched_getaffinity
 THREADED = frozenset({"bz2"})
 #: batches decompressed ahead of the one handed out
 AHEAD = 2
+#: chunks in a bag from which its lz4 chunks are decoded by the compiled decoder (:mod:`.lz4frames`), not
+#: one ``lz4.frame.decompress`` call each: importing numba and loading the kernels costs ~0.75 s of CPU
+#: once per process (numba's first use imports scipy.linalg), the kernel saves ~0.5 us per one-message
+#: chunk (docs/import.md, "Large bags")
+LZ4_KERNEL_CHUNKS = 1_500_000
+#: None: by LZ4_KERNEL_CHUNKS; True / False: always / never (benchmarks and tests)
+LZ4_KERNEL: bool | None = None
 #: chunks whose layout is gathered at once, at the most (bounds the temporaries: ~50 bytes a chunk)
 WINDOW = 1 << 16
 
@@ -105,11 +113,11 @@ def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, m
     for k in [int(hn[0])] if (hn == hn[0]).all() else np.unique(hn).tolist():
         g = np.flatnonzero(hn == k)
         # chunk headers differ in their size value only (same compression, same fields): all compared with
-        # the first's at once, and a header unlike it looked at on its own
-        rows = sliding_window_view(b, k)[pos[g] + 4]  # a row per chunk, 4x faster than an index of k per row
+        # the first's at once, a few 8-byte words per header, and a header unlike it looked at on its own
         left = np.arange(len(g))
         while len(left):
-            key = rows[left[0]].tobytes()
+            at = int(pos[g[left[0]]]) + 4
+            key = b[at : at + k].tobytes()
             try:
                 f = parse_fields(key, 0, k)
                 if op_code(f) != OP_CHUNK or len(kinds) >= 64:
@@ -118,12 +126,14 @@ def layout(b: np.ndarray, pos: np.ndarray, nxt: np.ndarray, conns: np.ndarray, m
                 vo, vl = header_layout(key, 0, k)["size"]
             except (BagFormatError, UnicodeDecodeError, KeyError):
                 return None
-            sub = rows[left]
-            fixed = np.ones(k, bool)
-            fixed[vo : vo + vl] = False
-            same = (sub[:, fixed] == rows[left[0], fixed]).all(axis=1)
+            if vl != 4:
+                return None  # a u32 in every bag written (the walk reads any other)
+            free = np.zeros(k, bool)
+            free[vo : vo + 4] = True
+            heads = pos[g[left]] + 4
+            same = rows_match(b, heads, key, free)
             mine = left[same]
-            size[g[mine]] = (sub[same][:, vo : vo + vl].astype(np.int64) << (8 * np.arange(vl))).sum(axis=1)
+            size[g[mine]] = gather_u32(b, heads[same] + vo)
             which[g[mine]] = len(kinds)
             kinds.append(kind)
             left = left[~same]
@@ -161,30 +171,39 @@ def read_chunks(fh, table: ChunkTable, first_record: int, index_pos: int, conns:
 def _blocks(fh, table: ChunkTable, nxt: np.ndarray, conns, counts, pool) -> Iterator[ChunkMessages]:
     pos = table.pos
     n = len(pos)
+    kernel = LZ4_KERNEL if LZ4_KERNEL is not None else n >= LZ4_KERNEL_CHUNKS
     i = 0
     while i < n:
         base = int(pos[i])
         j = max(int(np.searchsorted(nxt, base + BLOCK_BYTES, side="right")), i + 1)
         j = min(j, n, i + WINDOW)
-        fh.seek(base)
-        data = fh.read(int(nxt[j - 1]) - base)
-        if len(data) != int(nxt[j - 1]) - base:
+        data, base = _block(fh, base, int(nxt[j - 1]))
+        if data is None:
             return  # shorter than its index says: walked (and found cut)
         buf = np.frombuffer(data, np.uint8)
         lay = layout(buf, pos[i:j] - base, nxt[i:j] - base, table.conns[i:j], table.messages[i:j])
         if lay is None:
             return
         lay = replace(lay, base=base)
-        yield from _batches(data, lay, conns, counts, pool)
+        yield from _batches(data, lay, conns, counts, pool, kernel)
         del data, buf, lay  # not held while the next block is read
         i = j
         counts[2] = int(nxt[i - 1])
     counts[2] = None
 
 
-def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor | None) -> Iterator[ChunkMessages]:
+def _block(fh, start: int, stop: int) -> tuple[object, int]:
+    """The file's bytes from ``start`` (or a page before it) to ``stop`` (:func:`.chunked.file_span`) and
+    where they start; None when the file ends before ``stop``."""
+    data, at = file_span(fh, start, stop)
+    return (data if at + len(data) == stop else None), at
+
+
+def _batches(
+    data, lay: Layout, conns, counts, pool: ThreadPoolExecutor | None, kernel: bool
+) -> Iterator[ChunkMessages]:
     """The chunks of a block in batches of about BATCH_BYTES decompressed (the messages of a batch are
-    split and decoded together: bounded temporaries)."""
+    split and decoded together: bounded temporaries); lz4 chunks with :mod:`.lz4frames` if ``kernel``."""
     n = len(lay.start)
     cum = np.cumsum(lay.size)
     spans = []
@@ -202,6 +221,16 @@ def _batches(data: bytes, lay: Layout, conns, counts, pool: ThreadPoolExecutor |
         for i, j in spans:
             start = lay.start[i:j]
             msgs = split_chunk(data, conns, starts=start, ends=start + lay.length[i:j])
+            counts[0] += j - i
+            counts[1] += len(msgs.conn)
+            yield msgs
+        return
+    if kernel and all(k == "lz4" for k in lay.kind):
+        src = np.frombuffer(data, np.uint8)
+        for i, j in spans:
+            raw = _lz4_frames(src, lay, i, j)
+            bounds = np.concatenate([[0], np.cumsum(lay.size[i:j])[:-1]])
+            msgs = split_chunk(raw, conns, starts=bounds)
             counts[0] += j - i
             counts[1] += len(msgs.conn)
             yield msgs
@@ -242,6 +271,32 @@ def _in_order(pool: ThreadPoolExecutor | None, spans: list[tuple[int, int]], wor
     finally:
         for _, fut in pending:
             fut.cancel()
+
+
+def _lz4_frames(src: np.ndarray, lay: Layout, i: int, j: int) -> np.ndarray:
+    """The lz4 chunks ``i:j`` of a block decoded together (:func:`.lz4frames.decode_frames`); a chunk that
+    fails is named by its offset in the file, as :func:`_decompress_all` names it."""
+    from imustation.acquisition.importers.lz4frames import PROBLEMS, decode_frames
+
+    start, length, size = lay.start[i:j], lay.length[i:j], lay.size[i:j]
+    # no frame of L bytes holds more than 255 L (a length byte of 255 per 255 bytes of match): a size beyond
+    # that is not believed, and not allocated
+    over = np.flatnonzero(size > 255 * length + 64)
+    if len(over):
+        k = int(over[0])
+        raise BagFormatError(f"chunk at byte {lay.base + int(lay.pos[i + k])}: its header says {size[k]} bytes, "
+                             f"more than an lz4 frame of {length[k]} bytes holds")  # fmt: skip
+    out, status, got = decode_frames(src, start, start + length, size)
+    bad = np.flatnonzero((status != 0) | (got != size))
+    if len(bad):
+        k = int(bad[0])
+        at, st = lay.base + int(lay.pos[i + k]), int(status[k])
+        if st == 0:
+            raise BagFormatError(f"chunk at byte {at} holds {got[k]} bytes, its header says {size[k]}")
+        if st == 10:
+            raise BagFormatError(f"chunk at byte {at} holds more than the {size[k]} bytes its header says")
+        raise BagFormatError(f"chunk at byte {at}: lz4 chunk does not decompress ({PROBLEMS[st]})")
+    return out
 
 
 def _decompress_all(mm: memoryview, lay: Layout, i: int, j: int) -> list[bytes]:

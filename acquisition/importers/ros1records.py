@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from imustation.acquisition.importers.messages import gather_u32
+from imustation.acquisition.importers.bytegather import gather_u32, rows_match
 
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
 MAGIC = b"#ROSBAG V2.0\n"
@@ -395,7 +395,7 @@ def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tu
     k, lo, size = 0, 0, 4 * MIN_RUN  # windows growing 4x: a walk that is not periodic pays little
     while lo < m:
         hi = min(m, lo + size)
-        good = _repeats(block[lo:hi], cycle)
+        good = _repeats(arr, range(off + stride * lo, off + stride * hi, stride), cycle)
         if not good.all():
             k = lo + int(np.argmin(good))
             break
@@ -412,25 +412,21 @@ def periodic_run(arr: np.ndarray, off: int, stop: int, cycle: list[Shape]) -> tu
     return k, run
 
 
-def _repeats(block: np.ndarray, cycle: list[Shape]) -> np.ndarray:
-    """Which rows of ``block`` (cycles of records at a constant stride) repeat ``cycle``."""
-    good = np.ones(len(block), bool)
+def _repeats(arr: np.ndarray, starts: range, cycle: list[Shape]) -> np.ndarray:
+    """Which cycles of records starting at ``starts`` in ``arr`` repeat ``cycle`` (lengths and header bytes;
+    compared as a few 8-byte words per record)."""
+    good = np.ones(len(starts), bool)
     at = 0
     for s in cycle:
         hn = len(s.key)
-        good &= _column_u32(block, at) == hn
-        good &= _column_u32(block, at + 4 + hn) == s.data_len
-        same = block[:, at + 4 : at + 4 + hn] == np.frombuffer(s.key, np.uint8)
+        # the record's header length, header and data length, as one row of bytes
+        row = struct.pack("<I", hn) + s.key + struct.pack("<I", s.data_len)
+        free = None
         if not s.fields:  # values vary: compare the field layout and the op
-            free = np.zeros(hn, bool)
+            free = np.zeros(len(row), bool)
             for name, (vo, vl) in layout(s.key, 0, hn).items():
                 if name != "op":
-                    free[vo : vo + vl] = True
-            same |= free
-        good &= same.all(axis=1)
+                    free[4 + vo : 4 + vo + vl] = True
+        good &= rows_match(arr, range(starts.start + at, starts.stop + at, starts.step), row, free)
         at += s.total
     return good
-
-
-def _column_u32(block: np.ndarray, col: int) -> np.ndarray:
-    return np.ascontiguousarray(block[:, col : col + 4]).view("<u4")[:, 0]

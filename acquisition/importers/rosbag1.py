@@ -22,7 +22,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from imustation.acquisition.importers.chunked import ChunkedFile
+from imustation.acquisition.importers.chunked import ChunkedFile, file_span
 from imustation.acquisition.importers.ros1chunks import ChunkTable, read_chunks
 from imustation.acquisition.importers.ros1records import (
     MAGIC,
@@ -140,18 +140,19 @@ class Ros1Bag(ChunkedFile):
     def _read_index(self) -> tuple[dict[int, Connection], dict[int, int]]:
         self.fh.seek(self.index_pos)
         conns: dict[int, Connection] = {}
-        infos: list[bytes] = []
+        totals: dict[int, int] = {}  # messages per connection id, summed run by run (bounded temporaries)
         table: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # chunk positions, connections, messages
         for item in self._walk(self.size, (OP_CONNECTION, OP_CHUNK_INFO)):
             if isinstance(item, Run):  # chunk infos of one connection and length
                 if item.shape.data_len % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
-                infos.append(item.data.tobytes())
+                k, m = len(item.at), item.shape.data_len // 8
+                pairs = item.data.reshape(k, -1).copy().view("<u4").reshape(k, m, 2)
+                _add_counts(totals, pairs.reshape(-1, 2))
                 vo = layout(item.shape.key, 0, len(item.shape.key)).get("chunk_pos", (0, 0))
                 # each chunk's position, from the headers (the index is not read a second time for them)
                 pos = item.head[:, vo[0] : vo[0] + 8].copy().view("<u8")[:, 0].astype(np.int64) if vo[1] == 8 else None
-                k, m = len(item.at), item.shape.data_len // 8
-                per = item.data.reshape(k, -1).copy().view("<u4").reshape(k, m, 2)[:, :, 1].sum(axis=1)
+                per = pairs[:, :, 1].sum(axis=1)
                 table.append((pos, np.full(k, m, np.int32), per.astype(np.int32)))
                 continue
             _at, op, hdr, data = item
@@ -162,7 +163,7 @@ class Ros1Bag(ChunkedFile):
                 # (connection id u32, message count u32) pairs; the header's count is their number
                 if len(data) % 8:
                     raise BagFormatError("chunk info record of a length that is not pairs of u32")
-                infos.append(data)
+                _add_counts(totals, np.frombuffer(data, "<u4").reshape(-1, 2))
                 cp = hdr.get("chunk_pos")
                 pos = np.array([int.from_bytes(cp, "little")], np.int64) if cp is not None and len(cp) == 8 else None
                 per = np.frombuffer(data, "<u4").reshape(-1, 2)[:, 1].sum()
@@ -170,10 +171,7 @@ class Ros1Bag(ChunkedFile):
         self.table = None
         if table and all(p is not None for p, _, _ in table):
             self.table = ChunkTable(*(np.concatenate(x) for x in zip(*table, strict=True)))
-        pairs = np.frombuffer(b"".join(infos), "<u4").reshape(-1, 2).astype(np.int64)
-        ids, where = np.unique(pairs[:, 0], return_inverse=True)
-        sums = np.bincount(where, pairs[:, 1], len(ids)) if len(ids) else np.zeros(0)
-        return conns, {int(i): int(n) for i, n in zip(ids, sums, strict=True)}
+        return conns, dict(sorted(totals.items()))
 
     # -- messages
     def chunks(self, conns: dict[int, Connection] | None = None) -> Iterator[ChunkMessages]:
@@ -293,20 +291,19 @@ class Ros1Bag(ChunkedFile):
         calm = 0  # records to walk one by one before looking for a run again
         wait = 16  # calm after a failed look, doubled while they keep failing (a walk that is not periodic)
 
-        def fill(need: int) -> bytes:
-            self.fh.seek(pos)
-            got = self.fh.read(max(WALK_BYTES, need))
-            if len(got) < need:
-                raise BagCutError(f"truncated record ({len(got)} of {need} bytes)")
-            return got
+        def fill(need: int) -> tuple[object, int]:
+            got, at = file_span(self.fh, pos, pos + max(WALK_BYTES, need))
+            if at + len(got) < pos + need:
+                raise BagCutError(f"truncated record ({at + len(got) - pos} of {need} bytes)")
+            return got, at
 
         while pos < end:
             self._walk_at = pos
             off = pos - base
             if before is not None and not calm:
                 if off + WALK_BYTES // 4 > len(buf) and end - pos > WALK_BYTES // 4:
-                    self.fh.seek(pos)  # room for a long run
-                    base, buf, off = pos, self.fh.read(WALK_BYTES), 0
+                    buf, base = file_span(self.fh, pos, pos + WALK_BYTES)  # room for a long run
+                    off = pos - base
                     arr = np.frombuffer(buf, np.uint8)
                 found = 0
                 recent = [Shape(*r, r[0] in keep) for r in (before, last)]
@@ -326,13 +323,15 @@ class Ros1Bag(ChunkedFile):
                 calm, wait = wait, min(wait * 2, 4096)
             calm = max(calm - 1, 0)
             if off + 4 > len(buf):
-                base, buf, off = pos, fill(4), 0
+                buf, base = fill(4)
+                off = pos - base
                 arr = np.frombuffer(buf, np.uint8)
             (hn,) = u32(buf, off)
             if hn > 1 << 20:
                 raise BagFormatError(f"record header of {hn} bytes")
             if off + 8 + hn > len(buf):
-                base, buf, off = pos, fill(8 + hn), 0
+                buf, base = fill(8 + hn)
+                off = pos - base
                 arr = np.frombuffer(buf, np.uint8)
             key = buf[off + 4 : off + 4 + hn]
             hdr = self._parsed.get(key)
@@ -354,7 +353,8 @@ class Ros1Bag(ChunkedFile):
             data = b""
             if op in keep:
                 if off + total > len(buf):
-                    base, buf, off = pos, fill(total), 0
+                    buf, base = fill(total)
+                    off = pos - base
                     arr = np.frombuffer(buf, np.uint8)
                 data = buf[off + 8 + hn : off + total]
             elif pos + total > self.size:
@@ -456,7 +456,20 @@ class Ros1Bag(ChunkedFile):
                 if c is None:
                     raise BagFormatError(f"message of unknown connection {cid}")
                 if topics is None or c.topic in topics:
-                    yield c.topic, c.msgtype, t, ch.buf[s : s + n]
+                    yield c.topic, c.msgtype, t, bytes(ch.buf[s : s + n])
+
+
+def _add_counts(totals: dict[int, int], pairs: np.ndarray) -> None:
+    """Adds the (connection id, message count) ``pairs`` (uint32, (n, 2)) of chunk infos to ``totals``."""
+    if not len(pairs):
+        return
+    ids, n = pairs[:, 0], pairs[:, 1].astype(np.int64)
+    if (ids == ids[0]).all():  # a run of chunk infos of one connection
+        totals[int(ids[0])] = totals.get(int(ids[0]), 0) + int(n.sum())
+        return
+    u, where = np.unique(ids, return_inverse=True)
+    for i, k in zip(u.tolist(), np.bincount(where, n, len(u)).tolist(), strict=True):
+        totals[i] = totals.get(i, 0) + int(k)
 
 
 def _each_chunk(batch: list[tuple[int | np.ndarray, bytes, int | None]]) -> Iterator[tuple[int, bytes]]:
