@@ -2,7 +2,7 @@
 
 A closed bag's index holds a chunk-info record per chunk: where the chunk starts, and how many
 messages of each connection it holds (http://wiki.ros.org/Bags/Format/2.0). From those positions
-the headers and data lengths of every chunk in a block of the file (4 MB mapped at once) are gathered
+the headers and data lengths of every chunk in a block of the file (4 MB read at once) are gathered
 together, instead of walking the data section record by record (a bag written a chunk per message
 is two records per message; lz4 and bz2 chunks, and chunks of interleaved topics, differ in length
 and make no run of constant stride for the walk to find). A block is used only where the table
@@ -44,7 +44,7 @@ from imustation.acquisition.importers.ros1records import (
 
 #: decompressed chunk bytes split and handed out together
 BATCH_BYTES = 1 << 20
-#: file bytes mapped at once (chunks and their index data); a larger chunk is mapped alone
+#: file bytes read at once (chunks and their index data); a larger chunk is read alone
 BLOCK_BYTES = 1 << 22
 #: threads decompressing the batches ahead of the one being split (1: none, in the reading thread)
 WORKERS = min(len(os.sched_getaffinity(0)), 4) if hasattr(os, "sched_getaffinity") else min(os.cpu_count() or 1, 4)
