@@ -105,3 +105,14 @@ def test_a_close_model_that_only_adds_a_walk_is_not_another_structure():
     assert same.indistinct() is None
     other = dc_replace(same, close=(dc_replace(chosen, model="wn+gm+rw"),))
     assert "cannot tell wn+fl from wn+gm+rw" in other.indistinct()
+
+
+def test_an_end_too_large_to_square_leaves_nothing_of_the_curve_not_an_overflow():
+    """A fit on a cut bag gave K's upper end 1e200: squaring it as a Python float raised OverflowError out
+    of ``analyze`` (found by the fuzz corpus, one-bz2-cut.bag with --estimator gmwm); such an end takes the
+    whole curve, so the other term's lower end is 0 and its upper end stands."""
+    allan = oadev(_record(0.1, 3), FS)
+    lo, hi = b_band(allan, 1.01 * N_TRUE, 1e200)
+    assert lo == 0.0 and math.isfinite(hi) and hi > 0
+    lo, hi = k_band(allan, 1e200, B_TRUE)
+    assert lo == 0.0 and math.isfinite(hi) and hi > 0

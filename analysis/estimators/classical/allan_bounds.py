@@ -130,8 +130,10 @@ def b_band(allan: AllanResult, n_hi: float, k_hi: float, alpha: float = 1.0 - BO
     q = 0.5 * alpha / len(tau)
     hi = float(np.sqrt(np.min(_upper_avar(avar, edf, q)))) / B_FACTOR
     low_avar = avar * edf / chi2.ppf(1.0 - q, edf)
-    rest = low_avar - n_hi**2 / tau - k_hi**2 * tau / 3.0
-    lo = float(np.sqrt(max(float(np.max(rest)), 0.0))) / B_FACTOR
+    n_hi, k_hi = np.float64(n_hi), np.float64(k_hi)
+    with np.errstate(over="ignore", invalid="ignore"):  # an end of 1e200 squares to inf: nothing is left
+        rest = low_avar - n_hi**2 / tau - k_hi**2 * tau / 3.0
+    lo = float(np.sqrt(max(float(np.nanmax(rest, initial=-np.inf)), 0.0))) / B_FACTOR
     return (min(lo, hi), max(lo, hi))
 
 
@@ -145,8 +147,10 @@ def k_band(allan: AllanResult, n_hi: float, b_hi: float, alpha: float = 1.0 - BO
         return (math.nan, math.nan)
     q = 0.5 * alpha / len(tau)
     hi = float(np.sqrt(np.min(3.0 * _upper_avar(avar, edf, q) / tau)))
-    rest = avar * edf / chi2.ppf(1.0 - q, edf) - n_hi**2 / tau - (B_FACTOR * b_hi) ** 2
-    lo = float(np.sqrt(max(float(np.max(3.0 * rest / tau)), 0.0)))
+    n_hi, b_hi = np.float64(n_hi), np.float64(b_hi)
+    with np.errstate(over="ignore", invalid="ignore"):  # an end of 1e200 squares to inf: nothing is left
+        rest = avar * edf / chi2.ppf(1.0 - q, edf) - n_hi**2 / tau - (B_FACTOR * b_hi) ** 2
+    lo = float(np.sqrt(max(float(np.nanmax(3.0 * rest / tau, initial=-np.inf)), 0.0)))
     return (min(lo, hi), max(lo, hi))
 
 
