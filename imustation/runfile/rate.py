@@ -229,14 +229,23 @@ def confirmed(sr: StampRate, rate_hz: float, span: Callable[[], SpanRate]) -> bo
 
 def capture_rate(first_stamps: np.ndarray, rate_hz: float) -> float:
     """The rate (Hz) a capture counts an outage's losses with before its file is read: the stated
-    ``rate_hz`` unless its first stamps (ns; contiguous, no loss logged among them) contradict it by the
-    reader's rule (:func:`confirmed`), then their fitted rate - so what the capture logs is what the
-    reader will count the file's holes with, and a start-up transient moves neither."""
+    ``rate_hz`` unless its first stamps (ns; no loss logged among them) contradict it by the reader's
+    rule (:func:`confirmed`), then their fitted rate - so what the capture logs is what the reader will
+    count the file's holes with, and a start-up transient moves neither.
+
+    The stamps may straddle the outage being counted (a device with fewer samples before it than the
+    reader probes): the fit takes each run of regular steps on its own, and the span is judged over the
+    longest run only - across a hole whose count is not known yet the span says nothing (taken whole,
+    with no loss logged, it confirmed any transient: a 400 Hz chip's outage counted at 399.3 Hz, 2 of
+    1,154 samples short, and the file then read at 399.3 Hz)."""
     t = np.asarray(first_stamps, dtype=np.int64)
     if len(t) < 64:
         return rate_hz
     sr = stamp_rate(t, rate_hz)
+    cuts = np.flatnonzero(np.diff(t) > GAP_FACTOR * 1e9 / rate_hz) + 1
+    runs = np.split(t, cuts)
+    run = max(runs, key=len)
     none = np.zeros(0, np.int64)
-    if confirmed(sr, rate_hz, lambda: span_rate([(0, t)], len(t), rate_hz, none, none)):
+    if len(run) > 1 and confirmed(sr, rate_hz, lambda: span_rate([(0, run)], len(run), rate_hz, none, none)):
         return sr.rate_hz
     return rate_hz
