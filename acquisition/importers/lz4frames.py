@@ -107,6 +107,23 @@ def _xxh32(b, start, end):
 
 
 @nb.njit(cache=True)
+def _length(src, s, e, n):
+    """A literal or match length from its token nibble ``n``: 15 continues in bytes from ``src[s]`` that
+    add up while they are 255 (LZ4 block format). Returns (length, position after it), length -1 where
+    the block ends first."""
+    if n == 15:
+        while True:
+            if s >= e:
+                return np.int64(-1), s
+            x = src[s]
+            s += 1
+            n += x
+            if x != 255:
+                break
+    return n, s
+
+
+@nb.njit(cache=True)
 def _block(src, s, e, out, o, lo, hi):
     """Decodes the compressed LZ4 block ``src[s:e]`` into ``out`` from ``o``; matches may reach back to
     ``lo``, output must stay below ``hi``. Returns the end of the output, or -9 (damaged block) /
@@ -116,17 +133,8 @@ def _block(src, s, e, out, o, lo, hi):
             return -9
         token = src[s]
         s += 1
-        n = np.int64(token >> 4)
-        if n == 15:
-            while True:
-                if s >= e:
-                    return -9
-                x = src[s]
-                s += 1
-                n += x
-                if x != 255:
-                    break
-        if n > e - s:
+        n, s = _length(src, s, e, np.int64(token >> 4))
+        if n < 0 or n > e - s:
             return -9
         if n > hi - o:
             return -10
@@ -141,16 +149,9 @@ def _block(src, s, e, out, o, lo, hi):
         s += 2
         if dist == 0 or dist > o - lo:
             return -9
-        n = np.int64(token & 15)
-        if n == 15:
-            while True:
-                if s >= e:
-                    return -9
-                x = src[s]
-                s += 1
-                n += x
-                if x != 255:
-                    break
+        n, s = _length(src, s, e, np.int64(token & 15))
+        if n < 0:
+            return -9
         n += 4
         if n > hi - o:
             return -10
