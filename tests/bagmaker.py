@@ -226,3 +226,20 @@ def write_ros1_mcap(path, t_ns, gyro, accel, *, topic="/imu/data", chunk_msgs=50
     out += rec(0x02, struct.pack("<QQI", summary_start, 0, 0)) + b"\x89MCAP0\r\n"
     path.write_bytes(bytes(out))
     return path
+
+
+def roslz4_bag(path, n: int, chunk: int) -> tuple[Path, bytes, int, int, int]:
+    """A one-message-per-chunk lz4 bag of ``n`` Imu messages whose frames carry a content checksum and no
+    content size (as ROS's roslz4 writes them), and where chunk ``chunk`` keeps its frame: (path, the bag's
+    bytes, the chunk record's offset, its lz4 frame's offset, the frame's length). The frame follows the
+    chunk record's header and its 4-byte data length."""
+    from rosbags.rosbag1 import Reader
+
+    src = write_big_imu_bag(path, n, compression="lz4", chunk_bytes=1,
+                            lz4_options={"content_checksum": True, "store_size": False})  # fmt: skip
+    data = src.read_bytes()
+    with Reader(src) as r:
+        at = [c.pos for c in r.chunk_infos][chunk]
+    hl = int.from_bytes(data[at : at + 4], "little")
+    frame = at + 8 + hl
+    return src, data, at, frame, int.from_bytes(data[at + 4 + hl : frame], "little")

@@ -481,18 +481,11 @@ def _lz4_checksum_bags(folder: Path) -> list[tuple[str, Path, dict[str, str]]]:
     """A one-message-per-chunk lz4 bag whose frames carry a content checksum and no content size (as ROS's
     roslz4 writes them), good, and with one chunk's frame damaged: its content checksum, its header checksum,
     its block size beyond the chunk."""
-    from bagmaker import write_big_imu_bag
-    from rosbags.rosbag1 import Reader
+    from bagmaker import roslz4_bag
 
     ok, bad = {"import": "any", "analyze": "any"}, {"import": "invalid", "analyze": "invalid"}
-    src = write_big_imu_bag(folder / "one-lz4sum.bag", 500, compression="lz4", chunk_bytes=1,
-                            lz4_options={"content_checksum": True, "store_size": False})  # fmt: skip
-    data = src.read_bytes()
-    with Reader(src) as r:
-        at = [c.pos for c in r.chunk_infos][300]
-    hl = int.from_bytes(data[at : at + 4], "little")
-    frame = at + 8 + hl  # magic, FLG, BD, header checksum (no content size), first block's size, ...
-    dl = int.from_bytes(data[at + 4 + hl : frame], "little")
+    # the frame: magic, FLG, BD, header checksum (no content size), first block's size, ...
+    src, data, _, frame, dl = roslz4_bag(folder / "one-lz4sum.bag", 500, 300)
     out = [(src.name, src, ok)]
     for name, where, value in (
         ("content-sum", frame + dl - 1, data[frame + dl - 1] ^ 0x5A),

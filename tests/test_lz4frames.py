@@ -218,22 +218,15 @@ def test_lz4_bags_read_the_same_through_the_decoder_and_lz4_frame(tmp_path, monk
 def test_a_flipped_payload_byte_in_a_bag_is_caught_by_the_content_checksum(tmp_path, monkeypatch):
     """A byte of an Imu message's payload flipped inside a one-message lz4 chunk whose frame has a content
     checksum (roslz4's): the frame still parses, its checksum does not match; one line naming the chunk."""
-    from bagmaker import write_big_imu_bag
+    from bagmaker import roslz4_bag
     from click.testing import CliRunner
-    from rosbags.rosbag1 import Reader
     from test_bad_input import assert_one_line_error
 
     from imustation.acquisition.importers import ros1chunks
     from imustation.cli import cli
 
-    src = write_big_imu_bag(tmp_path / "b.bag", 300, compression="lz4", chunk_bytes=1,
-                            lz4_options={"content_checksum": True, "store_size": False})  # fmt: skip
-    data = src.read_bytes()
-    with Reader(src) as r:
-        at = [c.pos for c in r.chunk_infos][200]
-    hl = int.from_bytes(data[at : at + 4], "little")
-    dl = int.from_bytes(data[at + 4 + hl : at + 8 + hl], "little")
-    frame = data[at + 8 + hl : at + 8 + hl + dl]
+    _, data, at, start, dl = roslz4_bag(tmp_path / "b.bag", 300, 200)
+    frame = data[start : start + dl]
     size = len(F.decompress(frame))
     # the first byte from the frame's middle whose flip leaves the frame parsing: a literal of the payload
     for k in range(dl // 2, dl - 8):
@@ -243,7 +236,7 @@ def test_a_flipped_payload_byte_in_a_bag_is_caught_by_the_content_checksum(tmp_p
     else:
         raise AssertionError("no literal byte found")
     dmg = bytearray(data)
-    dmg[at + 8 + hl + k] ^= 0x01
+    dmg[start + k] ^= 0x01
     bad = tmp_path / "flipped.bag"
     bad.write_bytes(bytes(dmg))
     monkeypatch.setattr(ros1chunks, "LZ4_KERNEL", True)
