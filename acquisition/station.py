@@ -92,7 +92,8 @@ class DeviceState:
     last_poll_ns: int = 0
     #: polled by a reader process: its samples as last reported at a status (for the recent rate)
     reported_samples: int = 0
-    #: a chip without a FIFO: when it makes its samples, learnt from its reads (None for the others)
+    #: a chip without a FIFO polled by run_deadline: when it makes its samples, learnt from its reads
+    #: (None for the others, and where nothing times the polls by it)
     phase: PollPhase | None = None
 
     @property
@@ -133,8 +134,7 @@ def _device_state(config: DeviceConfig, driver: Any, info: DriverInfo) -> Device
     timeline = Timeline(
         1e9 / info.rate_hz, info.settings.get("counter_modulus"), overflow=info.overflow, buffer_s=info.buffer_s
     )
-    phase = PollPhase(round(1e9 / info.rate_hz)) if info.overflow == "newest" else None
-    return DeviceState(config, driver, info, int(info.poll_interval_s * 1e9), timeline, phase=phase)
+    return DeviceState(config, driver, info, int(info.poll_interval_s * 1e9), timeline)
 
 
 @dataclass
@@ -474,16 +474,16 @@ class Station:
         )
 
     def _pollers(self) -> list[Poller]:
-        """This process's devices and thermometers (not those a worker process polls), in config order."""
+        """This process's devices and thermometers (not those a worker process polls), in config order.
+
+        Devices without a FIFO get a :class:`PollPhase` only where run_deadline polls them (a reader
+        process on the host clock, ``phase_lock``): nowhere else is it read, so no poll feeds it."""
+        phased = self.reader_process and self.phase_lock and not self.virtual
+        for st in self.devices.values():
+            newest = phased and st.driver is not None and st.info.overflow == "newest"
+            st.phase = PollPhase(round(1e9 / st.info.rate_hz)) if newest else None
         return [
-            Poller(
-                n,
-                st.config.bus,
-                st.poll_ns,
-                partial(self._poll_device, st=st),
-                _hold_ns(st),
-                st.phase if self.phase_lock else None,
-            )
+            Poller(n, st.config.bus, st.poll_ns, partial(self._poll_device, st=st), _hold_ns(st), st.phase)
             for n, st in self.devices.items()
             if st.driver is not None
         ] + [
