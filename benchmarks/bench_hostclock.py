@@ -78,7 +78,7 @@ def run_case(cfg, mode: str, busy: int, duration_s: float, folder: str, spin_us:
         for p in loops:
             p.kill()
             p.wait()
-    accounting, late, holes = file_accounting(out), late_polls(out), hole_details(out)
+    accounting, (late, holes) = file_accounting(out), event_lines(out)
     os.unlink(out)
     main_cpu = (self1.ru_utime + self1.ru_stime) - (self0.ru_utime + self0.ru_stime)
     return {
@@ -113,18 +113,14 @@ def file_accounting(path: str) -> list[str]:
     return problems
 
 
-def late_polls(path: str) -> list[str]:
-    """The readers' notes of polls started late (acquisition/readers.py lateness_note)."""
+def event_lines(path: str, most: int = 12) -> tuple[list[str], list[str]]:
+    """From the run file's events: the readers' notes of polls started late (acquisition/readers.py
+    lateness_note), and the first ``most`` logged losses - when, how many, why (how long unread)."""
     with open_run(path) as run:
-        return [e.detail for e in run.events() if e.kind == "note" and "polls started over" in e.detail]
-
-
-def hole_details(path: str, most: int = 12) -> list[str]:
-    """The first logged losses, per device: when, how many, why (how long the device went unread)."""
-    with open_run(path) as run:
-        return [f"{e.source} at {e.t_ns / 1e9:.3f} s: {e.lost} lost ({e.detail})" for e in run.events() if e.lost][
-            :most
-        ]
+        events = run.events()
+    late = [e.detail for e in events if e.kind == "note" and "polls started over" in e.detail]
+    holes = [f"{e.source} at {e.t_ns / 1e9:.3f} s: {e.lost} lost ({e.detail})" for e in events if e.lost]
+    return late, holes[:most]
 
 
 def report(mode: str, busy: int, res: dict) -> bool:
