@@ -125,6 +125,12 @@ class StampRate:
     steps: int
 
 
+def regular_steps(d_ns: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Which steps between stamps (ns) are regular: within (0, GAP_FACTOR] periods of ``rate_hz`` (Hz); a
+    gap, a repeated or a backward stamp ends a run."""
+    return (d_ns > 0) & (d_ns <= GAP_FACTOR * 1e9 / rate_hz)
+
+
 def stamp_rate(t_ns: np.ndarray, rate_hz: float) -> StampRate:
     """The rate of the stamps ``t_ns`` (ns) fitted over their runs of steps within (0, GAP_FACTOR] periods
     of ``rate_hz`` (Hz): holes of any length are excluded, so a record that lost 40 % of its samples in
@@ -143,7 +149,7 @@ def windows_rate(windows: list[tuple[int, np.ndarray]], rate_hz: float) -> Stamp
         if len(t) < 2:
             continue
         d = np.diff(t)
-        reg = (d > 0) & (d <= GAP_FACTOR * 1e9 / rate_hz)
+        reg = regular_steps(d, rate_hz)
         first = int(t[0]) if first is None else first
         fit.update(t, d, reg, row, first, cont=False)
         regular += int(reg.sum())
@@ -242,7 +248,7 @@ def capture_rate(first_stamps: np.ndarray, rate_hz: float) -> float:
     if len(t) < 64:
         return rate_hz
     sr = stamp_rate(t, rate_hz)
-    cuts = np.flatnonzero(np.diff(t) > GAP_FACTOR * 1e9 / rate_hz) + 1
+    cuts = np.flatnonzero(~regular_steps(np.diff(t), rate_hz)) + 1
     runs = np.split(t, cuts)
     run = max(runs, key=len)
     none = np.zeros(0, np.int64)
