@@ -33,6 +33,7 @@ from imustation.acquisition.importers.ros1records import (
     BagFormatError,
     ChunkMessages,
     Connection,
+    codec,
     decompress,
     op_code,
     parse_fields,
@@ -304,7 +305,7 @@ def _decompress_all(mm: memoryview, lay: Layout, i: int, j: int) -> list[bytes]:
     compared at once after); a chunk that fails is named by its offset in the file."""
     start, length = lay.start[i:j].tolist(), lay.length[i:j].tolist()
     which = lay.which[i:j]
-    codecs = {w: _codec(lay.kind[w]) for w in np.unique(which).tolist()}
+    codecs = {w: codec(lay.kind[w]) for w in np.unique(which).tolist()}
     try:
         if len(codecs) == 1:  # one codec call per chunk, iterated in C (lz4: ~1 us a chunk)
             ends = (lay.start[i:j] + lay.length[i:j]).tolist()
@@ -328,22 +329,3 @@ def _decompress_all(mm: memoryview, lay: Layout, i: int, j: int) -> list[bytes]:
             f"chunk at byte {lay.base + int(lay.pos[i + k])} holds {got[k]} bytes, its header says {lay.size[i + k]}"
         )
     return parts
-
-
-def _codec(kind: str):
-    """The decompressor of a chunk compression (``none``, ``bz2``, ``lz4``)."""
-    if kind == "none":
-        return _same
-    if kind == "bz2":
-        import bz2
-
-        return bz2.decompress
-    if kind == "lz4":
-        import lz4.frame
-
-        return lz4.frame.decompress
-    raise BagFormatError(f"chunk compression {kind!r} is not supported")
-
-
-def _same(data: bytes) -> bytes:
-    return data

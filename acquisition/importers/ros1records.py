@@ -110,7 +110,18 @@ def connection(fields: dict[str, bytes], data: bytes) -> Connection:
     )
 
 
-_DECOMPRESS = {"none": lambda b, n: b, "bz2": lambda b, n: bz2.decompress(b)}
+def codec(kind: str):
+    """The decompressor (bytes -> bytes) of a ROS 1 chunk compression (``none``, ``bz2``, ``lz4``); lz4 is
+    imported only for a bag that has lz4 chunks."""
+    if kind == "none":
+        return _same
+    if kind == "bz2":
+        return bz2.decompress
+    if kind == "lz4":
+        import lz4.frame
+
+        return lz4.frame.decompress
+    raise BagFormatError(f"chunk compression {kind!r} is not supported")
 
 
 def decompress_prefix(kind: str, data: bytes) -> bytes:
@@ -132,16 +143,14 @@ def decompress_prefix(kind: str, data: bytes) -> bytes:
     return b""
 
 
-def decompress(kind: str, data: bytes, size: int) -> bytes:
-    if kind not in ("lz4", *_DECOMPRESS):
-        raise BagFormatError(f"chunk compression {kind!r} is not supported")
-    try:
-        if kind == "lz4":
-            import lz4.frame
+def _same(data: bytes) -> bytes:
+    return data  # an uncompressed chunk is split where it lies: no copy
 
-            out = lz4.frame.decompress(data)
-        else:
-            out = _DECOMPRESS[kind](data, size)
+
+def decompress(kind: str, data: bytes, size: int) -> bytes:
+    decode = codec(kind)
+    try:
+        out = decode(data)
     except (OSError, ValueError, RuntimeError, EOFError) as exc:
         raise BagFormatError(f"{kind} chunk does not decompress ({exc})") from None
     if len(out) != size:
